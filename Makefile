@@ -1,0 +1,41 @@
+# Every target installs what it needs first: a fresh clone needs only python3 (>= 3.11) and make.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+OUT    ?= out
+
+.PHONY: install demo test test-fast bench lint format clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/system-deps.sh
+	bash scripts/system-deps.sh
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	touch $(STAMP)
+
+demo: install    ## import the bundled and real logs, map, label, report into $(OUT)/
+	OUT=$(OUT) PATH="$(CURDIR)/$(BIN):$$PATH" bash scripts/demo.sh
+
+test: install    ## the whole test suite, on both cores
+	$(BIN)/python -m pytest -n 2 -q
+
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow" -x
+
+bench: install   ## benchmarks side by side in one run; results in $(OUT)/bench/
+	$(BIN)/python -m bench --out $(OUT)/bench
+
+lint: install
+	$(BIN)/ruff check toolkit importers reports tests bench
+	$(BIN)/ruff format --check toolkit importers reports tests bench
+	$(BIN)/mypy
+
+format: install
+	$(BIN)/ruff format toolkit importers reports tests bench
+	$(BIN)/ruff check --fix toolkit importers reports tests bench
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,104 @@
+"""What every importer is: a name, a sniffer for `import auto`, a reader, and a writer of its
+own format (the simulator writes every format through these, so that tests close the loop)."""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import io
+import lzma
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, ClassVar
+
+from toolkit.atomic import atomic_dir
+from toolkit.dataset import Dataset, write_dataset_files
+from toolkit.errors import ToolkitError
+
+
+@dataclass
+class ImportOptions:
+    """Choices a source format leaves open; each importer reads the ones it needs."""
+
+    rate: float | None = None  # scans per second, for sources without a clock
+    scan_topic: str | None = None
+    odom_topic: str | None = None
+    laser: str | None = None  # which of several lasers is the primary one
+    extra: dict[str, str] = field(default_factory=dict)  # -O key=value, format specific
+
+    def get(self, key: str, default: str | None = None) -> str | None:
+        return self.extra.get(key, default)
+
+
+class Importer(ABC):
+    """One source format. Subclasses register themselves with `@register`."""
+
+    name: ClassVar[str]
+    summary: ClassVar[str]
+    #: options this format understands, name -> help (shown by `toolkit import --help-format`)
+    options: ClassVar[dict[str, str]] = {}
+
+    @abstractmethod
+    def sniff(self, path: Path) -> bool:
+        """True if `path` (a file or a directory) looks like this format. Must be cheap."""
+
+    @abstractmethod
+    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+        """Parse the sources into a Dataset whose meta holds the import report."""
+
+    def import_to(
+        self, sources: Sequence[Path], out: Path, options: ImportOptions, force: bool = False
+    ) -> Path:
+        """Read and write the dataset atomically. Streaming importers override this."""
+        with atomic_dir(out, force=force) as tmp:
+            ds = self.read(sources, options)
+            write_dataset_files(ds, tmp)
+        return out
+
+    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
+        """Write `ds` in this format (files under directory `out`); returns the files."""
+        raise ToolkitError(f"format {self.name!r} has no writer")
+
+
+# ---------------------------------------------------------------- helpers for readers
+
+_MAGIC = {b"\x1f\x8b": gzip.open, b"BZh": bz2.open, b"\xfd7zXZ": lzma.open}
+
+
+def open_binary(path: Path) -> IO[bytes]:
+    """Open a file for reading, decompressing gzip, bzip2 or xz by its first bytes."""
+    try:
+        f = open(path, "rb")  # noqa: SIM115 - returned to the caller
+    except FileNotFoundError:
+        raise ToolkitError("no such file", file=path) from None
+    except IsADirectoryError:
+        raise ToolkitError("is a directory, expected a file", file=path) from None
+    head = f.read(6)
+    f.seek(0)
+    for magic, opener in _MAGIC.items():
+        if head.startswith(magic):
+            f.close()
+            return opener(path, "rb")  # type: ignore[no-any-return, operator]
+    return f
+
+
+def open_text(path: Path) -> IO[str]:
+    return io.TextIOWrapper(open_binary(path), encoding="utf-8", errors="replace")
+
+
+def head_bytes(path: Path, n: int = 4096) -> bytes:
+    """The first `n` decompressed bytes of a file, or b'' if it cannot be read."""
+    try:
+        with open_binary(path) as f:
+            return f.read(n)
+    except (OSError, EOFError, ToolkitError):
+        return b""
+
+
+def strip_compression_suffix(name: str) -> str:
+    for suffix in (".gz", ".bz2", ".xz"):
+        if name.endswith(suffix):
+            return name[: -len(suffix)]
+    return name

@@ -1,0 +1,24 @@
+"""Shared fixtures. Real logs are read from ../shared/data/real (never copied here)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+
+
+@pytest.fixture(scope="session")
+def real() -> Path:
+    """The folder of real logs; tests that need it fail loudly if it is missing."""
+    if not REAL.is_dir():
+        pytest.fail(f"real logs not found at {REAL} (set TOOLKIT_REAL_DATA)")
+    return REAL
+
+
+@pytest.fixture(autouse=True)
+def _no_progress(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TOOLKIT_NO_PROGRESS", "1")

@@ -1,0 +1,59 @@
+"""The `toolkit` command. One module per command; each adds itself to `app`.
+
+Errors the user can act on (ToolkitError) print as one line and exit 1; so does anything
+unexpected, unless TOOLKIT_DEBUG=1 asks for the traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+app = typer.Typer(
+    name="toolkit",
+    help="2D laser robot logs: import to Parquet, align scans, build maps, learn places, report.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+# Command modules register themselves on `app` when imported.
+from toolkit.cli import import_cmd as _import_cmd  # noqa: E402,F401
+from toolkit.cli import info_cmd as _info_cmd  # noqa: E402,F401
+
+
+def fail(message: str) -> None:
+    """Print one line to stderr and exit 1."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(1)
+
+
+def main() -> None:
+    from toolkit.errors import ToolkitError
+
+    try:
+        app(standalone_mode=False)
+    except ToolkitError as e:
+        typer.echo(f"error: {e.line()}", err=True)
+        sys.exit(1)
+    except typer.Exit as e:
+        sys.exit(e.exit_code)
+    except (typer.Abort, KeyboardInterrupt):
+        typer.echo("interrupted; no output written", err=True)
+        sys.exit(130)
+    except Exception as e:  # a click usage error, or a bug: still one line
+        import click
+
+        if isinstance(e, click.ClickException):
+            e.show()
+            sys.exit(e.exit_code if e.exit_code != 2 else 1)
+        if os.environ.get("TOOLKIT_DEBUG"):
+            raise
+        typer.echo(
+            f"error: internal error {type(e).__name__}: {e} (TOOLKIT_DEBUG=1 shows where)",
+            err=True,
+        )
+        sys.exit(1)

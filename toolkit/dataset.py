@@ -1,0 +1,379 @@
+"""The dataset on disk: a directory of Parquet tables and a meta.json (see DESIGN.md).
+
+    scans.parquet         t float64, ranges fixed_size_list<float32>[B]; NaN = no return
+    scans-<name>.parquet  further lasers, geometry under meta["lasers"][name]
+    odometry.parquet      t, x, y, theta float64 (wheel odometry)
+    groundtruth.parquet   t, x, y, theta float64 (when the source has it)
+    poses-<name>.parquet  further pose streams (e.g. ARIA's robotGlobal)
+    meta.json             laser geometry, source files with sha256, import report
+
+Everything in memory is the same: `Dataset.ranges` is an S x B float32 array.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from toolkit.atomic import atomic_dir
+from toolkit.errors import FormatError, ToolkitError
+
+FORMAT_VERSION = 1
+POSE_COLUMNS = ("t", "x", "y", "theta")
+SCANS = "scans.parquet"
+ODOMETRY = "odometry.parquet"
+GROUNDTRUTH = "groundtruth.parquet"
+META = "meta.json"
+
+
+@dataclass(frozen=True)
+class LaserGeometry:
+    """Beam layout and mounting of one laser; angles in rad, lengths in m, robot frame."""
+
+    beams: int
+    angle_min: float
+    angle_increment: float
+    range_max: float
+    range_min: float = 0.0
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    yaw: float = 0.0
+
+    @property
+    def angles(self) -> np.ndarray:
+        """Beam angles in the laser frame, beam 0 at angle_min."""
+        return self.angle_min + self.angle_increment * np.arange(self.beams, dtype=np.float64)
+
+    @property
+    def fov(self) -> float:
+        return self.angle_increment * (self.beams - 1)
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> LaserGeometry:
+        known = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
+        return cls(**known)
+
+    @classmethod
+    def sick_180(cls, beams: int, range_max: float = 81.9, **mount: float) -> LaserGeometry:
+        """A SICK LMS-2xx 180° scan from the right (-90°), as CARMEN and Rawseeds logs assume.
+
+        181 beams = 1°, 361 = 0.5°, and the 180/360 variants that drop the last beam.
+        """
+        step = {181: 1.0, 180: 1.0, 361: 0.5, 360: 0.5, 401: 0.25}.get(beams)
+        if step is None:
+            step = 180.0 / (beams - 1)
+        return cls(beams, np.deg2rad(-90.0), np.deg2rad(step), range_max, **mount)
+
+
+@dataclass
+class ImportReport:
+    """What an importer read and what it dropped, and why; stored in meta.json."""
+
+    records_read: int = 0
+    records_kept: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    examples: dict[str, str] = field(default_factory=dict)  # reason -> first place seen
+    notes: list[str] = field(default_factory=list)
+
+    def drop(self, reason: str, count: int = 1, where: str | None = None) -> None:
+        if count <= 0:
+            return
+        self.dropped[reason] = self.dropped.get(reason, 0) + int(count)
+        if where is not None and reason not in self.examples:
+            self.examples[reason] = where
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+
+    @property
+    def records_dropped(self) -> int:
+        return sum(self.dropped.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "records_read": self.records_read,
+            "records_kept": self.records_kept,
+            "records_dropped": self.records_dropped,
+            "dropped": dict(self.dropped),
+            "examples": dict(self.examples),
+            "notes": list(self.notes),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> ImportReport:
+        return cls(
+            int(d.get("records_read", 0)),
+            int(d.get("records_kept", 0)),
+            dict(d.get("dropped", {})),
+            dict(d.get("examples", {})),
+            list(d.get("notes", [])),
+        )
+
+
+@dataclass
+class Scans:
+    """One laser's scans: times (S,) float64 and ranges (S x B) float32."""
+
+    t: np.ndarray
+    ranges: np.ndarray
+    laser: LaserGeometry
+
+    def __post_init__(self) -> None:
+        self.t = np.ascontiguousarray(self.t, dtype=np.float64)
+        self.ranges = np.ascontiguousarray(self.ranges, dtype=np.float32)
+        if self.ranges.ndim != 2 or self.ranges.shape[0] != self.t.shape[0]:
+            raise ValueError(f"ranges {self.ranges.shape} do not match t {self.t.shape}")
+        if self.ranges.shape[1] != self.laser.beams:
+            raise ValueError(f"{self.ranges.shape[1]} beams, geometry says {self.laser.beams}")
+
+
+@dataclass
+class Dataset:
+    """A log in memory: the primary laser's scans, pose streams and metadata."""
+
+    t: np.ndarray
+    ranges: np.ndarray
+    laser: LaserGeometry
+    odometry: pd.DataFrame | None = None
+    groundtruth: pd.DataFrame | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    lasers: dict[str, Scans] = field(default_factory=dict)  # further lasers by name
+    poses: dict[str, pd.DataFrame] = field(default_factory=dict)  # further pose streams
+    path: Path | None = None
+
+    def __post_init__(self) -> None:
+        primary = Scans(self.t, self.ranges, self.laser)
+        self.t, self.ranges = primary.t, primary.ranges
+        self.odometry = _poses_frame(self.odometry)
+        self.groundtruth = _poses_frame(self.groundtruth)
+        self.poses = {k: f for k, v in self.poses.items() if (f := _poses_frame(v)) is not None}
+
+    @property
+    def angles(self) -> np.ndarray:
+        return self.laser.angles
+
+    @property
+    def n_scans(self) -> int:
+        return int(self.ranges.shape[0])
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.ranges.shape[1])
+
+    @property
+    def report(self) -> ImportReport:
+        return ImportReport.from_dict(self.meta.get("import_report", {}))
+
+    def __len__(self) -> int:
+        return self.n_scans
+
+    def __repr__(self) -> str:
+        extras = [n for n in ("odometry", "groundtruth") if getattr(self, n) is not None]
+        return (
+            f"Dataset({self.n_scans} scans x {self.n_beams} beams"
+            + (f", {', '.join(extras)}" if extras else "")
+            + (f", path={str(self.path)!r}" if self.path else "")
+            + ")"
+        )
+
+
+def _poses_frame(frame: pd.DataFrame | None) -> pd.DataFrame | None:
+    if frame is None:
+        return None
+    missing = [c for c in POSE_COLUMNS if c not in frame.columns]
+    if missing:
+        raise ValueError(f"pose table lacks columns {missing}")
+    out = frame.loc[:, list(POSE_COLUMNS)].astype(np.float64)
+    return out.reset_index(drop=True)
+
+
+# ---------------------------------------------------------------- Parquet tables
+
+
+def scans_table(t: np.ndarray, ranges: np.ndarray) -> pa.Table:
+    """Arrow table for scans: the float32 ranges become a fixed-size list without a copy."""
+    ranges = np.ascontiguousarray(ranges, dtype=np.float32)
+    beams = ranges.shape[1]
+    values = pa.array(ranges.reshape(-1), type=pa.float32())
+    lists = pa.FixedSizeListArray.from_arrays(values, beams)
+    return pa.table({"t": pa.array(np.asarray(t, dtype=np.float64)), "ranges": lists})
+
+
+def scans_schema(beams: int) -> pa.Schema:
+    return pa.schema([("t", pa.float64()), ("ranges", pa.list_(pa.float32(), beams))])
+
+
+class ScansWriter:
+    """Append scans batch by batch to a Parquet file: imports of huge logs in constant memory."""
+
+    def __init__(self, path: Path, beams: int) -> None:
+        self.path = path
+        self.beams = beams
+        self.rows = 0
+        self._writer = pq.ParquetWriter(path, scans_schema(beams), compression="zstd")
+
+    def write(self, t: np.ndarray, ranges: np.ndarray) -> None:
+        if len(t):
+            self._writer.write_table(scans_table(t, ranges), row_group_size=1 << 16)
+            self.rows += len(t)
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> ScansWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_scans(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a scans table as (t, S x B float32 ranges)."""
+    table = pq.read_table(path)
+    ranges_col = table.column("ranges")
+    list_type = ranges_col.type
+    if not pa.types.is_fixed_size_list(list_type):
+        raise FormatError("ranges is not a fixed-size list", file=path)
+    beams = list_type.list_size
+    flat = ranges_col.combine_chunks().flatten() if len(table) else pa.array([], pa.float32())
+    ranges = flat.to_numpy(zero_copy_only=False).reshape(len(table), beams)
+    t = table.column("t").to_numpy()
+    return t, ranges
+
+
+def write_poses(path: Path, frame: pd.DataFrame) -> None:
+    pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), path, compression="zstd")
+
+
+def read_poses(path: Path) -> pd.DataFrame | None:
+    return pd.read_parquet(path) if path.exists() else None
+
+
+# ---------------------------------------------------------------- provenance
+
+
+def sha256(path: Path, chunk: int = 1 << 22) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def source_entries(paths: Iterable[Path]) -> list[dict[str, Any]]:
+    return [
+        {"path": str(p), "bytes": p.stat().st_size, "sha256": sha256(p)}
+        for p in sorted({Path(p) for p in paths})
+    ]
+
+
+def make_meta(
+    fmt: str,
+    sources: Sequence[Path],
+    laser: LaserGeometry,
+    report: ImportReport,
+    *,
+    time_source: str = "log",
+    lasers: Mapping[str, LaserGeometry] | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """meta.json content: geometry, provenance, import report, and format-specific decisions."""
+    from toolkit import __version__
+
+    meta: dict[str, Any] = {
+        "format_version": FORMAT_VERSION,
+        "toolkit_version": __version__,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "source": {"format": fmt, "files": source_entries(sources)},
+        "laser": laser.to_dict(),
+        "lasers": {k: v.to_dict() for k, v in (lasers or {}).items()},
+        "time_source": time_source,
+        "import_report": report.to_dict(),
+    }
+    meta.update(extra)
+    return meta
+
+
+# ---------------------------------------------------------------- whole datasets
+
+
+def write_dataset_files(ds: Dataset, directory: Path, *, scans_written: bool = False) -> None:
+    """Write every table and meta.json of `ds` into an existing directory."""
+    if not scans_written:
+        pq.write_table(scans_table(ds.t, ds.ranges), directory / SCANS, compression="zstd")
+    for name, extra in ds.lasers.items():
+        pq.write_table(
+            scans_table(extra.t, extra.ranges), directory / f"scans-{name}.parquet", "zstd"
+        )
+    if ds.odometry is not None:
+        write_poses(directory / ODOMETRY, ds.odometry)
+    if ds.groundtruth is not None:
+        write_poses(directory / GROUNDTRUTH, ds.groundtruth)
+    for name, frame in ds.poses.items():
+        write_poses(directory / f"poses-{name}.parquet", frame)
+    meta = dict(ds.meta)
+    meta.setdefault("format_version", FORMAT_VERSION)
+    meta["laser"] = ds.laser.to_dict()
+    meta["lasers"] = {k: v.laser.to_dict() for k, v in ds.lasers.items()}
+    meta["scans"] = ds.n_scans
+    meta["beams"] = ds.n_beams
+    (directory / META).write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
+
+
+def save(ds: Dataset, out: str | Path, force: bool = False) -> Path:
+    """Write `ds` as a dataset directory, atomically."""
+    out = Path(out)
+    with atomic_dir(out, force=force) as tmp:
+        write_dataset_files(ds, tmp)
+    ds.path = out
+    return out
+
+
+def load(path: str | Path) -> Dataset:
+    """Read a dataset directory written by `toolkit import` (or `save`)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise ToolkitError("not a dataset directory", file=path)
+    meta_path = path / META
+    if not meta_path.exists() or not (path / SCANS).exists():
+        raise ToolkitError(f"not a dataset: needs {META} and {SCANS}", file=path)
+    try:
+        meta = json.loads(meta_path.read_text())
+    except json.JSONDecodeError as e:
+        raise ToolkitError(f"invalid JSON: {e.msg}", file=meta_path, record=e.lineno) from None
+    laser = LaserGeometry.from_dict(meta["laser"])
+    t, ranges = read_scans(path / SCANS)
+    lasers = {}
+    for name, geometry in meta.get("lasers", {}).items():
+        lt, lr = read_scans(path / f"scans-{name}.parquet")
+        lasers[name] = Scans(lt, lr, LaserGeometry.from_dict(geometry))
+    poses = {
+        p.stem.removeprefix("poses-"): pd.read_parquet(p)
+        for p in sorted(path.glob("poses-*.parquet"))
+    }
+    return Dataset(
+        t=t,
+        ranges=ranges,
+        laser=laser,
+        odometry=read_poses(path / ODOMETRY),
+        groundtruth=read_poses(path / GROUNDTRUTH),
+        meta=meta,
+        lasers=lasers,
+        poses=poses,
+        path=path,
+    )
