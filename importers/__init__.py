@@ -17,6 +17,7 @@ from toolkit.errors import ToolkitError
 __all__ = ["ImportOptions", "Importer", "detect", "get", "import_log", "names", "register"]
 
 _REGISTRY: dict[str, type[Importer]] = {}
+_BROKEN: dict[str, str] = {}  # module name -> why it failed to import
 _loaded = False
 
 
@@ -32,7 +33,10 @@ def _load_all() -> None:
         return
     for module in pkgutil.iter_modules(__path__):
         if module.name != "base" and not module.name.startswith("_"):
-            importlib.import_module(f"{__name__}.{module.name}")
+            try:
+                importlib.import_module(f"{__name__}.{module.name}")
+            except Exception as e:  # one broken format must not take the others down
+                _BROKEN[module.name] = f"{type(e).__name__}: {e}"
     _loaded = True
 
 
@@ -47,6 +51,8 @@ def get(name: str) -> Importer:
     try:
         return _REGISTRY[name]()
     except KeyError:
+        if name in _BROKEN:
+            raise ToolkitError(f"format {name!r} failed to load: {_BROKEN[name]}") from None
         known = ", ".join(["auto", *names()])
         raise ToolkitError(f"unknown format {name!r}; known: {known}") from None
 
@@ -64,9 +70,7 @@ def detect(sources: Sequence[Path]) -> Importer:
         raise ToolkitError(
             f"cannot tell the format; name it (one of {', '.join(names())})", file=first
         )
-    raise ToolkitError(
-        f"ambiguous format ({', '.join(h.name for h in hits)}); name it", file=first
-    )
+    raise ToolkitError(f"ambiguous format ({', '.join(h.name for h in hits)}); name it", file=first)
 
 
 def import_log(

@@ -25,7 +25,10 @@ def _parse_extra(pairs: list[str]) -> dict[str, str]:
 @app.command("import")
 def import_command(
     fmt: Annotated[
-        str, typer.Argument(metavar="FORMAT", help="auto, or one of the formats `toolkit formats` lists")
+        str,
+        typer.Argument(
+            metavar="FORMAT", help="auto, or one of the formats `toolkit formats` lists"
+        ),
     ],
     sources: Annotated[list[Path], typer.Argument(help="log files or a session directory")],
     out: Annotated[Path, typer.Option("--out", "-o", help="dataset directory to write")],
