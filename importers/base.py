@@ -80,7 +80,7 @@ def open_binary(path: Path) -> IO[bytes]:
     for magic, opener in _MAGIC.items():
         if head.startswith(magic):
             f.close()
-            return opener(path, "rb")  # type: ignore[no-any-return, operator]
+            return opener(path, "rb")  # type: ignore[operator]
     return f
 
 
