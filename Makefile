@@ -28,14 +28,16 @@ test-fast: install
 bench: install   ## benchmarks side by side in one run; results in $(OUT)/bench/
 	$(BIN)/python -m bench --out $(OUT)/bench
 
+SOURCES := $(wildcard toolkit importers reports bench)
+
 lint: install
-	$(BIN)/ruff check toolkit importers reports tests bench
-	$(BIN)/ruff format --check toolkit importers reports tests bench
-	$(BIN)/mypy
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy $(SOURCES)
 
 format: install
-	$(BIN)/ruff format toolkit importers reports tests bench
-	$(BIN)/ruff check --fix toolkit importers reports tests bench
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache .ruff_cache
