@@ -1,0 +1,600 @@
+"""SICK LMS-2xx raw serial captures (`lms200`): the byte stream the scanner sent.
+
+Telegrams (``STX 0x02 | ADDR | LEN u16 | CMD | DATA | STATUS | CRC u16``, little-endian, see
+FORMATS.md) are found by a vectorized search over the whole buffer: every ``0x02`` followed by
+address 0x80/0x81, a reply command (high bit set) and a plausible LEN (2..806) is a candidate;
+the CRC of all candidates is computed at once (byte position by byte position across frames,
+or with numba: ``-O crc=numba``; the benchmark compares the two). Valid telegrams are accepted
+greedily in stream order, a valid telegram consuming its bytes, so line noise, ACK/NAK bytes
+and damaged frames are skipped and the search resynchronises on the next intact telegram.
+Every skipped byte and rejected frame is counted in the import report.
+
+Measured-values replies (0xB0) become scans: 13-bit values in the units of the count word
+(cm or mm); the special codes 0x1FF7..0x1FFF (invalid, dazzling, overflow, low S/N, channel
+error, above maximum) become NaN. Partial scans (interlaced mode) are not assembled: they are
+counted and dropped. Scans whose variant (value count, units) differs from the capture's most
+common one are dropped too. Geometry follows the variant: 181/361 values -> 180° from -90°,
+101/201/401 values -> 100° from -50° (0° = the scanner's right, counter-clockwise).
+
+Time: a capture has no clock. In order of preference:
+
+1. a side file of byte-offset timestamps, ``<capture>.times`` (or ``<capture stem>.times``, or
+   given as a second source, or ``-O times=FILE``): text, one ``OFFSET T`` pair per line
+   (``#`` comments allowed), OFFSET the byte offset in the capture where a telegram's STX
+   was received, T its time in seconds; offsets increasing. A telegram's time is the linear
+   interpolation (and extrapolation beyond the ends) of its STX offset. A serial logger that
+   timestamps each read() writes exactly this; so does this module's writer, one pair per
+   measured-values telegram, damaged or not.
+2. ``--rate R`` (scans per second): a telegram's time is its slot / R, the slot being its STX
+   offset divided by the median spacing of consecutive scans, rounded (gaps left by damaged
+   frames stay gaps).
+3. otherwise the baud rate (``-O baud=``, default 38400): STX offset x 10 bits / baud (8N1
+   framing, a saturated line), from the capture's first byte.
+
+``meta["time_source"]`` says which; ``meta["capture"]`` holds the byte and telegram counts.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pandas as pd
+
+from importers import register
+from importers.base import Importer, ImportOptions, head_bytes, open_binary, open_text
+from toolkit.atomic import atomic_file
+from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
+from toolkit.errors import FormatError, ToolkitError
+
+STX, ACK, NAK = 0x02, 0x06, 0x15
+MAX_TELEGRAM = 812
+MAX_LEN = MAX_TELEGRAM - 6  # LEN counts CMD + DATA + STATUS
+MIN_LEN = 2  # a reply has at least CMD and STATUS
+MEASURED = 0xB0
+SPECIAL_MIN = 0x1FF7  # 0x1FF7..0x1FFF are error / no-return codes, never a range
+VALUE_MASK = 0x1FFF
+UNITS = {0: ("cm", 0.01), 1: ("mm", 0.001)}
+RANGE_MAX = {"cm": 81.91, "mm": 8.191}
+#: value count -> (first angle, step) in degrees, laser frame (0° ahead, CCW)
+VARIANTS = {181: (-90.0, 1.0), 361: (-90.0, 0.5), 101: (-50.0, 1.0), 201: (-50.0, 0.5), 401: (-50.0, 0.25)}  # fmt: skip
+REPLY_NAMES = {0xA0: "mode change", 0xBB: "variant", 0x92: "command rejected", 0x90: "power-on"}
+CAPTURE_SUFFIXES = (".lms", ".bin", ".raw")
+TIMES_SUFFIX = ".times"
+DEFAULT_BAUD = 38400
+BITS_PER_BYTE = 10  # 8N1
+CHUNK = 8192  # frames decoded per block: bounded index arrays
+CRC_BLOCK = 8192  # frames per CRC block
+
+
+# ---------------------------------------------------------------- CRC
+
+
+def crc16_sick(data: bytes | np.ndarray) -> int:
+    """SICK's telegram CRC of one byte string (reference, sequential)."""
+    crc = prev = 0
+    for b in bytes(data):
+        crc = (((crc & 0x7FFF) << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1) & 0xFFFF
+        crc ^= b | (prev << 8)
+        prev = b
+    return crc
+
+
+def crc_frames_numpy(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """CRC of buf[s : s + n] for every (s, n), vectorized across frames.
+
+    The CRC is sequential within a frame, so the loop runs over byte positions (at most 810)
+    and each step updates a block of frames at once. Blocks of CRC_BLOCK frames that are
+    neighbours in the stream keep the bytes being read in cache (measured: 2-3x faster
+    than all frames in one block on a 50 MB capture).
+    """
+    out = np.empty(len(starts), np.uint32)
+    for a in range(0, len(starts), CRC_BLOCK):
+        out[a : a + CRC_BLOCK] = _crc_block(
+            buf, starts[a : a + CRC_BLOCK], lengths[a : a + CRC_BLOCK]
+        )
+    return out
+
+
+def _crc_block(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """One block: frames sorted by length, longest first, so the active ones are a prefix."""
+    count = len(starts)
+    out = np.zeros(count, np.uint32)
+    if count == 0:
+        return out
+    order = np.argsort(-np.asarray(lengths), kind="stable")
+    pos = np.asarray(starts, np.int64)[order]
+    ascending = np.asarray(lengths, np.int64)[order][::-1]
+    crc = np.zeros(count, np.uint32)
+    prev = np.zeros(count, np.uint32)
+    byte = np.empty(count, np.uint8)
+    high = np.empty(count, np.uint32)
+    for k in range(int(ascending[-1])):
+        m = count - int(np.searchsorted(ascending, k, side="right"))  # frames longer than k
+        c, p, b, h = crc[:m], prev[:m], byte[:m], high[:m]
+        np.take(buf, pos[:m], out=b)
+        pos[:m] += 1
+        np.right_shift(c, 15, out=h)
+        h *= 0x8005
+        c <<= 1
+        c &= 0xFFFF
+        c ^= h
+        p <<= 8
+        c ^= p
+        c ^= b
+        p[:] = b
+    out[order] = crc
+    return out
+
+
+def crc_frames_numba(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Same as `crc_frames_numpy`, compiled with numba (sequential per frame)."""
+    from importers._lms200_crc import crc_kernel
+
+    return np.asarray(crc_kernel(buf, np.asarray(starts, np.int64), np.asarray(lengths, np.int64)))
+
+
+CRC_METHODS = {"numpy": crc_frames_numpy, "numba": crc_frames_numba}
+
+
+# ---------------------------------------------------------------- telegram search
+
+
+class Telegrams:
+    """The telegrams of a capture: accepted (CRC-valid, non-overlapping) and rejected."""
+
+    def __init__(self, buf: np.ndarray, crc: str = "numpy") -> None:
+        self.size = int(buf.size)
+        starts, lengths, truncated = _candidates(buf)
+        payload = lengths - 2  # bytes under the CRC: STX .. STATUS
+        stored = buf[starts + payload].astype(np.uint32) | (
+            buf[starts + payload + 1].astype(np.uint32) << 8
+        )
+        valid = CRC_METHODS[crc](buf, starts, payload) == stored
+        self.start, self.length = _greedy(starts[valid], lengths[valid])
+        self.cmd = buf[self.start + 4]
+        # candidates outside accepted telegrams: damaged frames (or chance 0x02 0x80 in noise)
+        self.rejected_crc = int(np.count_nonzero(~_covered(starts[~valid], self)))
+        self.truncated = int(np.count_nonzero(~_covered(truncated, self)))
+        gaps = _gap_bytes(buf, self.start, self.length)
+        self.ack = int(np.count_nonzero(gaps == ACK))
+        self.nak = int(np.count_nonzero(gaps == NAK))
+        self.skipped = self.size - int(self.length.sum()) - self.ack - self.nak
+
+
+def _candidates(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(starts, total lengths) of complete candidate telegrams, and starts of cut-off ones."""
+    empty = np.zeros(0, np.int64)
+    n = buf.size
+    if n < 5:
+        return empty, empty, empty
+    s = np.flatnonzero(buf[: n - 4] == STX)
+    s = s[((buf[s + 1] & 0xFE) == 0x80) & (buf[s + 4] >= 0x80)]
+    length = buf[s + 2].astype(np.int64) | (buf[s + 3].astype(np.int64) << 8)
+    plausible = (length >= MIN_LEN) & (length <= MAX_LEN)
+    s, total = s[plausible], length[plausible] + 6
+    complete = s + total <= n
+    return s[complete], total[complete], s[~complete]
+
+
+def _greedy(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keep valid telegrams in order; one that starts inside an accepted one is dropped."""
+    ends = starts + lengths
+    if starts.size < 2 or np.all(starts[1:] >= ends[:-1]):
+        return starts, lengths
+    keep = np.zeros(starts.size, bool)
+    end = -1
+    for i, (s, e) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        if s >= end:
+            keep[i] = True
+            end = e
+    return starts[keep], lengths[keep]
+
+
+def _covered(positions: np.ndarray, tg: Telegrams) -> np.ndarray:
+    """True where a position lies inside an accepted telegram."""
+    if tg.start.size == 0 or positions.size == 0:
+        return np.zeros(positions.size, bool)
+    i = np.searchsorted(tg.start, positions, side="right") - 1
+    inside = i >= 0
+    j = np.maximum(i, 0)
+    return inside & (positions < tg.start[j] + tg.length[j])
+
+
+def _gap_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The bytes outside the accepted telegrams, in order (small: noise and ACK/NAK)."""
+    lo = np.concatenate([[0], starts + lengths])
+    hi = np.concatenate([starts, [buf.size]])
+    size = np.maximum(hi - lo, 0)
+    total = int(size.sum())
+    if total == 0:
+        return buf[:0]
+    shift = np.repeat(lo - (np.cumsum(size) - size), size)
+    return buf[shift + np.arange(total)]
+
+
+# ---------------------------------------------------------------- measured values
+
+
+def decode_values(buf: np.ndarray, starts: np.ndarray, count: int) -> np.ndarray:
+    """The raw 13-bit values of B0 telegrams at `starts` with `count` values each (S x N).
+
+    Values are read as little-endian u16 through two views of the buffer (even and odd byte
+    alignment), one gather per value.
+    """
+    out = np.empty((starts.size, count), np.uint16)
+    n = buf.size
+    views = (buf[: n // 2 * 2].view("<u2"), buf[1 : 1 + (n - 1) // 2 * 2].view("<u2"))
+    first = starts + 7
+    ramp = np.arange(count, dtype=np.int64)
+    for parity, view in enumerate(views):
+        rows = np.flatnonzero(first % 2 == parity)
+        for a in range(0, rows.size, CHUNK):
+            block = rows[a : a + CHUNK]
+            out[block] = view[(first[block, None] - parity) // 2 + ramp]
+    out &= VALUE_MASK
+    return out
+
+
+def values_to_ranges(values: np.ndarray, scale: float) -> np.ndarray:
+    ranges = values.astype(np.float32)
+    ranges *= np.float32(scale)
+    ranges[values >= SPECIAL_MIN] = np.nan
+    return ranges
+
+
+def geometry(count: int, units: str, **mount: float) -> LaserGeometry:
+    first, step = VARIANTS[count]
+    return LaserGeometry(
+        count, float(np.deg2rad(first)), float(np.deg2rad(step)), RANGE_MAX[units], **mount
+    )
+
+
+# ---------------------------------------------------------------- the importer
+
+
+@register
+class LMS200(Importer):
+    name = "lms200"
+    summary = "SICK LMS-2xx raw serial capture (.lms/.bin/.raw): telegrams with CRC"
+    options: ClassVar[dict[str, str]] = {
+        "baud": f"line speed for times without a side file or --rate (default {DEFAULT_BAUD})",
+        "times": "side file of 'OFFSET T' lines (default: <capture>.times if present)",
+        "crc": "numpy (default) or numba: how the CRCs of all candidates are computed",
+    }
+
+    def sniff(self, path: Path) -> bool:
+        capture = _find_capture(path) if path.is_dir() else path
+        if capture is None or not capture.is_file():
+            return False
+        head = np.frombuffer(head_bytes(capture, 8192), np.uint8)
+        if head.size == 0:
+            return False
+        found = Telegrams(head)
+        hinted = capture.name.lower().endswith(CAPTURE_SUFFIXES)
+        return found.start.size >= (1 if hinted else 2) and bool(found.start[0] < 1024)
+
+    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+        capture, times_file = _sources(sources, options)
+        with open_binary(capture) as f:
+            data = f.read()
+        buf = np.frombuffer(data, np.uint8)
+        crc = options.get("crc", "numpy") or "numpy"
+        if crc not in CRC_METHODS:
+            raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
+        tg = Telegrams(buf, crc)
+        report = ImportReport()
+        report.records_read = int(tg.start.size) + tg.rejected_crc + tg.truncated
+        report.drop("telegram CRC mismatch", tg.rejected_crc, _where(capture, "CRC"))
+        report.drop("telegram cut off at end of capture", tg.truncated)
+        others = Counter(tg.cmd[tg.cmd != MEASURED].tolist())
+        for cmd, n in sorted(others.items()):
+            report.drop(f"reply 0x{cmd:02X} ({REPLY_NAMES.get(cmd, 'not measured values')})", n)
+
+        s = tg.start[tg.cmd == MEASURED]
+        length = tg.length[tg.cmd == MEASURED]
+        word = buf[s + 5].astype(np.int64) | (buf[s + 6].astype(np.int64) << 8)
+        count, partial, unit_code = word & 0x3FF, (word >> 13) & 1, word >> 14
+        fits = length - 6 >= 2 * count + 4
+        known = np.isin(count, list(VARIANTS)) & np.isin(unit_code, list(UNITS))
+        ok = fits & known & (partial == 0)
+        report.drop("measured values: count word longer than telegram", int(np.sum(~fits)))
+        report.drop("partial scan (interlaced mode), not assembled", int(np.sum(fits & partial)))
+        report.drop(
+            "measured values: unknown value count or units",
+            int(np.sum(fits & (partial == 0) & ~known)),
+        )
+        if not np.any(ok):
+            raise FormatError(
+                f"no intact measured-values telegram in {buf.size} bytes "
+                f"({tg.rejected_crc} with bad CRC, {tg.start.size} valid telegrams)",
+                file=capture,
+            )
+        variant = Counter(zip(count[ok].tolist(), unit_code[ok].tolist(), strict=True)).most_common(
+            1
+        )[0][0]
+        same = ok & (count == variant[0]) & (unit_code == variant[1])
+        report.drop("measured values: variant differs from the capture's", int(np.sum(ok & ~same)))
+        units, scale = UNITS[variant[1]]
+        s = s[same]
+        ranges = values_to_ranges(decode_values(buf, s, variant[0]), scale)
+        t, time_source = _times(s, times_file, options, capture)
+        order_ok = np.concatenate([[True], np.diff(t) >= 0])
+        if not np.all(order_ok):  # a side file out of step with the capture
+            keep = order_ok & (t >= np.maximum.accumulate(t))
+            report.drop("time goes backwards", int(np.sum(~keep)))
+            s, t, ranges = s[keep], t[keep], ranges[keep]
+        report.records_kept = int(s.size)
+        skipped = tg.skipped
+        if skipped:
+            report.note(f"{skipped} bytes outside intact telegrams skipped (noise, damaged frames)")
+        if tg.ack or tg.nak:
+            report.note(f"{tg.ack} ACK and {tg.nak} NAK bytes skipped")
+        laser = geometry(variant[0], units)
+        sources_used = [capture] + ([times_file] if times_file else [])
+        meta = make_meta(
+            self.name,
+            sources_used,
+            laser,
+            report,
+            time_source=time_source,
+            units=units,
+            capture={
+                "bytes": tg.size,
+                "telegrams": int(tg.start.size),
+                "measured_values": int(s.size),
+                "bytes_in_telegrams": int(tg.length.sum()),
+                "bytes_skipped": skipped,
+                "ack": tg.ack,
+                "nak": tg.nak,
+                "crc_rejected": tg.rejected_crc,
+                "truncated": tg.truncated,
+                "crc_method": crc,
+            },
+            frame_offsets_first_last=[int(s[0]), int(s[-1])],
+        )
+        return Dataset(t=t, ranges=ranges, laser=laser, meta=meta)
+
+    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
+        return write(ds, out, **options)  # type: ignore[arg-type]
+
+
+def _where(path: Path, what: str) -> str:
+    return f"{path.name}: {what}"
+
+
+def _find_capture(directory: Path) -> Path | None:
+    files = sorted(
+        p for p in directory.iterdir() if p.is_file() and p.name.lower().endswith(CAPTURE_SUFFIXES)
+    )
+    return files[0] if len(files) == 1 else None
+
+
+def _sources(sources: Sequence[Path], options: ImportOptions) -> tuple[Path, Path | None]:
+    """The capture file and its side file of timestamps (if any)."""
+    paths = [Path(p) for p in sources]
+    if len(paths) == 1 and paths[0].is_dir():
+        capture = _find_capture(paths[0])
+        if capture is None:
+            raise ToolkitError(
+                f"expected one capture ({', '.join(CAPTURE_SUFFIXES)}) in the directory",
+                file=paths[0],
+            )
+        paths = [capture]
+    times = [p for p in paths if p.name.endswith(TIMES_SUFFIX)]
+    captures = [p for p in paths if p not in times]
+    if len(captures) != 1 or len(times) > 1:
+        raise ToolkitError("lms200 takes one capture and at most one .times side file")
+    capture = captures[0]
+    explicit = options.get("times")
+    if explicit:
+        return capture, Path(explicit)
+    if times:
+        return capture, times[0]
+    for candidate in (
+        capture.with_name(capture.name + TIMES_SUFFIX),
+        capture.with_suffix(TIMES_SUFFIX),
+    ):
+        if candidate.is_file():
+            return capture, candidate
+    return capture, None
+
+
+def read_times(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A side file: (byte offsets, times), offsets strictly increasing."""
+    try:
+        with open_text(path) as f:
+            table = pd.read_csv(
+                f, sep=r"\s+", comment="#", header=None, names=["offset", "t"], dtype=float
+            )
+    except (ValueError, pd.errors.ParserError) as e:
+        raise FormatError(f"times side file: expected 'OFFSET T' lines ({e})", file=path) from None
+    except pd.errors.EmptyDataError:
+        raise FormatError("times side file is empty", file=path) from None
+    off, t = table["offset"].to_numpy(), table["t"].to_numpy()
+    bad = ~np.isfinite(off) | ~np.isfinite(t)
+    if np.any(bad):
+        raise FormatError("times side file: missing or non-numeric value", file=path, record=int(np.argmax(bad)) + 1)  # fmt: skip
+    if off.size == 0:
+        raise FormatError("times side file is empty", file=path)
+    if np.any(np.diff(off) <= 0):
+        line = int(np.argmax(np.diff(off) <= 0)) + 2
+        raise FormatError("times side file: offsets must increase", file=path, record=line)
+    return off, t
+
+
+def _times(
+    offsets: np.ndarray, times_file: Path | None, options: ImportOptions, capture: Path
+) -> tuple[np.ndarray, str]:
+    off = offsets.astype(np.float64)
+    if times_file is not None:
+        xp, fp = read_times(times_file)
+        t = np.interp(off, xp, fp)
+        if xp.size >= 2:  # linear extrapolation beyond the ends
+            lo, hi = off < xp[0], off > xp[-1]
+            t[lo] = fp[0] + (off[lo] - xp[0]) * (fp[1] - fp[0]) / (xp[1] - xp[0])
+            t[hi] = fp[-1] + (off[hi] - xp[-1]) * (fp[-1] - fp[-2]) / (xp[-1] - xp[-2])
+        return t, f"side file {times_file.name} (byte offset -> time, interpolated)"
+    if options.rate:
+        if options.rate <= 0:
+            raise ToolkitError(f"--rate must be positive, got {options.rate}")
+        spacing = float(np.median(np.diff(off))) if off.size > 1 else 1.0
+        slots = np.rint((off - off[0]) / spacing)
+        return slots / options.rate, f"rate {options.rate:g} Hz (stated, --rate)"
+    baud_text = options.get("baud", str(DEFAULT_BAUD)) or str(DEFAULT_BAUD)
+    try:
+        baud = float(baud_text)
+    except ValueError:
+        raise ToolkitError(f"-O baud={baud_text}: not a number") from None
+    if baud <= 0:
+        raise ToolkitError(f"-O baud={baud_text}: must be positive")
+    return off * BITS_PER_BYTE / baud, f"baud {baud:g} (byte offset x {BITS_PER_BYTE} bits / baud)"
+
+
+# ---------------------------------------------------------------- writer
+
+
+def telegram(cmd: int, data: bytes, status: int = 0x10, address: int = 0x80) -> bytes:
+    """One reply telegram with its CRC."""
+    body = bytes([STX, address]) + (len(data) + 2).to_bytes(2, "little") + bytes([cmd])
+    body += data + bytes([status])
+    return body + crc16_sick(body).to_bytes(2, "little")
+
+
+def _variant_of(ds: Dataset) -> int:
+    count = ds.n_beams
+    first_step = VARIANTS.get(count)
+    if first_step is not None:
+        first, step = np.deg2rad(first_step)
+        if abs(ds.laser.angle_min - first) < 1e-6 and abs(ds.laser.angle_increment - step) < 1e-6:
+            return count
+    raise ToolkitError(
+        f"lms200 writer: {count} beams from {np.rad2deg(ds.laser.angle_min):g}° step "
+        f"{np.rad2deg(ds.laser.angle_increment):g}° is no LMS-2xx variant "
+        "(181/361 from -90°, 101/201/401 from -50°)"
+    )
+
+
+def encode_values(ranges: np.ndarray, units: str) -> np.ndarray:
+    """Ranges (m) to 13-bit values: NaN -> 0x1FFF (invalid), too far -> 0x1FF7 (above maximum)."""
+    scale = {"cm": 100.0, "mm": 1000.0}[units]
+    with np.errstate(invalid="ignore"):
+        v = np.rint(np.asarray(ranges, np.float64) * scale)
+        values = np.where(v >= SPECIAL_MIN, 0x1FF7, np.clip(v, 0, None))
+    return np.where(np.isnan(v), 0x1FFF, values).astype(np.uint16)
+
+
+def write(
+    ds: Dataset,
+    out: Path,
+    baud: int = DEFAULT_BAUD,
+    units: str = "mm",
+    noise_bytes: float = 0.0,
+    bit_error_rate: float = 0.0,
+    truncate_last: bool = False,
+    seed: int = 0,
+    start_mid_frame: bool = False,
+    name: str = "capture",
+    **opts: object,
+) -> list[Path]:
+    """Write `ds` as a capture as the host's serial port received it, with optional damage.
+
+    Files under directory `out`: ``<name>.lms`` (an ACK and the mode-change and variant replies,
+    then one B0 telegram per scan, a random ACK/NAK byte now and then), ``<name>.lms.times``
+    (the side file: STX offset and time of every B0 telegram) and ``<name>.truth.json``
+    (``intact``: indices of the scans whose telegrams were written undamaged). `noise_bytes`:
+    mean number of random bytes (Poisson) between telegrams; `bit_error_rate`: probability of
+    each bit of the stream flipping; `truncate_last`: cut the last telegram short;
+    `start_mid_frame`: begin with the tail of a telegram.
+    """
+    if units not in ("cm", "mm"):
+        raise ToolkitError(f"lms200 writer: units must be cm or mm, not {units!r}")
+    count = _variant_of(ds)
+    rng = np.random.default_rng(seed)
+    unit_bits = 0 if units == "cm" else 1
+    values = encode_values(ds.ranges, units)
+    scans = ds.n_scans
+    frame_len = 7 + 2 * count + 1 + 2
+    frames = np.empty((scans, frame_len), np.uint8)
+    frames[:, 0], frames[:, 1] = STX, 0x80
+    frames[:, 2:4] = np.frombuffer((frame_len - 6).to_bytes(2, "little"), np.uint8)
+    frames[:, 4] = MEASURED
+    frames[:, 5:7] = np.frombuffer((count | unit_bits << 14).to_bytes(2, "little"), np.uint8)
+    frames[:, 7 : 7 + 2 * count] = values.astype("<u2").view(np.uint8).reshape(scans, -1)
+    frames[:, 7 + 2 * count] = 0x10  # status: ok
+    flat = frames.reshape(-1)
+    crc = crc_frames_numpy(flat, np.arange(scans) * frame_len, np.full(scans, frame_len - 2))
+    frames[:, -2] = crc & 0xFF
+    frames[:, -1] = crc >> 8
+
+    first, step = VARIANTS[count]
+    head = bytearray()
+    if start_mid_frame and scans:
+        head += frames[0, int(rng.integers(1, frame_len)) :].tobytes()
+    head += bytes([ACK]) + telegram(0xA0, b"\x00")
+    angle, resolution = round(2 * abs(first)), round(step * 100)
+    reply = b"\x01" + angle.to_bytes(2, "little") + resolution.to_bytes(2, "little")
+    head += bytes([ACK]) + telegram(0xBB, reply)
+    # gaps between telegrams: Poisson noise bytes, now and then an ACK or NAK
+    gap_len = rng.poisson(noise_bytes, scans) if noise_bytes > 0 else np.zeros(scans, np.int64)
+    flag = rng.random(scans) < 0.02
+    gap_len = gap_len + flag
+    gap_total = int(gap_len.sum())
+    gap_bytes = rng.integers(0, 256, gap_total, dtype=np.uint8)
+    gap_ends = np.cumsum(gap_len)
+    gap_bytes[gap_ends[flag] - 1] = np.where(rng.random(int(flag.sum())) < 0.5, ACK, NAK)
+    # stream = head, then per scan: gap, frame (built by scatter, no Python loop per scan)
+    frame_starts = len(head) + gap_ends + frame_len * np.arange(scans)
+    total = len(head) + gap_total + frame_len * scans
+    stream = np.empty(total, np.uint8)
+    stream[: len(head)] = np.frombuffer(bytes(head), np.uint8)
+    frame_mask = np.zeros(total, bool)
+    idx = (frame_starts[:, None] + np.arange(frame_len)).reshape(-1)
+    stream[idx] = flat
+    frame_mask[idx] = True
+    frame_mask[: len(head)] = True
+    stream[~frame_mask] = gap_bytes
+    del idx, frame_mask
+
+    damaged = np.zeros(scans, bool)
+    if bit_error_rate > 0:
+        flips = np.unique(rng.integers(0, total * 8, rng.binomial(total * 8, bit_error_rate)))
+        np.bitwise_xor.at(stream, flips // 8, (1 << (flips % 8)).astype(np.uint8))
+        k = np.searchsorted(frame_starts, flips // 8, side="right") - 1
+        hit = (k >= 0) & (flips // 8 < frame_starts[np.maximum(k, 0)] + frame_len)
+        damaged[k[hit]] = True
+    if truncate_last and scans:
+        total = int(frame_starts[-1] + rng.integers(1, frame_len))
+        stream = stream[:total]
+        damaged[-1] = True
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    capture = out / f"{name}.lms"
+    times = out / f"{name}.lms{TIMES_SUFFIX}"
+    truth = out / f"{name}.truth.json"
+    with atomic_file(capture) as tmp:
+        stream.tofile(tmp)
+    with atomic_file(times) as tmp, open(tmp, "w") as f:
+        f.write("# OFFSET T: byte offset of each measured-values telegram's STX, time (s)\n")
+        np.savetxt(f, np.column_stack([frame_starts, ds.t]), fmt=["%d", "%.17g"])
+    info = {
+        "scans": scans,
+        "intact": np.flatnonzero(~damaged).tolist(),
+        "damaged": np.flatnonzero(damaged).tolist(),
+        "frame_offsets": frame_starts.tolist(),
+        "baud": baud,
+        "units": units,
+        "noise_bytes": noise_bytes,
+        "bit_error_rate": bit_error_rate,
+        "truncate_last": truncate_last,
+        "start_mid_frame": start_mid_frame,
+        "seed": seed,
+    }
+    with atomic_file(truth) as tmp:
+        tmp.write_text(json.dumps(info) + "\n")
+    return [capture, times, truth]
