@@ -1,0 +1,14 @@
+"""placeholder"""
+
+from __future__ import annotations
+
+from reports.base import NotAvailable, Section
+from reports.context import Context
+
+KEY = "fig6_maps"
+TITLE = "fig6_maps"
+INTRO = ""
+
+
+def generate(ctx: Context, section: Section) -> None:
+    raise NotAvailable("not written yet")

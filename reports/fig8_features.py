@@ -1,0 +1,249 @@
+"""Fig. 8-10: learnt features along the map, the found / not-found view, and the 3D map.
+
+For every log with training regions (the simulated corridor always; a dataset given on the
+command line when it has a regions.csv): the feature model is learnt from the training
+scans (about ten per feature) and every scan gets a probability per feature.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from reports.base import NotAvailable, Section, new_figure, save_figure, save_table
+from reports.context import CORRIDOR, Context
+from reports.runs import LabelRun, path_distance, poses_at
+
+KEY = "features"
+TITLE = "Fig. 8-10: learnt features"
+INTRO = (
+    "Each feature is learnt from its training scans (one Gaussian per beam); every scan then "
+    "gets a probability per feature. Fig. 8 plots it along the path with the training "
+    "positions marked, Fig. 9 shows where each feature is found (red) or not (blue), Fig. 10 "
+    "the 3D map coloured by the label of the scan that saw each point."
+)
+
+MAX_MAP_POINTS = 60_000
+
+
+def labelled_logs(ctx: Context) -> list[str]:
+    """The corridor, then every other log that has training regions."""
+    others = [n for n, s in ctx.sources.items() if s.regions is not None and n != CORRIDOR]
+    return [CORRIDOR, *others]
+
+
+def map_poses(ctx: Context, name: str) -> tuple[np.ndarray, str]:
+    """Poses at the scan times for drawing the map: the Gaussian-corrected trajectory when
+    there is one, else odometry (said in the caption)."""
+    ds = ctx.dataset(name)
+    try:
+        run = ctx.run(name, "gaussian")
+        return poses_at(run.trajectory, ds.t), "the Gaussian-corrected trajectory"
+    except NotAvailable:
+        if ds.odometry is None:
+            raise NotAvailable(f"{name}: no trajectory and no odometry to draw a map") from None
+        return poses_at(ds.odometry, ds.t), "odometry (no corrected trajectory available)"
+
+
+def generate(ctx: Context, section: Section) -> None:
+    for name in labelled_logs(ctx):
+        with ctx.part(section, f"features of {name}"):
+            run = ctx.labels(name)
+            ds = ctx.dataset(name)
+            poses, how = map_poses(ctx, name)
+            section.data[name] = _features(ctx, section, name, run, ds, poses, how)
+
+
+def _features(
+    ctx: Context, section: Section, name: str, run: LabelRun, ds: Any, poses: np.ndarray, how: str
+) -> dict[str, Any]:
+    features = list(run.training)
+    label = np.asarray(run.labels.label).astype(str)
+    distance = path_distance(poses[:, :2])
+    data: dict[str, Any] = {"features": features, "label": label, "distance": distance}
+    data["probability"] = {f: run.probability(f) for f in features}
+    data["training"] = {f: np.asarray(run.training[f]) for f in features}
+    data["found"] = {f: label == f for f in features}
+
+    rows = []
+    for f in features:
+        row: dict[str, Any] = {
+            "feature": f,
+            "training scans": len(run.training[f]),
+            "scans found": int((label == f).sum()),
+            "mean p on training scans": float(run.probability(f)[run.training[f]].mean()),
+        }
+        if run.truth is not None:
+            true = run.truth == f
+            found = label == f
+            row["true scans"] = int(true.sum())
+            row["recall"] = float((found & true).sum() / max(true.sum(), 1))
+            row["precision"] = float((found & true).sum() / found.sum()) if found.any() else np.nan
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    data["table"] = table
+    if run.truth is not None:
+        from toolkit.features import balanced_accuracy
+
+        data["balanced_accuracy"] = float(balanced_accuracy(run.truth, label))
+        section.notes.append(
+            f"{name}: balanced accuracy of the labels against the simulator's truth "
+            f"{data['balanced_accuracy']:.3f} over {len(label)} scans (learning and labelling "
+            f"took {run.seconds:.2f} s in this run)."
+        )
+    section.tables.append(
+        save_table(
+            table,
+            ctx.out,
+            f"features_{name}",
+            f"Features of {name}",
+            "Per feature: training scans, scans labelled with it"
+            + (
+                ", and recall / precision against the simulator's truth"
+                if run.truth is not None
+                else ""
+            ),
+            {"mean p on training scans": "{:.3f}", "recall": "{:.3f}", "precision": "{:.3f}"},
+        )
+    )
+    section.figures.append(_fig8(ctx, name, data, run, how))
+    section.figures.append(_fig9(ctx, name, data, ds, poses, how))
+    with ctx.part(section, f"Fig. 10 ({name}), the 3D map"):
+        section.figures.append(_fig10(ctx, name, data, ds, poses, how))
+    return data
+
+
+def _fig8(ctx: Context, name: str, data: dict[str, Any], run: LabelRun, how: str) -> Any:
+    features, distance = data["features"], data["distance"]
+    fig = new_figure(8.0, 1.5 + 1.3 * len(features))
+    axes = fig.subplots(len(features), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, f in zip(axes, features, strict=True):
+        p = data["probability"][f]
+        ax.plot(distance, p, lw=0.9, color="tab:blue")
+        if run.truth is not None:
+            ax.fill_between(
+                distance,
+                0,
+                1,
+                where=run.truth == f,
+                color="tab:green",
+                alpha=0.15,
+                lw=0,
+                label="true place",
+            )
+        idx = data["training"][f]
+        ax.plot(distance[idx], p[idx], "v", color="tab:red", ms=4, label="training scans")
+        ax.set_ylim(-0.05, 1.1)
+        ax.set_ylabel(f"p({f})", fontsize=8)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[-1].set_xlabel(f"distance along the path (m), from {how}")
+    return save_figure(
+        fig,
+        ctx.out,
+        f"fig8_probability_{name}",
+        f"Fig. 8 ({name}): probability of each feature along the map",
+        "Per feature, its probability at every scan against the distance travelled; red "
+        "triangles mark the training scans"
+        + (
+            "; the green band is where the simulator says the place is."
+            if run.truth is not None
+            else "."
+        ),
+        {"distance": distance, "probability": data["probability"], "training": data["training"]},
+    )
+
+
+def _map_points(ds: Any, poses: np.ndarray) -> np.ndarray:
+    """World points (N x 3) of every return, through the toolkit's map builder."""
+    from reports.base import require
+
+    mapping = require("toolkit.mapping", "world_points")
+    return np.asarray(mapping.world_points(ds, poses))
+
+
+def _thin(points: np.ndarray, limit: int = MAX_MAP_POINTS) -> np.ndarray:
+    step = max(1, len(points) // limit)
+    return points[::step]
+
+
+def _fig9(
+    ctx: Context, name: str, data: dict[str, Any], ds: Any, poses: np.ndarray, how: str
+) -> Any:
+    features = data["features"]
+    cols = min(3, len(features))
+    rows = int(np.ceil(len(features) / cols))
+    fig = new_figure(4.2 * cols, 3.6 * rows)
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    try:
+        background = _thin(_map_points(ds, poses))[:, :2]
+    except NotAvailable:
+        background = None
+    for ax, f in zip(axes, features, strict=False):
+        found = data["found"][f]
+        if background is not None:
+            ax.plot(*background.T, ",", color="0.75", rasterized=True)
+        ax.scatter(*poses[~found, :2].T, s=3, c="tab:blue", label="not found", rasterized=True)
+        ax.scatter(*poses[found, :2].T, s=5, c="tab:red", label="found", rasterized=True)
+        ax.set_title(f, fontsize=9)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.tick_params(labelsize=7)
+    for ax in axes[len(features) :]:
+        ax.axis("off")
+    axes[0].legend(fontsize=7, markerscale=2)
+    return save_figure(
+        fig,
+        ctx.out,
+        f"fig9_found_{name}",
+        f"Fig. 9 ({name}): where each feature is found",
+        f"Robot positions from {how}: red where the scan is labelled with the feature, blue "
+        "where it is not" + ("; grey: the map." if background is not None else "."),
+        {"positions": poses[:, :2], "found": data["found"]},
+    )
+
+
+def _fig10(
+    ctx: Context, name: str, data: dict[str, Any], ds: Any, poses: np.ndarray, how: str
+) -> Any:
+    points = _map_points(ds, poses)
+    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
+
+    fig = new_figure(8.0, 6.0)
+    ax = fig.add_subplot(projection="3d")
+    # which scan each point comes from, to colour it by that scan's label
+    per_scan = np.isfinite(ds.ranges).sum(axis=1)
+    scan_of_point = np.repeat(np.arange(ds.n_scans), per_scan)
+    labels = data["label"][scan_of_point] if len(scan_of_point) == len(points) else None
+    thin = slice(None, None, max(1, len(points) // MAX_MAP_POINTS))
+    shown = points[thin]
+    counts: dict[str, int] = {}
+    if labels is not None:
+        shown_labels = labels[thin]
+        for k, cls in enumerate(["none", *data["features"]]):
+            sel = shown_labels == cls
+            counts[cls] = int((labels == cls).sum())
+            if sel.any():
+                ax.scatter(
+                    *shown[sel].T,
+                    s=0.3,
+                    color="0.6" if cls == "none" else f"C{k}",
+                    label=cls,
+                    rasterized=True,
+                )
+        ax.legend(fontsize=7, markerscale=12, loc="upper left")
+    else:
+        ax.scatter(*shown.T, s=0.3, color="0.4", rasterized=True)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    return save_figure(
+        fig,
+        ctx.out,
+        f"fig10_map3d_{name}",
+        f"Fig. 10 ({name}): the 3D map",
+        f"Every return at its world position and the laser's mounting height, poses from {how}, "
+        "coloured by the label of the scan that saw it.",
+        {"points": len(points), "z": np.unique(np.round(points[:, 2], 6)), "label_counts": counts},
+    )

@@ -1,0 +1,14 @@
+"""placeholder"""
+
+from __future__ import annotations
+
+from reports.base import NotAvailable, Section
+from reports.context import Context
+
+KEY = "table1_sections"
+TITLE = "table1_sections"
+INTRO = ""
+
+
+def generate(ctx: Context, section: Section) -> None:
+    raise NotAvailable("not written yet")

@@ -1,0 +1,70 @@
+"""`toolkit report [DATASET...] --out REPORT`"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from toolkit.cli import app
+
+
+@app.command("report")
+def report_command(
+    datasets: Annotated[
+        list[Path] | None,
+        typer.Argument(help="dataset directories to map, label and score (default: none)"),
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="report folder to write")] = Path(
+        "report"
+    ),
+    regions: Annotated[
+        Path | None,
+        typer.Option(
+            help="training regions CSV (feature,start,end) for the datasets given; "
+            "default: regions.csv in each dataset folder"
+        ),
+    ] = None,
+    real: Annotated[
+        Path | None,
+        typer.Option(
+            help="folder of real logs (default: $TOOLKIT_REAL_DATA or ../shared/data/real)"
+        ),
+    ] = None,
+    no_real: Annotated[bool, typer.Option("--no-real", help="leave the real logs out")] = False,
+    quick: Annotated[
+        bool, typer.Option("--quick", help="fewer trials and cloud sizes (tests, CI)")
+    ] = False,
+    seed: Annotated[int, typer.Option(help="seed of the simulator and random clouds")] = 0,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing report")] = False,
+) -> None:
+    """Write the paper's figures and tables, measured now: index.html, PNG/SVG, CSV/MD/LaTeX.
+
+    Simulates the corridor, imports the real logs it uses, maps every log with each method
+    and labels the logs that have training regions; what a missing piece prevents is marked
+    "not available" in the report.
+    """
+    import reports
+
+    report = reports.build(
+        out,
+        datasets or [],
+        regions=regions,
+        quick=quick,
+        seed=seed,
+        real=False if no_real else (real or True),
+        force=force,
+        command=shlex.join(["toolkit", *sys.argv[1:]]),
+    )
+    for s in report.sections:
+        extra = "; ".join(s.unavailable) if s.unavailable else ""
+        typer.echo(f"{s.status:13s} {s.title}" + (f"  ({extra})" if extra else ""))
+    typer.echo(f"report in {report.path}/index.html ({report.seconds:.1f} s)")
+    if report.failed:
+        from toolkit.errors import ToolkitError
+
+        names = ", ".join(s.key for s in report.failed)
+        raise ToolkitError(f"sections failed: {names} (the report says why)", file=report.path)
