@@ -1,0 +1,70 @@
+"""The command-line contract: --help everywhere, exit 1 with one line on user errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from toolkit.cli import app
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "toolkit", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> None:
+    assert result.returncode == 1, result
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "Traceback" not in result.stderr
+    for needle in needles:
+        assert needle in lines[0]
+
+
+def test_every_command_answers_help() -> None:
+    names = [c.name for c in app.registered_commands]
+    assert {"import", "info"} <= set(names)
+    for name in names:
+        result = run(name, "--help")
+        assert result.returncode == 0, (name, result.stderr)
+        assert "Usage" in result.stdout
+
+
+def test_unknown_format_names_the_known_ones(tmp_path: Path) -> None:
+    src = tmp_path / "x.log"
+    src.write_text("hello\n")
+    assert_one_line_error(run("import", "nosuch", src, "--out", tmp_path / "d"), "unknown format")
+    assert not (tmp_path / "d").exists()
+
+
+def test_missing_source_is_named(tmp_path: Path) -> None:
+    missing = tmp_path / "missing.log"
+    assert_one_line_error(run("import", "auto", missing, "--out", tmp_path / "d"), str(missing))
+
+
+def test_undetectable_format_says_so(tmp_path: Path) -> None:
+    src = tmp_path / "notes.txt"
+    src.write_text("dear diary, the robot drove around\n")
+    assert_one_line_error(run("import", "auto", src, "--out", tmp_path / "d"), "format")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_info_on_a_non_dataset(tmp_path: Path) -> None:
+    assert_one_line_error(run("info", tmp_path), "not a dataset")
+
+
+@pytest.mark.parametrize("bad", ["KEY", "=v"])
+def test_malformed_format_option(tmp_path: Path, bad: str) -> None:
+    src = tmp_path / "x.log"
+    src.write_text("x\n")
+    assert_one_line_error(
+        run("import", "auto", src, "--out", tmp_path / "d", "-O", bad), "KEY=VALUE"
+    )
