@@ -1,0 +1,810 @@
+"""Rawseeds (Bicocca, Bovisa) session CSVs: SICK and Hokuyo lasers, odometry, ground truth.
+
+A session is a directory of comma-separated files without header, each `<session>-<STREAM>.csv`
+(optionally `.bz2`); see FORMATS.md "Rawseeds". The laser CSVs of a session run to gigabytes,
+so lasers are streamed: the decompressed text is cut at line ends into ~32 MB chunks, each
+chunk is parsed by pyarrow's multithreaded CSV reader and appended to a `ScansWriter` on a
+background thread while the next chunk is parsed. Memory stays at a few chunks, whatever the
+file size.
+
+Decisions (also stored in meta.json under "rawseeds"):
+
+- Primary laser: SICK_FRONT unless `--laser` names another (sick_front, sick_rear,
+  hokuyo_front, hokuyo_rear); every other laser found goes to `scans-<name>.parquet`.
+- No return: the SICK LMS-2xx in cm mode reports no echo and dazzle as codes 8183..8191 cm,
+  i.e. 81.83..81.91 m, and some drivers write 0. Rawseeds' documentation shows no special
+  value, so readings >= 81.83 m (`range_max`) or == 0 become NaN; the writer writes NaN as
+  81.910 (the LMS "no echo" code). Hokuyo URG-04LX: readings < 0.02 m (its error codes) or
+  > 5.6 m become NaN. NaN, inf and negative readings become NaN too; both kinds are counted in
+  meta["range_readings"].
+- Ground truth (`-O groundtruth=`): `floor` (default) is GROUNDTRUTH.csv, the independent
+  external ground truth (cameras and external lasers) in a frame fixed on the floor of the GT
+  area, covering only part of the path; `extended` is GT-extended.csv, the whole path in the
+  frame of the first robot pose, from scan matching on the robot's own lasers (so not
+  independent of them); `none`. The file not chosen is kept as a pose stream
+  (`poses-gt-floor.parquet` or `poses-gt-extended.parquet`).
+- `<session>.relations` (Freiburg: pose of t2 in the frame of t1, for RPE) is kept as
+  `relations.parquet` (t1, t2, x, y, z, roll, pitch, yaw), in file order.
+- `*-GROUNDTRUTH-CARTOGRAPHER.csv` is a SLAM estimate added by a later repository, not ground
+  truth: kept as `poses-cartographer.parquet`, never as ground truth.
+- Damage that a long recording can carry is skipped and counted in the import report: lines
+  with the wrong number of fields, an `n_ranges` field that does not match, a truncated last
+  line, timestamps out of order (the out-of-order record is dropped, file order kept). A
+  non-numeric value is an error naming the file and line: the fast parser fails, then a slow
+  pass over that chunk finds the line.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import math
+import re
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, ClassVar
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+from rich.progress import TaskID
+
+from importers import register
+from importers.base import Importer, ImportOptions, head_bytes, open_binary
+from toolkit.atomic import atomic_dir, atomic_file
+from toolkit.dataset import (
+    GROUNDTRUTH,
+    META,
+    ODOMETRY,
+    SCANS,
+    Dataset,
+    ImportReport,
+    LaserGeometry,
+    ScansWriter,
+    load,
+    make_meta,
+    write_poses,
+)
+from toolkit.errors import FormatError, ToolkitError
+from toolkit.progress import task
+
+CHUNK_BYTES = 32 << 20  # decompressed text handed to one multithreaded parse
+SICK_RANGE_MAX = 81.83  # first LMS-2xx error code in cm mode (8183 cm); at or above = no return
+SICK_NO_RETURN = 81.91  # what the writer writes for NaN: the LMS "no echo" code 8191 cm
+HOKUYO_RANGE_MIN = 0.02  # URG-04LX error codes are 0..19 mm
+HOKUYO_RANGE_MAX = 5.6
+HOKUYO_STEP = 2.0 * math.pi / 1024.0
+RELATIONS = "relations.parquet"
+RELATION_COLUMNS = ("t1", "t2", "x", "y", "z", "roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class LaserSpec:
+    """One Rawseeds laser stream: its file suffix, columns before the ranges, and geometry."""
+
+    stream: str  # file suffix, e.g. SICK_FRONT
+    name: str  # dataset name, e.g. sick_front
+    lead: int  # columns before the ranges: t, n_ranges, angular_offset (SICK) or t (Hokuyo)
+    geometry: LaserGeometry
+
+    @property
+    def columns(self) -> int:
+        return self.lead + self.geometry.beams
+
+
+def _sick(stream: str, **mount: float) -> LaserSpec:
+    geometry = LaserGeometry.sick_180(181, range_max=SICK_RANGE_MAX, **mount)
+    return LaserSpec(stream, stream.lower(), 3, geometry)
+
+
+def _hokuyo(stream: str, yaw: float) -> LaserSpec:
+    geometry = LaserGeometry(
+        681, -340 * HOKUYO_STEP, HOKUYO_STEP, HOKUYO_RANGE_MAX, HOKUYO_RANGE_MIN, yaw=yaw
+    )
+    return LaserSpec(stream, stream.lower(), 1, geometry)
+
+
+LASERS: dict[str, LaserSpec] = {
+    s.name: s
+    for s in (
+        _sick("SICK_FRONT", x=0.080, y=0.0, z=0.45),
+        _sick("SICK_REAR", x=-0.463, y=0.001, z=0.454, yaw=math.pi),
+        _hokuyo("HOKUYO_FRONT", 0.0),
+        _hokuyo("HOKUYO_REAR", math.pi),
+    )
+}
+# pose-like streams: file suffix -> (number of fields, name)
+POSE_STREAMS = {
+    "ODOMETRY_XYT": 7,
+    "GROUNDTRUTH": 13,
+    "GT-extended": 4,
+    "GROUNDTRUTH-CARTOGRAPHER": 4,
+}
+_STREAM_RE = "|".join(
+    re.escape(s)
+    for s in sorted([*POSE_STREAMS, *(x.stream for x in LASERS.values())], key=len)[::-1]
+)
+NAME_RE = re.compile(rf"^(?P<session>.+?)-(?P<stream>{_STREAM_RE})\.csv(?:\.bz2|\.gz)?$")
+RELATIONS_RE = re.compile(
+    r"^(?P<session>.+?)(?<!-GROUNDTRUTH-CARTOGRAPHER)\.relations(?:\.bz2|\.gz)?$"
+)
+GT_CHOICES = ("floor", "extended", "none")
+
+
+def classify(path: Path) -> tuple[str, str] | None:
+    """(session, stream) of a Rawseeds file name; stream 'relations' for `<session>.relations`."""
+    if m := NAME_RE.match(path.name):
+        return m["session"], m["stream"]
+    if m := RELATIONS_RE.match(path.name):
+        return m["session"], "relations"
+    return None
+
+
+def _looks_like_sick_line(line: bytes) -> bool:
+    fields = line.split(b",")
+    if len(fields) != 184:
+        return False
+    try:
+        values = [float(f) for f in fields]
+    except ValueError:
+        return False
+    return values[1] == 181.0 and values[0] > 0
+
+
+# ---------------------------------------------------------------- reading text in chunks
+
+
+def _open_stream(path: Path) -> IO[bytes]:
+    """Decompressed bytes of `path`: pyarrow's bz2/gzip streams, else open_binary (plain, xz)."""
+    magic = _raw_magic(path)
+    if magic.startswith(b"BZh") or magic.startswith(b"\x1f\x8b"):
+        kind = "bz2" if magic.startswith(b"BZh") else "gzip"
+        return pa.input_stream(str(path), compression=kind)
+    return open_binary(path)
+
+
+def _raw_magic(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read(3)
+    except FileNotFoundError:
+        raise ToolkitError("no such file", file=path) from None
+    except IsADirectoryError:
+        raise ToolkitError("is a directory, expected a file", file=path) from None
+
+
+@dataclass
+class Chunk:
+    """Whole lines of text, where they start in the file, and whether the file ends here
+    without a final newline (then the last line may be cut short)."""
+
+    data: bytes
+    first_line: int
+    unterminated: bool = False
+
+
+def chunks(path: Path, size: int | None = None) -> Iterator[Chunk]:
+    """Cut the decompressed text into chunks of whole lines (about CHUNK_BYTES each)."""
+    size = size or CHUNK_BYTES
+    line = 1
+    rest = b""
+    with _open_stream(path) as f, task(f"read {path.name}", path.stat().st_size) as (bar, tid):
+        raw_size = path.stat().st_size
+        magic = _raw_magic(path)
+        compressed = magic.startswith(b"BZh") or magic.startswith(b"\x1f\x8b")
+        while True:
+            block = f.read(size)
+            if not block:
+                break
+            if not compressed:
+                bar.advance(TaskID(tid), len(block))
+            data = rest + block if rest else block
+            cut = data.rfind(b"\n") + 1
+            if cut == 0:  # a line longer than a chunk: keep reading
+                rest = data
+                continue
+            rest = data[cut:]
+            yield Chunk(data[:cut], line)
+            line += data.count(b"\n", 0, cut)
+        if compressed:
+            bar.update(TaskID(tid), completed=raw_size)
+    if rest.strip():
+        yield Chunk(rest, line, unterminated=True)
+
+
+def _line_of(chunk: Chunk, text: str) -> int | None:
+    pos = chunk.data.find(text.encode())
+    return None if pos < 0 else chunk.first_line + chunk.data.count(b"\n", 0, pos)
+
+
+def _locate_non_numeric(path: Path, chunk: Chunk, arrow_message: str) -> FormatError:
+    """The slow pass, run only after the fast parser failed: find the first bad line."""
+    for offset, raw in enumerate(chunk.data.split(b"\n")):
+        text = raw.strip()
+        if not text:
+            continue
+        fields = re.split(rb"[ \t]*,[ \t]*|[ \t]+", text)
+        for k, value in enumerate(fields, start=1):
+            try:
+                float(value)
+            except ValueError:
+                shown = value.decode("utf-8", "replace")[:30]
+                return FormatError(
+                    f"non-numeric value {shown!r} in field {k}",
+                    file=path,
+                    record=chunk.first_line + offset,
+                )
+    first = arrow_message.strip().splitlines()[0] if arrow_message.strip() else "parse error"
+    end = chunk.first_line + chunk.data.count(b"\n")
+    return FormatError(
+        f"cannot parse: {first}", file=path, record=f"lines {chunk.first_line}-{end}"
+    )
+
+
+@dataclass
+class Parsed:
+    """One chunk parsed: the columns as float arrays, and the rows that had the wrong field count."""
+
+    columns: list[np.ndarray]
+    bad_rows: list[tuple[int, str]] = field(default_factory=list)  # (row number, text)
+
+
+def parse_chunk(
+    path: Path,
+    chunk: Chunk,
+    ncols: int,
+    float32_from: int | None = None,
+    delimiter: str = ",",
+) -> Parsed:
+    """Parse a chunk of whole lines with pyarrow (multithreaded); float64 columns, or float32
+    from column `float32_from` on. Rows with the wrong number of fields are skipped and kept."""
+    names = [f"c{i}" for i in range(ncols)]
+    types = {
+        n: pa.float32() if float32_from is not None and i >= float32_from else pa.float64()
+        for i, n in enumerate(names)
+    }
+    bad: list[tuple[int, str]] = []
+
+    def skip(row: Any) -> str:
+        bad.append((row.number if row.number is not None else 1 << 62, str(row.text)))
+        return "skip"
+
+    try:
+        table = pacsv.read_csv(
+            pa.py_buffer(chunk.data),
+            read_options=pacsv.ReadOptions(
+                column_names=names, use_threads=True, block_size=1 << 22
+            ),
+            parse_options=pacsv.ParseOptions(
+                delimiter=delimiter, quote_char=False, invalid_row_handler=skip
+            ),
+            convert_options=pacsv.ConvertOptions(column_types=types),
+        )
+    except pa.ArrowInvalid as e:
+        if "Empty CSV" in str(e):
+            return Parsed([np.empty(0, np.float64) for _ in range(ncols)], bad)
+        raise _locate_non_numeric(path, chunk, str(e)) from None
+    cols = []
+    for col in table.columns:
+        arr = col.to_numpy() if col.null_count == 0 else pc.fill_null(col, math.nan).to_numpy()
+        cols.append(arr)
+    return Parsed(cols, bad)
+
+
+def _where(chunk: Chunk, text: str) -> str:
+    head = text.split(",", 1)[0].strip()[:24]
+    line = _line_of(chunk, text)
+    return f"line {line} (t={head})" if line is not None else f"t={head}"
+
+
+def _count_bad_rows(
+    path: Path, chunk: Chunk, parsed: Parsed, report: ImportReport, prefix: str, what: str
+) -> None:
+    """Rows with the wrong number of fields: a truncated last line, or damage in the middle.
+    Counted in bulk; only the first of each kind is located, for the report's example."""
+    if not parsed.bad_rows:
+        return
+    tail = chunk.data.rstrip()
+    last = [
+        r for r in parsed.bad_rows if chunk.unterminated and tail.endswith(r[1].rstrip().encode())
+    ]
+    middle = [r for r in parsed.bad_rows if not last or r is not last[0]]
+    for reason, rows in (("truncated last line", last[:1]), (f"wrong number of {what}", middle)):
+        if rows:
+            first = min(rows, key=lambda r: r[0])
+            report.drop(prefix + reason, len(rows), f"{path.name} {_where(chunk, first[1])}")
+
+
+def order_mask(t: np.ndarray, prev: float, nxt: float) -> np.ndarray:
+    """Keep-mask for non-decreasing time in file order. A record that jumps ahead of both
+    neighbours (its successor fits after its predecessor) is the one out of order; then every
+    record earlier than one already kept is dropped."""
+    ext = np.concatenate(([prev], t, [nxt]))
+    spike = (ext[1:-1] > ext[2:]) & (ext[:-2] <= ext[2:])
+    keep = ~spike
+    kept_t = np.where(keep, t, -np.inf)
+    running = np.maximum.accumulate(np.concatenate(([prev], kept_t)))[:-1]
+    return keep & (t >= running)
+
+
+# ---------------------------------------------------------------- lasers, streamed
+
+
+@dataclass
+class LaserResult:
+    rows_read: int = 0
+    rows_kept: int = 0
+    readings: int = 0
+    no_return: int = 0
+    invalid: int = 0
+    offsets: dict[float, int] = field(default_factory=dict)
+
+
+def stream_laser(
+    path: Path, spec: LaserSpec, out: Path, report: ImportReport, prefix: str = ""
+) -> LaserResult:
+    """Parse a laser CSV chunk by chunk into a scans Parquet file; drops go to `report`."""
+    result = LaserResult()
+    beams = spec.geometry.beams
+    pending: tuple[np.ndarray, np.ndarray] | None = None
+    prev_t = -math.inf
+    saw_text = False
+
+    def flush(t: np.ndarray, ranges: np.ndarray, nxt: float) -> None:
+        nonlocal prev_t
+        keep = order_mask(t, prev_t, nxt)
+        if not keep.all():
+            first_bad = t[~keep][0]
+            report.drop(
+                prefix + "timestamp out of order",
+                int((~keep).sum()),
+                f"{path.name} t={first_bad:.6f}",
+            )
+            t, ranges = t[keep], ranges[keep]
+        if len(t):
+            prev_t = float(t[-1])
+        result.rows_kept += len(t)
+        submit(t, ranges)
+
+    pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="rawseeds-write")
+    future: concurrent.futures.Future[None] | None = None
+    writer = ScansWriter(out, beams)
+
+    def submit(t: np.ndarray, ranges: np.ndarray) -> None:
+        nonlocal future
+        if future is not None:
+            future.result()
+        future = pool.submit(writer.write, t, ranges)
+
+    try:
+        for chunk in chunks(path):
+            saw_text = saw_text or bool(chunk.data.strip())
+            parsed = parse_chunk(path, chunk, spec.columns, float32_from=spec.lead)
+            _count_bad_rows(path, chunk, parsed, report, prefix, "ranges")
+            t, ranges = _clean_scans(path, parsed, spec, report, prefix, result)
+            result.rows_read += len(parsed.columns[0]) + len(parsed.bad_rows)
+            if len(t) == 0:
+                continue
+            if pending is not None:
+                flush(*pending, nxt=float(t[0]))
+            pending = (t, ranges)
+        if pending is not None:
+            flush(*pending, nxt=math.inf)
+        if future is not None:
+            future.result()
+    finally:
+        pool.shutdown(wait=True)
+        writer.close()
+    if not saw_text:
+        raise FormatError("empty file", file=path)
+    if result.rows_kept == 0:
+        raise FormatError(
+            f"no valid scans: {result.rows_read} lines read, all dropped ({_reasons(report)})",
+            file=path,
+        )
+    return result
+
+
+def _reasons(report: ImportReport) -> str:
+    return ", ".join(f"{k}: {v}" for k, v in report.dropped.items()) or "none"
+
+
+def _clean_scans(
+    path: Path,
+    parsed: Parsed,
+    spec: LaserSpec,
+    report: ImportReport,
+    prefix: str,
+    result: LaserResult,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Check the lead fields, make an S x B float32 array, and turn invalid readings into NaN."""
+    cols = parsed.columns
+    t = cols[0]
+    n = len(t)
+    ok = np.isfinite(t)
+    if not ok.all():
+        report.drop(prefix + "timestamp not a number", int((~ok).sum()), path.name)
+    if spec.lead == 3:
+        count = cols[1]
+        match = count == spec.geometry.beams
+        bad = ok & ~match
+        if bad.any():
+            report.drop(
+                prefix + "n_ranges field does not match the ranges",
+                int(bad.sum()),
+                f"{path.name} t={t[bad][0]:.6f} n_ranges={count[bad][0]:g}",
+            )
+        ok &= match
+        offsets, counts = np.unique(cols[2][ok], return_counts=True)
+        for value, c in zip(offsets.tolist(), counts.tolist(), strict=True):
+            result.offsets[value] = result.offsets.get(value, 0) + int(c)
+    ranges = np.empty((n, spec.geometry.beams), dtype=np.float32)
+    for i, col in enumerate(cols[spec.lead :]):
+        ranges[:, i] = col
+    if not ok.all():
+        t, ranges = t[ok], ranges[ok]
+    invalid = ~np.isfinite(ranges) | (ranges < 0)
+    g = spec.geometry
+    with np.errstate(invalid="ignore"):
+        no_return = ~invalid & ((ranges >= g.range_max) | (ranges <= g.range_min))
+        if spec.lead == 1:  # Hokuyo: error codes are small values, not the maximum
+            no_return = ~invalid & ((ranges > g.range_max) | (ranges < g.range_min))
+    result.readings += ranges.size
+    result.invalid += int(invalid.sum())
+    result.no_return += int(no_return.sum())
+    ranges[invalid | no_return] = np.nan
+    return t, ranges
+
+
+# ---------------------------------------------------------------- small files, whole
+
+
+def read_rows(path: Path, ncols: int, report: ImportReport, prefix: str) -> np.ndarray:
+    """An N x ncols float64 array from a small Rawseeds file (comma, ", " or whitespace
+    separated); wrong field counts and a truncated last line are skipped and counted."""
+    with _open_stream(path) as f:
+        data = f.read()
+    if not data.strip():
+        raise FormatError("empty file", file=path)
+    # one separator: "a, b", "a b  c" and "a,b" all become "a,b"
+    data = re.sub(rb"(?m)^[ \t]+|[ \t]+(?=\r?$)", b"", data)
+    data = re.sub(rb"[ \t]*,[ \t]*|[ \t]+", b",", data)
+    unterminated = not data.endswith(b"\n")
+    chunk = Chunk(data, 1, unterminated)
+    parsed = parse_chunk(path, chunk, ncols)
+    _count_bad_rows(path, chunk, parsed, report, prefix, "fields")
+    return np.column_stack(parsed.columns) if parsed.columns else np.empty((0, ncols))
+
+
+def read_pose_stream(
+    path: Path, ncols: int, columns: Sequence[int], report: ImportReport, prefix: str
+) -> pd.DataFrame:
+    """t, x, y, theta from the given column indices, records out of time order dropped."""
+    rows = read_rows(path, ncols, report, prefix)
+    rows = rows[np.isfinite(rows[:, 0])]
+    keep = order_mask(rows[:, 0], -math.inf, math.inf)
+    if not keep.all():
+        report.drop(
+            prefix + "timestamp out of order",
+            int((~keep).sum()),
+            f"{path.name} t={rows[~keep][0, 0]:.6f}",
+        )
+        rows = rows[keep]
+    return pd.DataFrame(
+        {name: rows[:, c] for name, c in zip(("t", "x", "y", "theta"), columns, strict=True)}
+    )
+
+
+# ---------------------------------------------------------------- the session
+
+
+@dataclass
+class Session:
+    """The files of one Rawseeds session, by stream."""
+
+    name: str
+    files: dict[str, Path]
+    where: str  # "session dir X" or "given files", for error messages
+
+
+def find_session(sources: Sequence[Path]) -> Session:
+    files: dict[str, Path] = {}
+    sessions: set[str] = set()
+    where = "given files"
+    for src in sources:
+        src = Path(src)
+        if src.is_dir():
+            where = f"session dir {src}"
+            found = [(p, classify(p)) for p in sorted(src.iterdir()) if p.is_file()]
+            hits = [(p, c) for p, c in found if c is not None]
+            if not hits:
+                raise FormatError(
+                    "no Rawseeds files (<session>-SICK_FRONT.csv etc.) in directory", file=src
+                )
+        elif src.is_file():
+            c = classify(src)
+            if c is None:
+                if not _looks_like_sick_line(head_bytes(src, 8192).split(b"\n", 1)[0].strip()):
+                    if not head_bytes(src, 64).strip():
+                        raise FormatError("empty file", file=src)
+                    raise FormatError(
+                        "not a Rawseeds file: name is not <session>-<STREAM>.csv and the first "
+                        "line is not a SICK record (t, 181, offset, 181 ranges)",
+                        file=src,
+                    )
+                c = (strip_name(src), "SICK_FRONT")
+            hits = [(src, c)]
+        else:
+            raise ToolkitError("no such file or directory", file=src)
+        for path, (session, stream) in hits:
+            if stream in files and files[stream] != path:
+                plain = files[stream].name.removesuffix(".bz2") == path.name
+                if plain or path.name.removesuffix(".bz2") == files[stream].name:
+                    continue  # plain and bz2 copies of the same stream: take the first
+                raise FormatError(
+                    f"two {stream} files: {files[stream].name} and {path.name}", file=path
+                )
+            files[stream] = path
+            sessions.add(session)
+    if len(sessions) > 1:
+        raise FormatError(
+            f"files of several sessions ({', '.join(sorted(sessions))}); give one", file=sources[0]
+        )
+    return Session(next(iter(sessions)), files, where)
+
+
+def strip_name(path: Path) -> str:
+    name = path.name
+    for suffix in (".bz2", ".gz", ".csv"):
+        name = name.removesuffix(suffix)
+    return name
+
+
+@register
+class Rawseeds(Importer):
+    name: ClassVar[str] = "rawseeds"
+    summary: ClassVar[str] = (
+        "Rawseeds session dir or files: <session>-SICK_FRONT.csv(.bz2), -ODOMETRY_XYT, -GROUNDTRUTH ..."
+    )
+    options: ClassVar[dict[str, str]] = {
+        "groundtruth": "floor (GROUNDTRUTH.csv, external, partial path; default) | extended "
+        "(GT-extended.csv, whole path, from scan matching) | none",
+    }
+
+    def sniff(self, path: Path) -> bool:
+        path = Path(path)
+        if path.is_dir():
+            try:
+                return any(classify(p) is not None for p in path.iterdir() if p.is_file())
+            except OSError:
+                return False
+        if classify(path) is not None:
+            return True
+        line = head_bytes(path, 8192).split(b"\n", 1)[0].strip()
+        return _looks_like_sick_line(line)
+
+    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+        """Import into a temporary dataset and load it (for small inputs and round trips)."""
+        with tempfile.TemporaryDirectory(prefix="rawseeds-") as tmp:
+            out = Path(tmp) / "ds"
+            self.import_to(sources, out, options)
+            ds = load(out)
+            ds.path = None
+        return ds
+
+    def import_to(
+        self, sources: Sequence[Path], out: Path, options: ImportOptions, force: bool = False
+    ) -> Path:
+        session = find_session([Path(s) for s in sources])
+        primary = (options.laser or "sick_front").lower()
+        if primary not in LASERS:
+            raise ToolkitError(f"unknown laser {options.laser!r}; one of {', '.join(LASERS)}")
+        gt_choice = (options.get("groundtruth") or "floor").lower()
+        if gt_choice not in GT_CHOICES:
+            raise ToolkitError(
+                f"-O groundtruth={gt_choice}: expected one of {', '.join(GT_CHOICES)}"
+            )
+        spec = LASERS[primary]
+        if spec.stream not in session.files:
+            raise FormatError(f"no {spec.stream} csv in {session.where}")
+        with atomic_dir(out, force=force) as tmp:
+            meta = self._import(session, spec, gt_choice, tmp)
+            import json
+
+            (tmp / META).write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
+        return out
+
+    def _import(
+        self, session: Session, spec: LaserSpec, gt_choice: str, tmp: Path
+    ) -> dict[str, Any]:
+        report = ImportReport()
+        files = session.files
+        primary = stream_laser(files[spec.stream], spec, tmp / SCANS, report)
+        report.records_read, report.records_kept = primary.rows_read, primary.rows_kept
+        readings = {spec.name: _readings(primary)}
+        lasers: dict[str, LaserGeometry] = {}
+        for other in LASERS.values():
+            if other is spec or other.stream not in files:
+                continue
+            res = stream_laser(
+                files[other.stream],
+                other,
+                tmp / f"scans-{other.name}.parquet",
+                report,
+                f"{other.name}: ",
+            )
+            lasers[other.name] = _with_offset(other, res)
+            readings[other.name] = _readings(res)
+
+        if "ODOMETRY_XYT" in files:
+            odo = read_pose_stream(files["ODOMETRY_XYT"], 7, (0, 4, 5, 6), report, "odometry: ")
+            write_poses(tmp / ODOMETRY, odo)
+        else:
+            report.note("no ODOMETRY_XYT file: imported without odometry")
+
+        gt_files = {"floor": "GROUNDTRUTH", "extended": "GT-extended"}
+        gt_meta: dict[str, Any] = {"choice": gt_choice}
+        for choice, stream in gt_files.items():
+            if stream not in files:
+                continue
+            ncols = POSE_STREAMS[stream]
+            poses = read_pose_stream(files[stream], ncols, (0, 1, 2, 3), report, f"{stream}: ")
+            if choice == gt_choice:
+                write_poses(tmp / GROUNDTRUTH, poses)
+                gt_meta["file"] = files[stream].name
+            else:
+                write_poses(tmp / f"poses-gt-{choice}.parquet", poses)
+        gt_meta["frame"] = {
+            "floor": "floor frame of the ground-truth area (external cameras and lasers); "
+            "covers only part of the path",
+            "extended": "frame of the first robot pose; whole path; from scan matching on the "
+            "robot's own lasers (not independent of them)",
+            "none": "not imported",
+        }[gt_choice]
+        if gt_choice != "none" and "file" not in gt_meta:
+            report.note(f"no {gt_files[gt_choice]} file: imported without ground truth")
+        if "GROUNDTRUTH-CARTOGRAPHER" in files:
+            carto = read_pose_stream(
+                files["GROUNDTRUTH-CARTOGRAPHER"], 4, (0, 1, 2, 3), report, "cartographer: "
+            )
+            write_poses(tmp / "poses-cartographer.parquet", carto)
+            report.note(
+                "GROUNDTRUTH-CARTOGRAPHER is a SLAM estimate: kept as poses-cartographer, not as ground truth"
+            )
+        relations_meta: dict[str, Any] | None = None
+        if "relations" in files:
+            rows = read_rows(files["relations"], 8, report, "relations: ")
+            table = pa.table({c: rows[:, i] for i, c in enumerate(RELATION_COLUMNS)})
+            pq.write_table(table, tmp / RELATIONS, compression="zstd")
+            relations_meta = {
+                "file": files["relations"].name,
+                "table": RELATIONS,
+                "pairs": len(rows),
+                "meaning": "pose of t2 in the frame of the pose at t1 (x, y, z m; roll, pitch, yaw rad)",
+            }
+        total = sum(r["total"] for r in readings.values())
+        if total:
+            lost = sum(r["no_return"] + r["invalid"] for r in readings.values())
+            report.note(f"{lost} of {total} range readings are NaN (no return or invalid)")
+        return make_meta(
+            "rawseeds",
+            list(files.values()),
+            _with_offset(spec, primary),
+            report,
+            lasers=lasers,
+            session=session.name,
+            scans=primary.rows_kept,
+            beams=spec.geometry.beams,
+            range_readings=readings,
+            rawseeds={
+                "primary_laser": spec.name,
+                "streams": {k: v.name for k, v in sorted(files.items())},
+                "groundtruth": gt_meta,
+                "relations": relations_meta,
+                "no_return": "SICK: readings >= 81.83 m (LMS error codes 8183..8191 cm) or 0 -> NaN; "
+                "Hokuyo: < 0.02 m or > 5.6 m -> NaN; NaN, inf, negative -> NaN",
+                "angular_offset": {f"{k:g}": v for k, v in sorted(primary.offsets.items())},
+            },
+        )
+
+    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
+        return write(ds, out, **options)  # type: ignore[arg-type]
+
+
+def _readings(res: LaserResult) -> dict[str, int]:
+    return {"total": res.readings, "no_return": res.no_return, "invalid": res.invalid}
+
+
+def _with_offset(spec: LaserSpec, res: LaserResult) -> LaserGeometry:
+    """The geometry, with angle_min moved by the most common angular_offset (in 1/4 degree)."""
+    if not res.offsets:
+        return spec.geometry
+    offset = max(res.offsets.items(), key=lambda kv: kv[1])[0]
+    if offset == 0:
+        return spec.geometry
+    g = spec.geometry.to_dict()
+    g["angle_min"] = spec.geometry.angle_min + math.radians(offset / 4.0)
+    return LaserGeometry.from_dict(g)
+
+
+# ---------------------------------------------------------------- writer
+
+
+def _fixed(values: np.ndarray, decimals: int) -> pa.Array:
+    """Numbers as fixed-point text ('%.{decimals}f'), vectorised through a decimal cast."""
+    arr = pa.array(np.asarray(values, dtype=np.float64))  # the cast rounds half away from 0
+    return pc.cast(pc.cast(arr, pa.decimal128(18 + decimals, decimals), safe=False), pa.string())
+
+
+def _write_lines(path: Path, columns: Sequence[pa.Array]) -> None:
+    lines = pc.binary_join_element_wise(*columns, ",")
+    text = "\n".join(lines.to_pylist())
+    with atomic_file(path) as tmp:
+        tmp.write_text(text + "\n" if text else "")
+
+
+def write(
+    ds: Dataset,
+    out: str | Path,
+    session: str = "Sim_2026-01-01a",
+    odometry_decimals: int = 3,
+    chunk: int = 20000,
+) -> list[Path]:
+    """Write `ds` as a Rawseeds session under `out`: SICK_FRONT (the primary laser, which must be
+    181 beams at 1°), ODOMETRY_XYT (ticks 0) and GROUNDTRUTH (zero covariance) when present.
+    t with 6 decimals, ranges with 3 (as Rawseeds), NaN as 81.910; odometry x, y, theta with
+    `odometry_decimals` (3, as the Rawseeds odometry example line), ground truth with 6."""
+    out = Path(out)
+    g = ds.laser
+    if ds.n_beams != 181 or abs(g.angle_increment - math.radians(1.0)) > 1e-9:
+        raise ToolkitError(
+            f"Rawseeds SICK_FRONT needs 181 beams at 1 deg; the dataset has {ds.n_beams} at "
+            f"{math.degrees(g.angle_increment):.4g} deg"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    laser_path = out / f"{session}-SICK_FRONT.csv"
+    with atomic_file(laser_path) as tmp, open(tmp, "w") as f:
+        for start in range(0, ds.n_scans, chunk):
+            t = ds.t[start : start + chunk]
+            r = ds.ranges[start : start + chunk]
+            r = np.where(np.isfinite(r) & (r < SICK_RANGE_MAX) & (r > 0), r, SICK_NO_RETURN)
+            f.write(_sick_lines(t, r))
+    written.append(laser_path)
+    if ds.odometry is not None:
+        odo = ds.odometry
+        n = len(odo)
+        path = out / f"{session}-ODOMETRY_XYT.csv"
+        cols = [
+            _fixed(odo["t"].to_numpy(), 6),
+            pa.array([str(i % 65536) for i in range(n)]),
+            pa.array(["0"] * n),
+            pa.array(["0"] * n),
+        ] + [_fixed(odo[c].to_numpy(), odometry_decimals) for c in ("x", "y", "theta")]
+        _write_lines(path, cols)
+        written.append(path)
+    if ds.groundtruth is not None:
+        gt = ds.groundtruth
+        path = out / f"{session}-GROUNDTRUTH.csv"
+        zero = pa.array(["0.000000"] * len(gt))
+        cols = [_fixed(gt[c].to_numpy(), 6) for c in ("t", "x", "y", "theta")] + [zero] * 9
+        _write_lines(path, cols)
+        written.append(path)
+    return written
+
+
+def _sick_lines(t: np.ndarray, ranges: np.ndarray) -> str:
+    """'t,181,0,R1,...,R181' lines, built column-wise by pyarrow (no loop per scan or beam)."""
+    rows, beams = ranges.shape
+    if rows == 0:
+        return ""
+    flat = _fixed(ranges.reshape(-1), 3)
+    offsets = pa.array(np.arange(0, rows * beams + 1, beams, dtype=np.int32))
+    per_row = pc.binary_join(pa.ListArray.from_arrays(offsets, flat), ",")
+    head = pa.scalar(f"{beams},0")
+    lines = pc.binary_join_element_wise(_fixed(t, 6), head, per_row, ",")
+    return "\n".join(lines.to_pylist()) + "\n"
