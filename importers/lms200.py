@@ -74,7 +74,7 @@ CRC_BLOCK = 8192  # frames per CRC block
 # ---------------------------------------------------------------- CRC
 
 
-def crc16_sick(data: bytes | np.ndarray) -> int:
+def crc16_sick(data: bytes | bytearray | np.ndarray) -> int:
     """SICK's telegram CRC of one byte string (reference, sequential)."""
     crc = prev = 0
     for b in bytes(data):
@@ -242,7 +242,7 @@ def decode_values(buf: np.ndarray, starts: np.ndarray, count: int) -> np.ndarray
 
 def values_to_ranges(values: np.ndarray, scale: float) -> np.ndarray:
     ranges = values.astype(np.float32)
-    ranges *= np.float32(scale)
+    ranges /= np.float32(round(1 / scale))  # exact integer / exact divisor: correctly rounded
     ranges[values >= SPECIAL_MIN] = np.nan
     return ranges
 
