@@ -1,0 +1,799 @@
+"""CARMEN logs (`carmen`): FLASER/RLASER, ROBOTLASER1/2, ODOM, TRUEPOS, PARAM; DP-SLAM logs.
+
+Reading, and the decisions a log leaves open (each is stated in meta.json and the report):
+
+- Lasers. FLASER (front) and RLASER (rear) are the old format without angles: the beam count
+  fixes the layout (181 = 180° at 1° from -90°, 180 = 179° at 1° from -90°, 361 = 180° at
+  0.5°, 360 = 179.5° at 0.5°, 401 = 100° at 0.25° centred, -50°; any other count: 180° from
+  -90°, noted). ROBOTLASER1/2 carry start_angle, fov, resolution and max_range. DP-SLAM
+  (`Odometry x y th` / `Laser n r...`, no clock) pairs each Laser with the Odometry before it.
+  The primary laser is FLASER, else ROBOTLASER1, else Laser, else RLASER, else ROBOTLASER2
+  (`--laser NAME` picks another); the others become further lasers named after the message.
+- Damage is local and skipped, counted with the first line it was seen on: a wrong number of
+  ranges or fields (a truncated last line has its own reason), a non-numeric value in a line,
+  a beam count other than the log's majority, a scan whose timestamp goes backwards (the team
+  default: drop it, keep file order). An empty file, a file with no laser lines, or one whose
+  laser lines are all damaged is an error naming the file.
+- No-return codes. Values at the top of a log's range (81.91, 81.83, 51.15, 32.767, 8.191,
+  7.999 ...) are the scanner's "no return": the largest value that recurs at least
+  `CODE_MIN_COUNT` times is the code, it becomes `range_max`, and every value within
+  `CODE_BAND` below it or above becomes NaN. ROBOTLASER max_range, the writer's PARAM
+  `toolkit_laser_range_max` or `-O range_max=X` set the code explicitly (`-O range_max=none`
+  turns the detection off). NaN, inf and negative values in the file become NaN too (counted).
+- Clock. Scans take the message timestamp. A log without timestamps (CSM, DP-SLAM), or whose
+  timestamps are broken (fewer than half distinct: all 0, printed with too few digits; or more
+  than a quarter out of order: garbage), falls back to scan order: t = index / rate, rate from
+  `--rate` or 1 Hz nominal; meta["time_source"] = "scan_order".
+- Odometry: the ODOM stream at its own times (out-of-order lines dropped and counted) when the
+  log has a usable clock; otherwise the robot (odometry) pose of each laser line at scan
+  times. Ground truth: TRUEPOS lines. `-O poses=groundtruth` stores the laser lines' robot
+  poses as ground truth instead (the Radish "corrected" logs: SLAM-corrected poses used as
+  approximate truth). Laser lines' robot poses that are neither odometry nor ground truth are
+  kept as the pose stream `scan_pose`.
+- Mounting: x from PARAM robot_frontlaser_offset (robot_rearlaser_offset for the rear laser),
+  y and yaw (and x when there is no PARAM) from the median difference between the laser pose
+  and the robot pose of the laser lines, in the robot frame.
+
+Writing (`write`): PARAM lines, ODOM from ds.odometry, FLASER (old layouts) or ROBOTLASER1
+(anything else) with the laser pose and the odometry pose interpolated at scan times, TRUEPOS
+from ds.groundtruth; timestamps with 6 decimals, ranges with 3 (mm), NaN as the range_max code.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pandas as pd
+
+from importers import register
+from importers.base import Importer, ImportOptions, head_bytes, open_text
+from toolkit.atomic import atomic_file
+from toolkit.dataset import Dataset, ImportReport, LaserGeometry, Scans, make_meta
+from toolkit.errors import FormatError, ToolkitError
+
+#: a value is a no-return code if it is the largest one recurring at least this often
+CODE_MIN_COUNT = 5
+#: values this fraction below the detected code, or above it, are no-returns too
+CODE_BAND = 0.005
+#: timestamps are broken if fewer than this fraction are distinct ...
+MIN_DISTINCT = 0.5
+#: ... or more than this fraction are out of order
+MAX_OUT_OF_ORDER = 0.25
+NOMINAL_RATE = 1.0
+
+#: old-format beam layouts: beams -> (first angle, step), degrees
+OLD_LAYOUTS: dict[int, tuple[float, float]] = {
+    181: (-90.0, 1.0),
+    180: (-90.0, 1.0),
+    361: (-90.0, 0.5),
+    360: (-90.0, 0.5),
+    401: (-50.0, 0.25),
+}
+OLD_LASERS = ("FLASER", "RLASER")
+NEW_LASERS = ("ROBOTLASER1", "ROBOTLASER2")
+DPSLAM_LASER = "Laser"
+PRIMARY_ORDER = ("FLASER", "ROBOTLASER1", DPSLAM_LASER, "RLASER", "ROBOTLASER2")
+REAR = ("RLASER", "ROBOTLASER2")
+CARMEN_TOKENS = frozenset(
+    {"FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2", "ODOM", "TRUEPOS", "PARAM", "SYNC", "NEFF"}
+    | {f"RAWLASER{i}" for i in range(1, 5)}
+)
+DPSLAM_TOKENS = frozenset({"odometry", "laser"})
+RANGE_PARAM = "toolkit_laser_range_max"
+_NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^[-+]?(nan|inf)$", re.IGNORECASE)
+
+
+@dataclass
+class _Line:
+    number: int  # 1-based line number in the file
+    tokens: list[str]
+
+
+@dataclass
+class _Lines:
+    """The data lines of a log, sorted by message; everything else counted."""
+
+    lasers: dict[str, list[_Line]] = field(default_factory=dict)
+    odom: list[_Line] = field(default_factory=list)
+    truepos: list[_Line] = field(default_factory=list)
+    params: dict[str, list[str]] = field(default_factory=dict)
+    skipped: Counter[str] = field(default_factory=Counter)
+    last_line: int = 0  # number of the last line, if it lacks its newline (else 0)
+
+
+@dataclass
+class _LaserStream:
+    """One laser's kept lines, parsed."""
+
+    name: str
+    lines: np.ndarray  # (S,) line numbers
+    index: np.ndarray  # (S,) position among this laser's lines in the file (for scan order)
+    ranges: np.ndarray  # (S, B) float64
+    laser_pose: np.ndarray  # (S, 3)
+    robot_pose: np.ndarray  # (S, 3)
+    stamp: np.ndarray | None  # (S,) message timestamps, None without a clock
+    header: np.ndarray | None  # ROBOTLASER: (S, 4) start_angle, fov, resolution, max_range
+    read: int  # lines of this message in the file
+
+
+# ---------------------------------------------------------------- reading lines
+
+
+def _split_lines(path: Path) -> _Lines:
+    """One pass over the file: tokens of every data line, grouped by message."""
+    with open_text(path) as f:
+        try:
+            text = f.read()
+        except (OSError, EOFError) as e:
+            raise FormatError(f"cannot read: {e}", file=path) from None
+    if not text.strip():
+        raise FormatError("empty file", file=path)
+    out = _Lines()
+    lines = text.splitlines()
+    if not text.endswith(("\n", "\r")):
+        out.last_line = len(lines)
+    dpslam_pose: list[str] | None = None
+    for number, line in enumerate(lines, start=1):
+        tokens = line.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        msg = tokens[0]
+        if msg in OLD_LASERS or msg in NEW_LASERS:
+            out.lasers.setdefault(msg, []).append(_Line(number, tokens))
+        elif msg == "ODOM":
+            out.odom.append(_Line(number, tokens))
+        elif msg == "TRUEPOS":
+            out.truepos.append(_Line(number, tokens))
+        elif msg == "PARAM":
+            if len(tokens) >= 3:
+                out.params.setdefault(tokens[1], []).append(tokens[2])
+        elif msg.lower() == "odometry":
+            dpslam_pose = tokens[1:4] if len(tokens) == 4 else None
+            if dpslam_pose is None:
+                out.skipped["Odometry line with a wrong number of fields"] += 1
+        elif msg.lower() == "laser":
+            # as an old-format laser line without clock: laser pose = robot pose = Odometry
+            pose = dpslam_pose if dpslam_pose is not None else ["nan"] * 3
+            out.lasers.setdefault(DPSLAM_LASER, []).append(_Line(number, tokens + pose + pose))
+        else:
+            out.skipped[msg] += 1
+    return out
+
+
+def _layout(msg: str, tokens: list[str]) -> tuple[int, int, bool] | str:
+    """(beams, remissions, has clock) of a laser line, or why it is damaged."""
+    try:
+        if msg in NEW_LASERS:
+            n = int(tokens[8])
+            m = int(tokens[9 + n])
+            fixed = 21 + n + m  # header 9, count m 1, poses 6, tv rv safety 5
+        else:
+            n, m = int(tokens[1]), 0
+            fixed = 8 + n
+    except ValueError:
+        return "non-numeric value"
+    except IndexError:
+        return "wrong number of ranges"
+    if n < 1 or m < 0:
+        return "wrong number of ranges"
+    if len(tokens) == fixed:
+        return n, m, False
+    if len(tokens) == fixed + 3:
+        return n, m, True
+    return "wrong number of ranges"
+
+
+def _columns(msg: str, n: int, m: int, clock: bool) -> dict[str, np.ndarray]:
+    """Token columns of a laser line's fields."""
+    if msg in NEW_LASERS:
+        ranges = 9 + np.arange(n)
+        poses = 10 + n + m + np.arange(6)
+        header = np.arange(2, 6)
+        stamp = 21 + n + m
+    else:
+        ranges = 2 + np.arange(n)
+        poses = 2 + n + np.arange(6)
+        header = np.arange(0)
+        stamp = 8 + n
+    cols = {"ranges": ranges, "poses": poses, "header": header}
+    if clock:
+        cols["stamp"] = np.array([stamp])
+    return cols
+
+
+def _where(path: Path, line: int) -> str:
+    return f"{path}:{line}"
+
+
+def _to_float(rows: list[list[str]], cols: np.ndarray) -> np.ndarray:
+    return np.asarray(rows, dtype=str)[:, cols].astype(np.float64)
+
+
+def _parse_laser(
+    path: Path, msg: str, entries: list[_Line], last_line: int, report: ImportReport
+) -> _LaserStream | None:
+    """Keep the lines of the log's majority layout; convert each field in one numpy call."""
+    layouts: list[tuple[int, int, bool] | str] = [_layout(msg, e.tokens) for e in entries]
+    good = Counter(lay for lay in layouts if not isinstance(lay, str))
+    if not good:
+        for e, lay in zip(entries, layouts, strict=True):
+            why = lay if isinstance(lay, str) else "wrong number of ranges"
+            report.drop(_reason(why, e.number, last_line), 1, _where(path, e.number))
+        return None
+    n, m, clock = good.most_common(1)[0][0]
+    keep: list[int] = []
+    for i, (e, lay) in enumerate(zip(entries, layouts, strict=True)):
+        if isinstance(lay, str):
+            report.drop(_reason(lay, e.number, last_line), 1, _where(path, e.number))
+        elif lay[0] != n:
+            report.drop(f"beam count {lay[0]} (the log's is {n})", 1, _where(path, e.number))
+        elif lay != (n, m, clock):
+            report.drop(_reason("wrong number of fields", e.number, last_line), 1,
+                        _where(path, e.number))  # fmt: skip
+        else:
+            keep.append(i)
+    cols = _columns(msg, n, m, clock)
+    order = ("ranges", "poses", "header", "stamp")
+    flat = np.concatenate([cols[k] for k in order if k in cols])
+    rows = [entries[i].tokens for i in keep]
+    try:
+        values = _to_float(rows, flat) if rows else np.empty((0, flat.size))
+    except ValueError:  # find the damaged lines, only on this slow path
+        ok = []
+        for i in keep:
+            try:
+                _to_float([entries[i].tokens], flat)
+                ok.append(i)
+            except ValueError:
+                report.drop("non-numeric value", 1, _where(path, entries[i].number))
+        keep = ok
+        rows = [entries[i].tokens for i in keep]
+        values = _to_float(rows, flat) if rows else np.empty((0, flat.size))
+    if not keep:
+        return None
+    split = np.cumsum([cols[k].size for k in order if k in cols])[:-1]
+    parts = dict(zip([k for k in order if k in cols], np.split(values, split, axis=1), strict=True))
+    idx = np.asarray(keep)
+    return _LaserStream(
+        name=msg,
+        lines=np.array([entries[i].number for i in keep]),
+        index=idx,
+        ranges=parts["ranges"],
+        laser_pose=parts["poses"][:, :3],
+        robot_pose=parts["poses"][:, 3:],
+        stamp=parts["stamp"][:, 0] if clock else None,
+        header=parts["header"] if msg in NEW_LASERS else None,
+        read=len(entries),
+    )
+
+
+def _reason(reason: str, line: int, last_line: int) -> str:
+    if line == last_line and reason != "non-numeric value":
+        return "truncated last line"
+    return reason
+
+
+# ---------------------------------------------------------------- decisions
+
+
+def broken_clock(stamp: np.ndarray) -> str | None:
+    """Why a stream's timestamps cannot serve as a clock, or None if they can."""
+    if stamp.size < 2:
+        return None
+    if not np.isfinite(stamp).all():
+        return "non-finite timestamps"
+    distinct = np.unique(stamp).size
+    if distinct < MIN_DISTINCT * stamp.size:
+        return f"only {distinct} distinct timestamps in {stamp.size} (all 0, or too few digits)"
+    late = int((~in_order(stamp)).sum())
+    if late > MAX_OUT_OF_ORDER * stamp.size:
+        return f"{late} of {stamp.size} timestamps out of order"
+    return None
+
+
+def in_order(stamp: np.ndarray) -> np.ndarray:
+    """True where a timestamp is not below any earlier one (the rest are dropped)."""
+    if stamp.size == 0:
+        return np.zeros(0, dtype=bool)
+    before = np.maximum.accumulate(np.concatenate([[-np.inf], stamp[:-1]]))
+    return stamp >= before
+
+
+def no_return_code(ranges: np.ndarray) -> float | None:
+    """The largest value recurring at least CODE_MIN_COUNT times: the scanner's no-return code."""
+    values = ranges[np.isfinite(ranges)]
+    if values.size == 0:
+        return None
+    uniq, counts = np.unique(values, return_counts=True)
+    frequent = uniq[counts >= CODE_MIN_COUNT]
+    return float(frequent[-1]) if frequent.size else None
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _pose_frame(t: np.ndarray, pose: np.ndarray) -> pd.DataFrame:
+    ok = np.isfinite(pose).all(axis=1)
+    return pd.DataFrame({"t": t[ok], "x": pose[ok, 0], "y": pose[ok, 1], "theta": pose[ok, 2]})
+
+
+def _param_float(lines: _Lines, name: str, report: ImportReport) -> float | None:
+    values = lines.params.get(name)
+    if not values:
+        return None
+    try:
+        floats = [float(v) for v in values]
+    except ValueError:
+        report.note(f"PARAM {name} {values[-1]!r} is not a number; ignored")
+        return None
+    if len(set(floats)) > 1:
+        report.note(f"PARAM {name} is given {len(floats)} times ({floats}); the last one is used")
+    return floats[-1]
+
+
+@dataclass
+class _Built:
+    scans: Scans
+    stream: _LaserStream
+    t: np.ndarray
+    time_source: str
+    decisions: dict[str, Any]
+
+
+class _Reader:
+    """Turns the parsed lines of one log into a Dataset, recording each decision."""
+
+    def __init__(self, path: Path, options: ImportOptions) -> None:
+        self.path = path
+        self.options = options
+        self.report = ImportReport()
+        self.lines = _split_lines(path)
+
+    def dataset(self) -> Dataset:
+        lines, report, path = self.lines, self.report, self.path
+        if not lines.lasers:
+            raise FormatError(
+                "no laser lines (FLASER, RLASER, ROBOTLASER1/2 or DP-SLAM Laser) found", file=path
+            )
+        streams: dict[str, _LaserStream] = {}
+        for msg, entries in lines.lasers.items():
+            stream = _parse_laser(path, msg, entries, lines.last_line, report)
+            if stream is not None:
+                streams[msg] = stream
+        read = sum(len(v) for v in lines.lasers.values())
+        if not streams:
+            first = next(iter(report.examples.values()), "?")
+            raise FormatError(f"no usable laser line: all {read} are damaged (first at {first})",
+                              file=path)  # fmt: skip
+        primary = self._primary(streams)
+        built = {name: self._build(s) for name, s in streams.items()}
+        main = built[primary]
+        decisions: dict[str, Any] = {"primary_laser": primary, **main.decisions}
+        odometry, groundtruth, poses = self._poses(main, decisions)
+        for name, count in sorted(lines.skipped.items()):
+            report.note(f"skipped {count} {name} line(s): not used")
+        report.records_read = read + len(lines.odom) + len(lines.truepos)
+        kept = sum(b.scans.t.size for b in built.values())
+        report.records_kept = kept + decisions.get("odom_lines_kept", 0)
+        report.records_kept += decisions.get("truepos_lines_kept", 0)
+        others = {name.lower(): b.scans for name, b in built.items() if name != primary}
+        meta = make_meta(
+            "carmen",
+            [path],
+            main.scans.laser,
+            report,
+            time_source=main.time_source,
+            lasers={k: v.laser for k, v in others.items()},
+            carmen=decisions,
+        )
+        return Dataset(
+            t=main.t,
+            ranges=main.scans.ranges,
+            laser=main.scans.laser,
+            odometry=odometry,
+            groundtruth=groundtruth,
+            meta=meta,
+            lasers=others,
+            poses=poses,
+        )
+
+    def _primary(self, streams: dict[str, _LaserStream]) -> str:
+        wanted = self.options.laser
+        if wanted:
+            for name in streams:
+                if name.lower() == wanted.lower():
+                    return name
+            raise ToolkitError(f"no laser {wanted!r} in the log; it has {', '.join(streams)}",
+                               file=self.path)  # fmt: skip
+        return next(n for n in PRIMARY_ORDER if n in streams)
+
+    # -- one laser: clock, geometry, no-return code, mounting
+
+    def _build(self, s: _LaserStream) -> _Built:
+        report, name = self.report, s.name
+        decisions: dict[str, Any] = {}
+        rate = self.options.rate
+        why = "no timestamps in the laser lines" if s.stamp is None else broken_clock(s.stamp)
+        if why is None and s.stamp is not None:
+            ok = in_order(s.stamp)
+            late = np.flatnonzero(~ok)
+            if late.size:
+                report.drop(f"{name} timestamp out of order", late.size,
+                            _where(self.path, int(s.lines[late[0]])))  # fmt: skip
+                s = _take(s, ok)
+            t = s.stamp
+            time_source = "log"
+        else:
+            hz = rate if rate else NOMINAL_RATE
+            t = s.index / hz
+            time_source = "scan_order"
+            how = f"--rate {hz:g} Hz" if rate else f"{hz:g} Hz nominal, no --rate given"
+            report.note(f"{name}: {why}; times are scan order, t = scan index / rate ({how})")
+            decisions["clock_fallback"] = why
+            decisions["rate_hz"] = hz
+        assert t is not None
+        ranges = s.ranges
+        bad = ~np.isfinite(ranges) | (ranges < 0)
+        if bad.any():
+            report.note(f"{name}: {int(bad.sum())} range values NaN, inf or negative -> NaN")
+            ranges = np.where(bad, np.nan, ranges)
+        geometry, code, how_code = self._geometry(s, ranges)
+        if code is not None:
+            no_return = ranges >= code
+            ranges = np.where(no_return, np.nan, ranges)
+            report.note(f"{name}: no-return code {code:g} m ({how_code}): "
+                        f"{int(no_return.sum())} values >= {code:g} m -> NaN")  # fmt: skip
+            decisions[f"{name}_no_return_from"] = round(float(code), 6)
+        decisions[f"{name}_range_max"] = geometry.range_max
+        decisions[f"{name}_range_max_source"] = how_code
+        scans = Scans(t, ranges.astype(np.float32), geometry)
+        return _Built(scans, s, t, time_source, decisions)
+
+    def _geometry(
+        self, s: _LaserStream, ranges: np.ndarray
+    ) -> tuple[LaserGeometry, float | None, str]:
+        """Beam layout, mounting and range_max; the value at and above which ranges are NaN."""
+        n = ranges.shape[1]
+        if s.header is not None:
+            start, fov, res, max_range = np.median(s.header, axis=0)
+            if not res > 0:
+                res = fov / max(n - 1, 1)
+            if np.ptp(s.header, axis=0).max() > 1e-6:
+                self.report.note(f"{s.name}: the beam layout varies; the median is used")
+        else:
+            first, step = OLD_LAYOUTS.get(n, (-90.0, 180.0 / max(n - 1, 1)))
+            if n not in OLD_LAYOUTS:
+                self.report.note(f"{s.name}: {n} beams is no known layout; assumed 180° from -90°")
+            start, res, max_range = math.radians(first), math.radians(step), math.nan
+        explicit = self.options.get("range_max")
+        param = _param_float(self.lines, RANGE_PARAM, self.report)
+        code: float | None
+        if explicit is not None and explicit.lower() == "none":
+            code, how = None, "detection off (-O range_max=none)"
+        elif explicit is not None:
+            try:
+                code, how = float(explicit), "-O range_max"
+            except ValueError:
+                raise ToolkitError(f"-O range_max={explicit!r} is not a number") from None
+        elif math.isfinite(max_range) and max_range > 0:
+            code, how = float(max_range) - 5e-4, "max_range in the laser lines"
+        elif param is not None:
+            code, how = param - 5e-4, f"PARAM {RANGE_PARAM}"
+        else:
+            found = no_return_code(ranges)
+            code = None if found is None else found * (1 - CODE_BAND)
+            how = "detected: largest value recurring at the top"
+            if found is not None:
+                max_range = found
+        if code is None:
+            finite = ranges[np.isfinite(ranges)]
+            range_max = float(finite.max()) if finite.size else 81.91
+            how = f"{how}; none found, range_max = largest reading" if explicit is None else how
+        elif math.isfinite(max_range) and max_range > 0:
+            range_max = float(max_range)
+        else:
+            range_max = float(param if param is not None and explicit is None else code)
+        return LaserGeometry(n, float(start), float(res), range_max, **self._mount(s)), code, how
+
+    def _mount(self, s: _LaserStream) -> dict[str, float]:
+        """Laser mounting in the robot frame: PARAM offset for x, pose difference for the rest."""
+        lp, rp = s.laser_pose, s.robot_pose
+        ok = np.isfinite(lp).all(axis=1) & np.isfinite(rp).all(axis=1)
+        dx = dy = dyaw = 0.0
+        if ok.any():
+            c, sn = np.cos(rp[ok, 2]), np.sin(rp[ok, 2])
+            ex, ey = lp[ok, 0] - rp[ok, 0], lp[ok, 1] - rp[ok, 1]
+            dx = float(np.median(c * ex + sn * ey))
+            dy = float(np.median(-sn * ex + c * ey))
+            dyaw = float(np.median(_wrap(lp[ok, 2] - rp[ok, 2])))
+        rear = s.name in REAR
+        param_name = "robot_rearlaser_offset" if rear else "robot_frontlaser_offset"
+        offset = _param_float(self.lines, param_name, self.report)
+        extra = self.options.get("laser_x")
+        if extra is not None:
+            try:
+                x, source = float(extra), "-O laser_x"
+            except ValueError:
+                raise ToolkitError(f"-O laser_x={extra!r} is not a number") from None
+        elif offset is not None:
+            x, source = offset, f"PARAM {param_name}"
+            if abs(offset - dx) > 0.01 and ok.any():
+                self.report.note(f"{s.name}: PARAM {param_name} {offset:g} m differs from the "
+                                 f"laser-robot pose difference {dx:.3f} m; PARAM used")  # fmt: skip
+        else:
+            x, source = dx, "laser pose - robot pose in the laser lines"
+        if rear and abs(dyaw) < 1e-6 and offset is not None and not abs(dx) > 1e-6:
+            dyaw = math.pi  # a rear laser faces backwards; the poses did not say otherwise
+        mount = {"x": round(x, 6), "y": round(dy, 6), "yaw": round(dyaw, 6)}  # poses: 6 decimals
+        self.report.note(f"{s.name}: mounting x {mount['x']:g} m ({source}), "
+                         f"y {mount['y']:g} m, yaw {mount['yaw']:g} rad")  # fmt: skip
+        return mount
+
+    # -- pose streams
+
+    def _poses(
+        self, main: _Built, decisions: dict[str, Any]
+    ) -> tuple[pd.DataFrame | None, pd.DataFrame | None, dict[str, pd.DataFrame]]:
+        report = self.report
+        scan_poses = _pose_frame(main.t, main.stream.robot_pose)
+        which = (self.options.get("poses") or "odometry").lower()
+        if which not in ("odometry", "groundtruth"):
+            raise ToolkitError(f"-O poses={which!r}: expected odometry or groundtruth")
+        clock = main.time_source == "log"
+        odometry: pd.DataFrame | None = None
+        if self.lines.odom:
+            odometry = self._stamped("ODOM", self.lines.odom, clock, decisions)
+        if odometry is not None:
+            decisions["odometry"] = "ODOM lines at their own times"
+        elif len(scan_poses):
+            odometry = scan_poses
+            decisions["odometry"] = f"robot pose of the {main.stream.name} lines at scan times"
+        else:
+            decisions["odometry"] = "none"
+        truepos = None
+        if self.lines.truepos:
+            truepos = self._stamped("TRUEPOS", self.lines.truepos, clock, decisions)
+        poses: dict[str, pd.DataFrame] = {}
+        groundtruth = truepos
+        if which == "groundtruth":
+            groundtruth = scan_poses
+            decisions["groundtruth"] = f"robot pose of the {main.stream.name} lines (-O poses)"
+            report.note(f"ground truth = the robot poses of the {main.stream.name} lines "
+                        "(-O poses=groundtruth; for corrected logs, approximate)")  # fmt: skip
+            if truepos is not None:
+                poses["truepos"] = truepos
+            if odometry is scan_poses:
+                report.note("odometry is the same pose stream as the ground truth")
+        elif truepos is not None:
+            decisions["groundtruth"] = "TRUEPOS lines"
+        if which != "groundtruth" and odometry is not scan_poses and len(scan_poses):
+            poses["scan_pose"] = scan_poses
+        return odometry, groundtruth, poses
+
+    def _stamped(
+        self, msg: str, entries: list[_Line], clock: bool, decisions: dict[str, Any]
+    ) -> pd.DataFrame | None:
+        """ODOM or TRUEPOS poses at their own times, or None when there is no usable clock."""
+        report, path = self.report, self.path
+        if all(len(e.tokens) == 7 for e in entries):
+            report.note(f"{msg} lines not used: they have no timestamps")
+            return None
+        good = [e for e in entries if len(e.tokens) == 10]
+        for e in entries:
+            if len(e.tokens) != 10:
+                report.drop(_reason(f"{msg} wrong number of fields", e.number, self.lines.last_line),
+                            1, _where(path, e.number))  # fmt: skip
+        rows: list[list[str]] = [e.tokens for e in good]
+        cols = np.array([1, 2, 3, 7])
+        try:
+            values = _to_float(rows, cols) if rows else np.empty((0, 4))
+        except ValueError:
+            ok = []
+            for e in good:
+                try:
+                    _to_float([e.tokens], cols)
+                    ok.append(e)
+                except ValueError:
+                    report.drop(f"{msg} non-numeric value", 1, _where(path, e.number))
+            good = ok
+            values = _to_float([e.tokens for e in good], cols) if good else np.empty((0, 4))
+        if not clock:
+            report.note(f"{msg} lines not used: the scans have no usable clock to align them to")
+            return None
+        stamp = values[:, 3]
+        why = broken_clock(stamp)
+        if why is not None:
+            report.note(f"{msg} lines not used: {why}")
+            return None
+        keep = in_order(stamp) & np.isfinite(values).all(axis=1)
+        late = np.flatnonzero(~keep)
+        if late.size:
+            report.drop(f"{msg} timestamp out of order", late.size,
+                        _where(path, good[late[0]].number))  # fmt: skip
+        values = values[keep]
+        decisions[f"{msg.lower()}_lines_kept"] = int(keep.sum())
+        if not len(values):
+            return None
+        return pd.DataFrame(
+            {"t": values[:, 3], "x": values[:, 0], "y": values[:, 1], "theta": values[:, 2]}
+        )
+
+
+def _take(s: _LaserStream, keep: np.ndarray) -> _LaserStream:
+    return _LaserStream(
+        s.name,
+        s.lines[keep],
+        s.index[keep],
+        s.ranges[keep],
+        s.laser_pose[keep],
+        s.robot_pose[keep],
+        None if s.stamp is None else s.stamp[keep],
+        None if s.header is None else s.header[keep],
+        s.read,
+    )
+
+
+# ---------------------------------------------------------------- writing
+
+
+def _old_layout(laser: LaserGeometry) -> bool:
+    """True if the old format (no angles) describes this beam layout exactly."""
+    layout = OLD_LAYOUTS.get(laser.beams)
+    if layout is None:
+        return False
+    first, step = map(math.radians, layout)
+    return abs(laser.angle_min - first) < 1e-6 and abs(laser.angle_increment - step) < 1e-6
+
+
+def _rows(values: np.ndarray, fmt: str) -> list[str]:
+    """Each row of a 2D array as one line of text: one %-format per row, as np.savetxt does."""
+    if values.shape[0] == 0:
+        return []
+    line = " ".join([fmt] * values.shape[1])
+    return [line % tuple(row) for row in values.tolist()]
+
+
+def _interp_pose(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
+    """A pose stream at times t (linear; theta unwrapped); clamped at the ends."""
+    ft = frame["t"].to_numpy()
+    theta = np.unwrap(frame["theta"].to_numpy())
+    out = np.column_stack(
+        [np.interp(t, ft, frame["x"].to_numpy()), np.interp(t, ft, frame["y"].to_numpy()),
+         _wrap(np.interp(t, ft, theta))]
+    )  # fmt: skip
+    return out
+
+
+def write_log(ds: Dataset, path: Path, host: str = "toolkit") -> None:
+    """Write `ds` as one CARMEN log (see the module docstring)."""
+    laser = ds.laser
+    rm = f"{laser.range_max:.3f}"
+    header = [
+        "# message formats defined: PARAM SYNC ODOM FLASER RLASER TRUEPOS ROBOTLASER1",
+        "# written by laser-toolkit; NaN ranges are written as the range_max code",
+        f"PARAM robot_frontlaser_offset {laser.x:.6f} nohost 0",
+        f"PARAM {RANGE_PARAM} {rm} nohost 0",
+    ]
+    t = ds.t
+    if ds.odometry is not None and len(ds.odometry):
+        robot = _interp_pose(ds.odometry, t)
+    else:
+        robot = np.zeros((t.size, 3))
+    c, s = np.cos(robot[:, 2]), np.sin(robot[:, 2])
+    laser_pose = np.column_stack(
+        [robot[:, 0] + c * laser.x - s * laser.y, robot[:, 1] + s * laser.x + c * laser.y,
+         _wrap(robot[:, 2] + laser.yaw)]
+    )  # fmt: skip
+    code = round(laser.range_max, 3)
+    # a return just below range_max must not print as the code: keep it 1 mm below
+    returns = np.minimum(ds.ranges.astype(np.float64), code - 1e-3)
+    ranges = np.where(np.isfinite(ds.ranges), returns, code)
+    range_text = _rows(ranges, "%.3f")
+    pose_text = _rows(np.column_stack([laser_pose, robot]), "%.6f")
+    stamp = [f"{x:.6f} {host} {x:.6f}" for x in t]
+    if _old_layout(laser):
+        scans = [
+            f"FLASER {laser.beams} {r} {p} {st}"
+            for r, p, st in zip(range_text, pose_text, stamp, strict=True)
+        ]
+    else:
+        head = (
+            f"ROBOTLASER1 0 {laser.angle_min:.9f} {laser.fov:.9f} {laser.angle_increment:.9f} "
+            f"{rm} 0.01 0 {laser.beams}"
+        )
+        scans = [
+            f"{head} {r} 0 {p} 0 0 0 0 0 {st}"
+            for r, p, st in zip(range_text, pose_text, stamp, strict=True)
+        ]
+    timed: list[tuple[np.ndarray, list[str]]] = [(t, scans)]
+    if ds.odometry is not None and len(ds.odometry):
+        o = ds.odometry
+        text = _rows(o[["x", "y", "theta"]].to_numpy(), "%.6f")
+        timed.append(
+            (o["t"].to_numpy(), [f"ODOM {p} 0 0 0 {x:.6f} {host} {x:.6f}"
+                                 for p, x in zip(text, o["t"], strict=True)])
+        )  # fmt: skip
+    if ds.groundtruth is not None and len(ds.groundtruth):
+        g = ds.groundtruth
+        gt_t = g["t"].to_numpy()
+        odo = (
+            _interp_pose(ds.odometry, gt_t)
+            if ds.odometry is not None and len(ds.odometry)
+            else np.zeros((gt_t.size, 3))
+        )
+        text = _rows(np.column_stack([g[["x", "y", "theta"]].to_numpy(), odo]), "%.6f")
+        timed.append(
+            (gt_t, [f"TRUEPOS {p} {x:.6f} {host} {x:.6f}" for p, x in zip(text, gt_t, strict=True)])
+        )
+    # one stable sort by time: pose lines before a scan with the same timestamp
+    times = np.concatenate([tt for tt, _ in timed[1:]] + [t]) if len(timed) > 1 else t
+    texts = [line for _, lines in timed[1:] for line in lines] + scans
+    order = np.argsort(times, kind="stable")
+    body = "\n".join([*header, *(texts[i] for i in order)]) + "\n"
+    path.write_text(body)
+
+
+# ---------------------------------------------------------------- the importer
+
+
+def _sniff_lines(path: Path) -> list[list[str]]:
+    head = head_bytes(path, 16384).decode("utf-8", errors="replace")
+    lines = head.splitlines()
+    if len(lines) > 1 and not head.endswith("\n"):
+        lines = lines[:-1]  # the cut one
+    tokens = [ln.split() for ln in lines]
+    return [t for t in tokens if t and not t[0].startswith("#")][:5]
+
+
+@register
+class Carmen(Importer):
+    name = "carmen"
+    summary = "CARMEN logs (FLASER/RLASER, ROBOTLASER1, ODOM, TRUEPOS, PARAM), DP-SLAM logs; gz/bz2"
+    options: ClassVar[dict[str, str]] = {
+        "poses": "odometry (default) or groundtruth: store the laser lines' robot poses as "
+        "ground truth (the Radish 'corrected' logs)",
+        "range_max": "the no-return code in m (values at or above it -> NaN), or none; "
+        "default: detected per log",
+        "laser_x": "laser mounting x in m, over PARAM robot_frontlaser_offset and the poses "
+        "(DP-SLAM's README gives 0.40)",
+    }
+
+    def sniff(self, path: Path) -> bool:
+        if not path.is_file():
+            return False
+        lines = _sniff_lines(path)
+        if not lines:
+            return False
+        for tokens in lines:
+            word = tokens[0]
+            if word in CARMEN_TOKENS:
+                continue
+            if word.lower() in DPSLAM_TOKENS and len(tokens) > 1 and _NUMBER.match(tokens[1]):
+                continue
+            return False
+        return True
+
+    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+        if len(sources) != 1:
+            raise ToolkitError(f"carmen reads one log file, got {len(sources)}")
+        path = Path(sources[0])
+        return _Reader(path, options).dataset()
+
+    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
+        """Write `ds` as the CARMEN log `out/name` (name="sim.log"), atomically; [that path]."""
+        name = str(options.get("name", "sim.log"))
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        target = out / name
+        host = str(options.get("host", "toolkit"))
+        with atomic_file(target) as tmp:
+            write_log(ds, tmp, host=host)
+        return [target]

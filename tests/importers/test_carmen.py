@@ -1,0 +1,562 @@
+"""CARMEN importer and writer: the real logs (Radish corrected, CSM, DP-SLAM), damaged copies of
+them, the writer -> reader round trip, and the CLI."""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import math
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import importers
+from importers.base import ImportOptions
+from importers.carmen import CODE_BAND, Carmen
+from toolkit.dataset import Dataset, LaserGeometry, load
+from toolkit.errors import FormatError
+
+pytestmark = pytest.mark.real
+ROOT = Path(__file__).resolve().parents[2]
+RADISH = "carmen_radish_corrected"
+RADISH_LOGS = [
+    "acapulco",
+    "belgioioso",
+    "edmonton",
+    "fhw",
+    "freiburg-101",
+    "freiburg-campus",
+    "infinite-corridor",
+    "intel",
+    "orebro",
+    "seattle",
+]
+LOGS = [f"{RADISH}/{n}-corrected.log.gz" for n in RADISH_LOGS] + [
+    "csm_laserazos/laserazosSM3.log",
+    "dpslam_loop5/loop5.log",
+]
+# the logs whose timestamps SOURCE.md calls broken (all 0, too few digits, garbage) or absent
+NO_CLOCK = {"belgioioso", "freiburg-campus", "infinite-corridor", "orebro", "laserazosSM3", "loop5"}
+# no-return codes SOURCE.md names for these logs
+CODES = {
+    "intel": 81.83,
+    "belgioioso": 81.91,
+    "seattle": 81.91,
+    "freiburg-101": 81.91,
+    "freiburg-campus": 81.91,
+    "orebro": 32.767,
+    "laserazosSM3": 7.999,
+    "loop5": 8.191,
+}
+FOV_DEG = {181: 180.0, 180: 179.0, 361: 180.0, 360: 179.5}
+
+
+def _short(rel: str) -> str:
+    return Path(rel).name.removesuffix(".gz").removesuffix(".log").removesuffix("-corrected")
+
+
+def _text_lines(path: Path) -> list[str]:
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt") as f:
+        return f.read().splitlines()
+
+
+@dataclass
+class Expected:
+    """What SOURCE.md says about a log."""
+
+    scans: int
+    beams: int
+    odom: int
+
+
+def _source_table(real: Path) -> dict[str, Expected]:
+    out = {}
+    text = (real / RADISH / "SOURCE.md").read_text()
+    for m in re.finditer(
+        r"^\| (\S+)-corrected\.log\.gz \| \d+ \| (\d+) \| (\d+) \| (\d+) \|", text, re.M
+    ):
+        out[m[1]] = Expected(int(m[2]), int(m[4]), int(m[3]))
+    csm = (real / "csm_laserazos" / "SOURCE.md").read_text()
+    csm_m = re.search(r"(\d+) scans, (\d+) beams each", csm)
+    assert csm_m, "csm SOURCE.md changed"
+    out["laserazosSM3"] = Expected(int(csm_m[1]), int(csm_m[2]), 0)
+    dp = (real / "dpslam_loop5" / "SOURCE.md").read_text()
+    dp_m = re.search(r"(\d+) Odometry \+ (\d+) Laser lines", dp)
+    assert dp_m and "Laser: 181 ranges" in dp, "dpslam SOURCE.md changed"
+    out["loop5"] = Expected(int(dp_m[2]), 181, 0)
+    return out
+
+
+@dataclass
+class Parsed:
+    path: Path
+    lines: list[str]
+    laser_lines: list[tuple[int, list[str]]]  # (1-based line number, tokens)
+    ds: Dataset
+
+
+@pytest.fixture(scope="module")
+def parsed(real: Path) -> dict[str, Parsed]:
+    """Every covered real log, parsed once, with its own text for independent checks."""
+    out = {}
+    reader = Carmen()
+    for rel in LOGS:
+        path = real / rel
+        lines = _text_lines(path)
+        laser = [
+            (i, ln.split()) for i, ln in enumerate(lines, 1) if ln.startswith(("FLASER ", "Laser "))
+        ]
+        out[_short(rel)] = Parsed(path, lines, laser, reader.read([path], ImportOptions()))
+    return out
+
+
+@pytest.fixture(scope="module")
+def expected(real: Path) -> dict[str, Expected]:
+    return _source_table(real)
+
+
+NAMES = [_short(r) for r in LOGS]
+
+
+# ---------------------------------------------------------------- real logs
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_counts_match_source_md_and_the_file(
+    name: str, parsed: dict[str, Parsed], expected: dict[str, Expected]
+) -> None:
+    p, exp = parsed[name], expected[name]
+    assert len(p.laser_lines) == exp.scans
+    assert {int(tok[1]) for _, tok in p.laser_lines} == {exp.beams}
+    ds = p.ds
+    assert ds.n_beams == exp.beams
+    late = ds.report.dropped.get("FLASER timestamp out of order", 0)
+    assert ds.n_scans == exp.scans - late
+    assert ds.report.records_read == exp.scans + exp.odom
+    assert not {k for k in ds.report.dropped if "ODOM" not in k and "out of order" not in k}
+    assert np.all(np.diff(ds.t) >= 0)
+    assert math.isclose(np.rad2deg(ds.laser.fov), FOV_DEG[exp.beams], abs_tol=1e-9)
+    assert math.isclose(np.rad2deg(ds.laser.angle_min), -90.0)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_first_and_last_range_and_a_pose_match_the_text(
+    name: str, parsed: dict[str, Parsed]
+) -> None:
+    p = parsed[name]
+    ds = p.ds
+    code = ds.meta["carmen"][f"{ds.meta['carmen']['primary_laser']}_no_return_from"]
+
+    def expect(text: str) -> float:
+        v = float(text)
+        return math.nan if not math.isfinite(v) or v >= code else float(np.float32(v))
+
+    first, last = p.laser_lines[0][1], p.laser_lines[-1][1]
+    n = int(first[1])
+    np.testing.assert_equal(ds.ranges[0, 0], expect(first[2]))
+    np.testing.assert_equal(ds.ranges[0, 1], expect(first[3]))
+    np.testing.assert_equal(ds.ranges[-1, -1], expect(last[1 + n]))
+    # the robot pose of the 100th laser line, read from the text (DP-SLAM: the Odometry before)
+    number, tokens = p.laser_lines[99]
+    if tokens[0] == "Laser":
+        pose = [float(v) for v in p.lines[number - 2].split()[1:4]]
+    else:
+        pose = [float(v) for v in tokens[2 + n + 3 : 2 + n + 6]]
+    scan_poses = ds.poses.get("scan_pose", ds.odometry)
+    assert scan_poses is not None
+    row = scan_poses.iloc[99]
+    assert row["t"] == ds.t[99]
+    np.testing.assert_allclose(row[["x", "y", "theta"]].to_numpy(float), pose, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_clock_or_scan_order(name: str, parsed: dict[str, Parsed]) -> None:
+    ds = parsed[name].ds
+    if name in NO_CLOCK:
+        assert ds.meta["time_source"] == "scan_order"
+        np.testing.assert_array_equal(ds.t, np.arange(ds.n_scans, dtype=float))  # 1 Hz nominal
+        assert any("scan order" in n and "1 Hz nominal" in n for n in ds.report.notes)
+        # ODOM cannot be put on that time base: the laser lines' poses are the odometry
+        assert ds.meta["carmen"]["odometry"].startswith("robot pose of the")
+        assert ds.odometry is not None and len(ds.odometry) == ds.n_scans
+    else:
+        assert ds.meta["time_source"] == "log"
+        stamps = [float(tok[-3]) for _, tok in parsed[name].laser_lines]
+        assert ds.t[0] == stamps[0] and ds.t[-1] == stamps[-1]
+        odom = [ln for ln in parsed[name].lines if ln.startswith("ODOM ")]
+        assert (
+            ds.odometry is not None
+            and ds.meta["carmen"]["odometry"] == "ODOM lines at their own times"
+        )
+        assert len(ds.odometry) + ds.report.dropped.get("ODOM timestamp out of order", 0) == len(
+            odom
+        )
+        assert np.all(np.diff(ds.odometry["t"].to_numpy()) >= 0)
+        assert ds.groundtruth is None and len(ds.poses["scan_pose"]) == ds.n_scans
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_no_return_codes_become_nan(name: str, parsed: dict[str, Parsed]) -> None:
+    p = parsed[name]
+    ds = p.ds
+    raw = np.array([tok[2 : 2 + ds.n_beams] for _, tok in p.laser_lines], dtype=float)
+    top = np.nanmax(raw)
+    if name in CODES:
+        assert ds.laser.range_max == pytest.approx(CODES[name])
+    finite = ds.ranges[np.isfinite(ds.ranges)]
+    assert finite.max() < ds.laser.range_max * (1 - CODE_BAND)
+    assert not np.any(ds.ranges == np.float32(top))
+    # the code recurs in the file; every occurrence is NaN in the dataset
+    assert (raw == ds.laser.range_max).sum() >= 5
+    # NaN exactly where the file has a no-return or non-finite value (rows before intel's drops)
+    code = ds.meta["carmen"][f"{ds.meta['carmen']['primary_laser']}_no_return_from"]
+    k = min(290, ds.n_scans)
+    no_return = ~np.isfinite(raw[:k]) | (raw[:k] >= code)
+    np.testing.assert_array_equal(np.isnan(ds.ranges[:k]), no_return)
+    assert 0.5 < np.isfinite(ds.ranges).mean() < 1.0
+
+
+def test_intel_drops_the_four_scans_whose_timestamp_goes_back(parsed: dict[str, Parsed]) -> None:
+    p = parsed["intel"]
+    stamps = np.array([float(tok[-3]) for _, tok in p.laser_lines])
+    back = np.flatnonzero(np.diff(stamps) < 0) + 1
+    assert back.size == 4
+    ds = p.ds
+    assert ds.report.dropped["FLASER timestamp out of order"] == 4
+    where = ds.report.examples["FLASER timestamp out of order"]
+    assert where == f"{p.path}:{p.laser_lines[back[0]][0]}"
+    keep = np.delete(np.arange(stamps.size), back)
+    np.testing.assert_array_equal(ds.t, stamps[keep])  # file order kept, nothing re-sorted
+    first_beam = np.array([float(p.laser_lines[k][1][2]) for k in keep], dtype=np.float32)
+    first_beam[first_beam >= 81.83] = np.nan  # intel's no-return code
+    np.testing.assert_array_equal(ds.ranges[:, 0], first_beam)
+
+
+def test_poses_groundtruth_option_stores_the_corrected_poses(real: Path) -> None:
+    path = real / RADISH / "intel-corrected.log.gz"
+    ds = Carmen().read([path], ImportOptions(extra={"poses": "groundtruth"}))
+    assert ds.groundtruth is not None and len(ds.groundtruth) == ds.n_scans
+    assert "scan_pose" not in ds.poses
+    line = next(ln.split() for ln in _text_lines(path) if ln.startswith("FLASER "))
+    np.testing.assert_array_equal(
+        ds.groundtruth.iloc[0].to_numpy(), [float(line[-3])] + [float(v) for v in line[-6:-3]]
+    )
+    assert ds.meta["carmen"]["odometry"] == "ODOM lines at their own times"
+
+
+def test_rate_option_sets_the_scan_order_clock(real: Path) -> None:
+    ds = Carmen().read([real / RADISH / "orebro-corrected.log.gz"], ImportOptions(rate=10.0))
+    np.testing.assert_allclose(ds.t, np.arange(ds.n_scans) / 10.0)
+    assert ds.meta["carmen"]["rate_hz"] == 10.0
+
+
+def test_mounting_from_param(parsed: dict[str, Parsed]) -> None:
+    # freiburg-101 says PARAM robot_frontlaser_offset -0.04; intel 0.0; its poses differ by 0
+    assert parsed["freiburg-101"].ds.laser.x == -0.04
+    assert parsed["intel"].ds.laser.x == 0.0
+    assert any(
+        "differs from the laser-robot pose" in n for n in parsed["freiburg-101"].ds.report.notes
+    )
+
+
+# ---------------------------------------------------------------- damaged copies
+
+
+@pytest.fixture(scope="module")
+def intel_lines(real: Path) -> list[str]:
+    return _text_lines(real / RADISH / "intel-corrected.log.gz")
+
+
+def _write(tmp: Path, lines: list[str], name: str = "d.log", newline: bool = True) -> Path:
+    path = tmp / name
+    path.write_text("\n".join(lines) + ("\n" if newline else ""))
+    return path
+
+
+def _laser_numbers(lines: list[str]) -> list[int]:
+    return [i for i, ln in enumerate(lines) if ln.startswith("FLASER ")]
+
+
+def test_truncated_last_line_is_skipped_and_counted(tmp_path: Path, intel_lines: list[str]) -> None:
+    k = _laser_numbers(intel_lines)[20]
+    cut = [*intel_lines[:k], intel_lines[k][: len(intel_lines[k]) // 2]]
+    ds = Carmen().read([_write(tmp_path, cut, newline=False)], ImportOptions())
+    assert ds.report.dropped == {"truncated last line": 1} | {
+        k: v for k, v in ds.report.dropped.items() if k.startswith("ODOM")
+    }
+    assert ds.n_scans == 20
+    assert ds.report.examples["truncated last line"].endswith(f":{k + 1}")
+
+
+def test_wrong_number_of_ranges_is_skipped_with_its_line(
+    tmp_path: Path, intel_lines: list[str]
+) -> None:
+    lines = list(intel_lines)
+    k = _laser_numbers(lines)[5]
+    tok = lines[k].split()
+    lines[k] = " ".join(tok[:10] + tok[11:])  # n says 180, 179 values follow
+    path = _write(tmp_path, lines)
+    ds = Carmen().read([path], ImportOptions())
+    assert ds.report.dropped["wrong number of ranges"] == 1
+    assert ds.report.examples["wrong number of ranges"] == f"{path}:{k + 1}"
+    assert ds.n_scans == 905
+    assert float(tok[-3]) not in set(ds.t)
+
+
+def test_non_numeric_value_is_skipped_with_its_line(tmp_path: Path, intel_lines: list[str]) -> None:
+    lines = list(intel_lines)
+    k = _laser_numbers(lines)[7]
+    tok = lines[k].split()
+    tok[50] = "1.2x"
+    lines[k] = " ".join(tok)
+    path = _write(tmp_path, lines)
+    ds = Carmen().read([path], ImportOptions())
+    assert ds.report.dropped["non-numeric value"] == 1
+    assert ds.report.examples["non-numeric value"] == f"{path}:{k + 1}"
+    assert ds.n_scans == 905
+
+
+def test_nan_inf_and_negative_ranges_become_nan(tmp_path: Path, intel_lines: list[str]) -> None:
+    lines = list(intel_lines)
+    k = _laser_numbers(lines)[0]
+    tok = lines[k].split()
+    tok[2], tok[3], tok[4] = "nan", "inf", "-0.5"
+    lines[k] = " ".join(tok)
+    ds = Carmen().read([_write(tmp_path, lines)], ImportOptions())
+    assert np.isnan(ds.ranges[0, :3]).all()
+    assert ds.ranges[0, 3] == np.float32(tok[5])
+    assert "FLASER: 3 range values NaN, inf or negative -> NaN" in ds.report.notes
+    assert ds.n_scans == 906
+
+
+def test_beam_count_changing_keeps_the_majority(tmp_path: Path, intel_lines: list[str]) -> None:
+    lines = list(intel_lines)
+    ks = _laser_numbers(lines)[10:13]
+    for k in ks:
+        tok = lines[k].split()
+        lines[k] = " ".join(["FLASER", "181", *tok[2:182], "1.0", *tok[182:]])
+    path = _write(tmp_path, lines)
+    ds = Carmen().read([path], ImportOptions())
+    assert ds.n_beams == 180 and ds.n_scans == 903
+    assert ds.report.dropped["beam count 181 (the log's is 180)"] == 3
+    assert ds.report.examples["beam count 181 (the log's is 180)"] == f"{path}:{ks[0] + 1}"
+
+
+def test_compressed_damaged_copy(tmp_path: Path, intel_lines: list[str]) -> None:
+    path = tmp_path / "intel.log.bz2"
+    path.write_bytes(bz2.compress(("\n".join(intel_lines[:400]) + "\n").encode()))
+    ds = Carmen().read([path], ImportOptions())
+    assert ds.n_scans == sum(ln.startswith("FLASER ") for ln in intel_lines[:400])
+    assert Carmen().sniff(path)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("", "empty file"),
+        ("\n\n", "empty file"),
+        ("ODOM 0 0 0 0 0 0 1.0 h 1.0\nODOM 1 0 0 0 0 0 2.0 h 2.0\n", "no laser lines"),
+        ("# only a comment\nPARAM robot_frontlaser_offset 0.0 nohost 0\n", "no laser lines"),
+        ("FLASER 3 1 2\nFLASER x 1 2 3\n", "no usable laser line: all 2 are damaged"),
+    ],
+)
+def test_unusable_files_are_one_clear_error(tmp_path: Path, content: str, message: str) -> None:
+    path = tmp_path / "bad.log"
+    path.write_text(content)
+    with pytest.raises(FormatError) as e:
+        Carmen().read([path], ImportOptions())
+    assert message in e.value.line() and str(path) in e.value.line()
+    assert "\n" not in e.value.line()
+
+
+# ---------------------------------------------------------------- sniff
+
+
+def test_sniff(real: Path, tmp_path: Path) -> None:
+    carmen = Carmen()
+    for rel in LOGS:
+        assert carmen.sniff(real / rel), rel
+    csv = tmp_path / "a.csv"
+    csv.write_text("t,x,y\n1,2,3\n")
+    blob = tmp_path / "b.bin"
+    blob.write_bytes(bytes(range(256)) * 8)
+    prose = tmp_path / "notes.txt"
+    prose.write_text("Laser scanners are nice.\nOdometry drifts.\n")
+    empty = tmp_path / "e.log"
+    empty.write_text("")
+    for path in (csv, blob, prose, empty, tmp_path):
+        assert not carmen.sniff(path), path
+    for rel in ("carmen_radish_corrected/intel-corrected.log.gz", "dpslam_loop5/loop5.log"):
+        assert importers.detect([real / rel]).name == "carmen"
+
+
+# ---------------------------------------------------------------- writer
+
+
+def _synthetic(geometry: LaserGeometry, scans: int = 60, seed: int = 3) -> Dataset:
+    rng = np.random.default_rng(seed)
+    ranges = rng.uniform(0.05, geometry.range_max * 1.2, (scans, geometry.beams))
+    ranges[ranges >= geometry.range_max] = np.nan
+    t = 1000.0 + np.cumsum(rng.uniform(0.05, 0.15, scans))
+    to = np.linspace(t[0] - 0.5, t[-1] + 0.5, 5 * scans)
+    odo = pd.DataFrame(
+        {
+            "t": to,
+            "x": np.cos(to / 3),
+            "y": np.sin(to / 3),
+            "theta": (to / 3 + np.pi / 2 + np.pi) % (2 * np.pi) - np.pi,
+        }
+    )
+    gt = pd.DataFrame({"t": t[::2], "x": 0.01 * np.arange(t[::2].size), "y": -2.0, "theta": 0.3})
+    return Dataset(t, ranges.astype(np.float32), geometry, odometry=odo, groundtruth=gt)
+
+
+@pytest.mark.parametrize(
+    ("geometry", "message"),
+    [
+        (LaserGeometry.sick_180(181, range_max=30.0, x=0.12, y=-0.03, yaw=0.05), "FLASER 181 "),
+        (LaserGeometry.sick_180(360, range_max=81.91, x=-0.04), "FLASER 360 "),
+        (LaserGeometry(270, math.radians(-135), math.radians(1.0), 20.0, x=0.2), "ROBOTLASER1 "),
+    ],
+)
+def test_writer_reader_round_trip(tmp_path: Path, geometry: LaserGeometry, message: str) -> None:
+    ds = _synthetic(geometry)
+    files = importers.get("carmen").write(ds, tmp_path / "out")
+    assert files == [tmp_path / "out" / "sim.log"]
+    text = files[0].read_text().splitlines()
+    scans = [ln for ln in text if ln.startswith(message)]
+    assert len(scans) == ds.n_scans
+    assert re.search(r" \d+\.\d{6} toolkit \d+\.\d{6}$", scans[0])
+    back = Carmen().read(files, ImportOptions())
+    assert back.laser.beams == geometry.beams
+    for key in ("angle_min", "angle_increment", "x", "y", "yaw", "range_max"):
+        assert getattr(back.laser, key) == pytest.approx(getattr(geometry, key), abs=1e-6), key
+    np.testing.assert_array_equal(np.isnan(back.ranges), np.isnan(ds.ranges))
+    np.testing.assert_allclose(back.ranges, ds.ranges, atol=1.5e-3)  # mm, 1 mm below range_max
+    np.testing.assert_allclose(back.t, ds.t, atol=6e-7)
+    assert back.odometry is not None and ds.odometry is not None
+    np.testing.assert_allclose(back.odometry.to_numpy(), ds.odometry.to_numpy(), atol=6e-7)
+    assert back.groundtruth is not None and ds.groundtruth is not None
+    np.testing.assert_allclose(back.groundtruth.to_numpy(), ds.groundtruth.to_numpy(), atol=6e-7)
+    # the laser pose in each line is the odometry at the scan time composed with the mounting
+    x = np.interp(ds.t, ds.odometry["t"], ds.odometry["x"])
+    th = np.interp(ds.t, ds.odometry["t"], np.unwrap(ds.odometry["theta"]))
+    assert back.poses["scan_pose"]["x"].to_numpy() == pytest.approx(x, abs=1e-6)
+    assert back.report.records_dropped == 0
+    del th
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_real_log_write_read_round_trip(
+    name: str, parsed: dict[str, Parsed], tmp_path: Path
+) -> None:
+    ds = parsed[name].ds
+    files = Carmen().write(ds, tmp_path, name=f"{name}.log")
+    back = Carmen().read(files, ImportOptions())
+    assert back.meta["time_source"] == "log"
+    np.testing.assert_allclose(back.t, ds.t, atol=6e-7)
+    np.testing.assert_array_equal(np.isnan(back.ranges), np.isnan(ds.ranges))
+    np.testing.assert_allclose(back.ranges, ds.ranges, atol=1.5e-3)
+    assert back.laser.x == ds.laser.x and back.laser.beams == ds.laser.beams
+    assert back.odometry is not None and ds.odometry is not None
+    np.testing.assert_allclose(back.odometry.to_numpy(), ds.odometry.to_numpy(), atol=6e-7)
+
+
+def test_writer_leaves_nothing_half_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importers.carmen as carmen
+
+    ds = _synthetic(LaserGeometry.sick_180(181, range_max=30.0))
+    out = tmp_path / "out"
+    Carmen().write(ds, out)
+    before = (out / "sim.log").read_bytes()
+
+    def dies_half_way(ds: Dataset, path: Path, host: str = "") -> None:
+        path.write_text("PARAM robot_frontlaser_offset 0.0 nohost 0\nFLASER 181 1.0")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(carmen, "write_log", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        Carmen().write(ds, out)
+    assert (out / "sim.log").read_bytes() == before
+    assert sorted(p.name for p in out.iterdir()) == ["sim.log"]
+
+
+# ---------------------------------------------------------------- CLI
+
+
+def _cli(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: str
+) -> tuple[int, str, str]:
+    from toolkit.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["toolkit", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_import_carmen_and_auto(
+    real: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "orebro"
+    code, stdout, _ = _cli(monkeypatch, capsys, "import", "carmen", str(real / RADISH / "orebro-corrected.log.gz"),
+                           "--out", str(out), "-O", "poses=groundtruth", "--rate", "4")  # fmt: skip
+    assert code == 0 and "237 x 181 beams" in stdout and "clock: scan_order" in stdout
+    ds = load(out)
+    assert ds.n_scans == 237 and ds.groundtruth is not None and ds.t[-1] == 236 / 4
+    assert ds.meta["source"]["format"] == "carmen"
+    out2 = tmp_path / "csm"
+    code, stdout, _ = _cli(
+        monkeypatch,
+        capsys,
+        "import",
+        "auto",
+        str(real / "csm_laserazos" / "laserazosSM3.log"),
+        "--out",
+        str(out2),
+    )
+    assert code == 0 and load(out2).ranges.shape == (778, 361)
+
+
+@pytest.mark.parametrize("content", ["", "ODOM 0 0 0 0 0 0 1 h 1\n", "FLASER 5 1 2 3\n"])
+def test_cli_bad_input_is_one_line_and_no_output(
+    content: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    src = tmp_path / "bad.log"
+    src.write_text(content)
+    out = tmp_path / "ds"
+    code, _, err = _cli(monkeypatch, capsys, "import", "carmen", str(src), "--out", str(out))
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
+    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.log"]
+
+
+def test_cli_subprocess_auto_on_dpslam(real: Path, tmp_path: Path) -> None:
+    exe = ROOT / ".venv" / "bin" / "toolkit"
+    out = tmp_path / "loop5"
+    run = subprocess.run([str(exe), "import", "auto", str(real / "dpslam_loop5" / "loop5.log"), "--out", str(out)],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "551 x 181 beams" in run.stdout
+    ds = load(out)
+    assert ds.odometry is not None and len(ds.odometry) == 551
+    first = (real / "dpslam_loop5" / "loop5.log").read_text().splitlines()[0].split()
+    np.testing.assert_array_equal(
+        ds.odometry.iloc[0][["x", "y", "theta"]].to_numpy(float), [float(v) for v in first[1:]]
+    )
