@@ -37,6 +37,7 @@ Time: a capture has no clock. In order of preference:
 from __future__ import annotations
 
 import json
+import lzma
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -280,14 +281,12 @@ class LMS200(Importer):
 
     def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
         capture, times_file = _sources(sources, options)
-        with open_binary(capture) as f:
-            data = f.read()
-        buf = np.frombuffer(data, np.uint8)
+        report = ImportReport()
+        buf = np.frombuffer(_read_capture(capture, report), np.uint8)
         crc = options.get("crc", "numpy") or "numpy"
         if crc not in CRC_METHODS:
             raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
         tg = Telegrams(buf, crc)
-        report = ImportReport()
         report.records_read = int(tg.start.size) + tg.rejected_crc + tg.truncated
         report.drop("telegram CRC mismatch", tg.rejected_crc, _where(capture, "CRC"))
         report.drop("telegram cut off at end of capture", tg.truncated)
@@ -361,6 +360,32 @@ class LMS200(Importer):
 
     def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
         return write(ds, out, **options)  # type: ignore[arg-type]
+
+
+def _read_capture(path: Path, report: ImportReport) -> bytes:
+    """The capture's bytes, decompressed if it is gz/bz2/xz.
+
+    A damaged compressed stream keeps what decompressed before the damage; a file that only
+    looks compressed (noise that happens to start with a magic number) is read raw.
+    """
+    errors = (OSError, EOFError, lzma.LZMAError)
+    try:
+        with open_binary(path) as f:
+            return f.read()
+    except errors:
+        pass
+    parts: list[bytes] = []  # read again block by block to keep what decompresses
+    try:
+        with open_binary(path) as f:
+            while block := f.read(1 << 13):
+                parts.append(block)
+    except errors as e:
+        if not parts:
+            report.note(f"starts like a compressed file but does not decompress ({e}): read raw")
+            with open(path, "rb") as raw:
+                return raw.read()
+        report.note(f"compressed stream damaged after {sum(map(len, parts))} bytes ({e})")
+    return b"".join(parts)
 
 
 def _where(path: Path, what: str) -> str:

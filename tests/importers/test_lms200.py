@@ -6,6 +6,7 @@ No real LMS-200 capture exists in ../shared/data/real, so the fixtures are gener
 
 from __future__ import annotations
 
+import gzip
 import json
 import sys
 from functools import cache
@@ -326,6 +327,20 @@ def test_damaged_input_never_crashes_nor_yields_a_corrupt_scan(
     assert np.all(np.diff(back.t) > 0)
     report = back.meta["import_report"]
     assert report["records_kept"] == back.n_scans <= report["records_read"]
+
+
+def test_compressed_and_cut_compressed_captures(tmp_path: Path) -> None:
+    ds = _dataset(scans=200, beams=181)
+    capture, _, _ = write(ds, tmp_path / "w")
+    whole = gzip.compress(capture.read_bytes())
+    (tmp_path / "c.lms.gz").write_bytes(whole)
+    (tmp_path / "cut.lms.gz").write_bytes(whole[: len(whole) // 2])
+    back = _read(tmp_path / "c.lms.gz")
+    np.testing.assert_allclose(back.ranges, _expected(ds), rtol=0, atol=1e-6)
+    cut = _read(tmp_path / "cut.lms.gz")  # what decompressed before the cut is kept
+    assert 0 < cut.n_scans < ds.n_scans
+    np.testing.assert_allclose(cut.ranges, _expected(ds)[: cut.n_scans], rtol=0, atol=1e-6)
+    assert any("compressed stream damaged" in n for n in cut.meta["import_report"]["notes"])
 
 
 def test_fatal_input_leaves_no_partial_dataset(tmp_path: Path) -> None:
