@@ -105,6 +105,8 @@ class _Lines:
     truepos: list[_Line] = field(default_factory=list)
     params: dict[str, list[str]] = field(default_factory=dict)
     skipped: Counter[str] = field(default_factory=Counter)
+    dpslam_odometry: int = 0  # DP-SLAM Odometry lines, all
+    bad: list[tuple[str, int]] = field(default_factory=list)  # (reason, line) of damaged ones
     last_line: int = 0  # number of the last line, if it lacks its newline (else 0)
 
 
@@ -155,9 +157,10 @@ def _split_lines(path: Path) -> _Lines:
             if len(tokens) >= 3:
                 out.params.setdefault(tokens[1], []).append(tokens[2])
         elif msg.lower() == "odometry":
+            out.dpslam_odometry += 1
             dpslam_pose = tokens[1:4] if len(tokens) == 4 else None
             if dpslam_pose is None:
-                out.skipped["Odometry line with a wrong number of fields"] += 1
+                out.bad.append(("Odometry wrong number of fields", number))
         elif msg.lower() == "laser":
             # as an old-format laser line without clock: laser pose = robot pose = Odometry
             pose = dpslam_pose if dpslam_pose is not None else ["nan"] * 3
@@ -213,7 +216,12 @@ def _where(path: Path, line: int) -> str:
 
 
 def _to_float(rows: list[list[str]], cols: np.ndarray) -> np.ndarray:
-    return np.asarray(rows, dtype=str)[:, cols].astype(np.float64)
+    """The given token columns of equally long rows as floats: numpy parses one contiguous
+    slice of each row (all numeric fields of a message lie between the tag and the host)."""
+    lo, hi = int(cols.min()), int(cols.max()) + 1
+    if not rows:
+        return np.empty((0, cols.size))
+    return np.array([r[lo:hi] for r in rows], dtype=np.float64)[:, cols - lo]
 
 
 def _parse_laser(
@@ -244,7 +252,7 @@ def _parse_laser(
     flat = np.concatenate([cols[k] for k in order if k in cols])
     rows = [entries[i].tokens for i in keep]
     try:
-        values = _to_float(rows, flat) if rows else np.empty((0, flat.size))
+        values = _to_float(rows, flat)
     except ValueError:  # find the damaged lines, only on this slow path
         ok = []
         for i in keep:
@@ -255,7 +263,7 @@ def _parse_laser(
                 report.drop("non-numeric value", 1, _where(path, entries[i].number))
         keep = ok
         rows = [entries[i].tokens for i in keep]
-        values = _to_float(rows, flat) if rows else np.empty((0, flat.size))
+        values = _to_float(rows, flat)
     if not keep:
         return None
     split = np.cumsum([cols[k].size for k in order if k in cols])[:-1]
@@ -380,10 +388,13 @@ class _Reader:
         odometry, groundtruth, poses = self._poses(main, decisions)
         for name, count in sorted(lines.skipped.items()):
             report.note(f"skipped {count} {name} line(s): not used")
-        report.records_read = read + len(lines.odom) + len(lines.truepos)
+        report.records_read = read + len(lines.odom) + len(lines.truepos) + lines.dpslam_odometry
         kept = sum(b.scans.t.size for b in built.values())
         report.records_kept = kept + decisions.get("odom_lines_kept", 0)
         report.records_kept += decisions.get("truepos_lines_kept", 0)
+        report.records_kept += lines.dpslam_odometry - len(lines.bad)
+        for reason, number in lines.bad:
+            report.drop(reason, 1, _where(path, number))
         others = {name.lower(): b.scans for name, b in built.items() if name != primary}
         meta = make_meta(
             "carmen",
@@ -594,7 +605,7 @@ class _Reader:
         rows: list[list[str]] = [e.tokens for e in good]
         cols = np.array([1, 2, 3, 7])
         try:
-            values = _to_float(rows, cols) if rows else np.empty((0, 4))
+            values = _to_float(rows, cols)
         except ValueError:
             ok = []
             for e in good:
@@ -604,7 +615,7 @@ class _Reader:
                 except ValueError:
                     report.drop(f"{msg} non-numeric value", 1, _where(path, e.number))
             good = ok
-            values = _to_float([e.tokens for e in good], cols) if good else np.empty((0, 4))
+            values = _to_float([e.tokens for e in good], cols)
         if not clock:
             report.note(f"{msg} lines not used: the scans have no usable clock to align them to")
             return None

@@ -90,7 +90,7 @@ def _source_table(real: Path) -> dict[str, Expected]:
     dp = (real / "dpslam_loop5" / "SOURCE.md").read_text()
     dp_m = re.search(r"(\d+) Odometry \+ (\d+) Laser lines", dp)
     assert dp_m and "Laser: 181 ranges" in dp, "dpslam SOURCE.md changed"
-    out["loop5"] = Expected(int(dp_m[2]), 181, 0)
+    out["loop5"] = Expected(int(dp_m[2]), 181, int(dp_m[1]))  # odom: the Odometry lines
     return out
 
 
@@ -264,6 +264,73 @@ def test_mounting_from_param(parsed: dict[str, Parsed]) -> None:
     assert any(
         "differs from the laser-robot pose" in n for n in parsed["freiburg-101"].ds.report.notes
     )
+
+
+def _all_messages_log(path: Path) -> dict[str, np.ndarray]:
+    """A log with every message this importer reads, from known values; returns the truth."""
+    rng = np.random.default_rng(7)
+    n_scan, beams = 12, 181
+    t = 50.0 + 0.2 * np.arange(n_scan)
+    robot = np.column_stack(
+        [0.1 * np.arange(n_scan), 0.05 * np.arange(n_scan), 0.1 * np.arange(n_scan)]
+    )
+    front = rng.uniform(0.5, 20.0, (n_scan, beams)).round(3)
+    rear = rng.uniform(0.5, 20.0, (n_scan, beams)).round(3)
+    rl = rng.uniform(0.5, 10.0, (n_scan, 90)).round(3)
+    rl[:, 5] = 30.0  # ROBOTLASER1 max_range: no return
+    lines = [
+        "# message formats defined: PARAM SYNC ODOM FLASER RLASER TRUEPOS ROBOTLASER1",
+        "PARAM robot_frontlaser_offset 0.25 nohost 0",
+        "PARAM robot_rearlaser_offset -0.2 nohost 0",
+    ]
+
+    def fmt(a: np.ndarray | list[float]) -> str:
+        return " ".join(f"{v:.6g}" for v in a)
+
+    for k in range(n_scan):
+        x, y, th = robot[k]
+        c, s_ = np.cos(th), np.sin(th)
+        fpose = [x + 0.25 * c, y + 0.25 * s_, th]
+        rpose = [x - 0.2 * c, y - 0.2 * s_, th + np.pi]
+        stamp = f"{t[k]:.6f} host {t[k]:.6f}"
+        lines += [
+            f"ODOM {fmt(robot[k])} 0.1 0 0 {t[k] - 0.1:.6f} host {t[k] - 0.1:.6f}",
+            "SYNC foo",
+            f"FLASER {beams} {fmt(front[k])} {fmt(fpose)} {fmt(robot[k])} {stamp}",
+            f"RLASER {beams} {fmt(rear[k])} {fmt(rpose)} {fmt(robot[k])} {stamp}",
+            f"ROBOTLASER1 0 -0.785398 1.553343 0.017453 30.0 0.01 0 90 {fmt(rl[k])} 90 "
+            f"{fmt(rl[k] * 100)} {fmt(fpose)} {fmt(robot[k])} 0.1 0 0.3 0.2 0 {stamp}",
+            f"TRUEPOS {fmt(robot[k] + 1)} {fmt(robot[k])} {stamp}",
+            "NEFF 3.5",
+        ]
+    path.write_text("\n".join(lines) + "\n")
+    return {"t": t, "robot": robot, "front": front, "rear": rear, "rl": rl}
+
+
+def test_every_message_of_a_known_log(tmp_path: Path) -> None:
+    truth = _all_messages_log(tmp_path / "all.log")
+    ds = Carmen().read([tmp_path / "all.log"], ImportOptions())
+    assert ds.meta["carmen"]["primary_laser"] == "FLASER"
+    np.testing.assert_array_equal(ds.t, truth["t"])
+    np.testing.assert_allclose(ds.ranges, truth["front"], rtol=1e-6)
+    assert ds.laser.x == 0.25 and ds.laser.y == 0.0 and ds.laser.yaw == 0.0
+    rear = ds.lasers["rlaser"]
+    np.testing.assert_allclose(rear.ranges, truth["rear"], rtol=1e-6)
+    assert rear.laser.x == -0.2 and rear.laser.yaw == pytest.approx(np.pi, abs=1e-5)
+    rl = ds.lasers["robotlaser1"]
+    assert rl.laser.beams == 90 and rl.laser.range_max == 30.0
+    assert rl.laser.angle_min == pytest.approx(-np.pi / 4, abs=1e-6)
+    assert rl.laser.angle_increment == pytest.approx(np.pi / 180, abs=1e-6)
+    expect = np.where(truth["rl"] >= 30.0, np.nan, truth["rl"]).astype(np.float32)
+    np.testing.assert_array_equal(rl.ranges, expect)  # ranges, not the remissions after them
+    assert ds.odometry is not None and ds.groundtruth is not None
+    np.testing.assert_allclose(ds.odometry["t"], truth["t"] - 0.1)
+    np.testing.assert_allclose(ds.groundtruth[["x", "y", "theta"]], truth["robot"] + 1, atol=1e-6)
+    assert "skipped 12 NEFF line(s): not used" in ds.report.notes
+    assert "skipped 12 SYNC line(s): not used" in ds.report.notes
+    assert ds.report.records_read == 12 * 5 and ds.report.records_dropped == 0
+    other = Carmen().read([tmp_path / "all.log"], ImportOptions(laser="robotlaser1"))
+    assert other.n_beams == 90 and set(other.lasers) == {"flaser", "rlaser"}
 
 
 # ---------------------------------------------------------------- damaged copies
@@ -445,12 +512,10 @@ def test_writer_reader_round_trip(tmp_path: Path, geometry: LaserGeometry, messa
     np.testing.assert_allclose(back.odometry.to_numpy(), ds.odometry.to_numpy(), atol=6e-7)
     assert back.groundtruth is not None and ds.groundtruth is not None
     np.testing.assert_allclose(back.groundtruth.to_numpy(), ds.groundtruth.to_numpy(), atol=6e-7)
-    # the laser pose in each line is the odometry at the scan time composed with the mounting
+    # the robot pose in each laser line is the odometry interpolated at the scan time
     x = np.interp(ds.t, ds.odometry["t"], ds.odometry["x"])
-    th = np.interp(ds.t, ds.odometry["t"], np.unwrap(ds.odometry["theta"]))
     assert back.poses["scan_pose"]["x"].to_numpy() == pytest.approx(x, abs=1e-6)
     assert back.report.records_dropped == 0
-    del th
 
 
 @pytest.mark.parametrize("name", NAMES)
