@@ -24,9 +24,10 @@ or has no scan, is a FormatError.
 
 from __future__ import annotations
 
+import lzma
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import ClassVar
 
@@ -130,6 +131,19 @@ def _numbers(text: str, count: int | None = None) -> list[float] | None:
     return values
 
 
+def _lines(path: Path, report: ImportReport) -> Iterator[tuple[int, str]]:
+    """Numbered lines; a damaged compressed stream ends them (noted), what came before is kept."""
+    number = 0
+    try:
+        with open_text(path) as f:
+            for number, line in enumerate(f, 1):
+                yield number, line
+    except (OSError, EOFError, lzma.LZMAError) as e:
+        if number == 0:
+            raise FormatError(f"cannot read or decompress: {e}", file=path) from None
+        report.note(f"compressed stream damaged after line {number} ({e}): the rest is lost")
+
+
 def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]], _Scans]:
     """One pass over the lines: header tags, and per scan its time, poses and raw values."""
     header: dict[str, tuple[str, int]] = {}
@@ -140,66 +154,65 @@ def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]]
     beams: int | None = None
     unknown: set[str] = set()
     seen_magic = False
-    with open_text(path) as f:
-        for number, line in enumerate(f, 1):
-            stripped = line.strip()
-            if not stripped or stripped.startswith("#"):
-                seen_magic |= "ArLaserLogger" in stripped
-                continue
-            if stripped == "LaserOdometryLog":
-                seen_magic = True
-                continue
-            match = _TAG.match(stripped)
-            if match is None:
-                if number == 1:
-                    raise FormatError("not an ARIA laser log (no 'tag: values' line)", file=path, record=1)  # fmt: skip
-                report.drop("line without 'tag:'", where=f"line {number}")
-                continue
-            tag, rest = match.group(1), match.group(2)
-            if tag in LASER_TAGS:
-                report.records_read += 1
-                if beams is None:
-                    beams = _beams_from_header(header, tag, rest, path, number)
-                width = 2 * beams if tag == "scan1" else beams
-                values = _numbers(rest, width)
-                if values is None:
-                    report.drop(f"{tag}: not {width} numbers", where=f"line {number}")
-                elif header.setdefault("laser_tag", (tag, number))[0] != tag:
-                    report.drop(f"{tag}: log mixes scan1 and sick1", where=f"line {number}")
-                else:
-                    scans.lines.append(number)
-                    scans.t.append(math.nan if t is None else t)
-                    scans.values.append(np.asarray(values, np.float64))
-                    scans.robot.append(robot)
-                    scans.global_.append(robot_global)
-                t = robot = robot_global = None
-            elif tag in TIME_TAGS:
-                value = _numbers(rest, 1)
-                if value is None:
-                    report.drop(f"{tag}: not a number", where=f"line {number}")
-                t = None if value is None else value[0]
-            elif tag in ("robot", "robotGlobal"):
-                pose = _numbers(rest, 3)
-                if pose is None:
-                    report.drop(f"{tag}: not X Y TH", where=f"line {number}")
-                elif tag == "robot":
-                    robot = (pose[0], pose[1], pose[2])
-                else:
-                    robot_global = (pose[0], pose[1], pose[2])
-            elif tag == "cairn":
-                report.records_read += 1
-                report.drop("goal marker (cairn:) skipped", where=f"line {number}")
-            elif tag in ("sick1pose", "scan1pose", "sick1conf", "scan1conf", "version"):
-                if beams is not None and tag in ("sick1conf", "scan1conf"):
-                    report.note(f"{tag} after the first scan ignored (line {number})")
-                else:
-                    header[tag] = (rest.strip(), number)
-                    if tag in ("sick1conf", "scan1conf"):
-                        header["conf"] = header[tag]
-                    if tag in ("sick1pose", "scan1pose"):
-                        header["pose"] = header[tag]
-            elif tag not in ("scanId", "scan1Id", "velocities", "locationTypes", "robotRaw"):
-                unknown.add(tag)
+    for number, line in _lines(path, report):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            seen_magic |= "ArLaserLogger" in stripped
+            continue
+        if stripped == "LaserOdometryLog":
+            seen_magic = True
+            continue
+        match = _TAG.match(stripped)
+        if match is None:
+            if number == 1:
+                raise FormatError("not an ARIA laser log (no 'tag: values' line)", file=path, record=1)  # fmt: skip
+            report.drop("line without 'tag:'", where=f"line {number}")
+            continue
+        tag, rest = match.group(1), match.group(2)
+        if tag in LASER_TAGS:
+            report.records_read += 1
+            if beams is None:
+                beams = _beams_from_header(header, tag, rest, path, number)
+            width = 2 * beams if tag == "scan1" else beams
+            values = _numbers(rest, width)
+            if values is None:
+                report.drop(f"{tag}: not {width} numbers", where=f"line {number}")
+            elif header.setdefault("laser_tag", (tag, number))[0] != tag:
+                report.drop(f"{tag}: log mixes scan1 and sick1", where=f"line {number}")
+            else:
+                scans.lines.append(number)
+                scans.t.append(math.nan if t is None else t)
+                scans.values.append(np.asarray(values, np.float64))
+                scans.robot.append(robot)
+                scans.global_.append(robot_global)
+            t = robot = robot_global = None
+        elif tag in TIME_TAGS:
+            value = _numbers(rest, 1)
+            if value is None:
+                report.drop(f"{tag}: not a number", where=f"line {number}")
+            t = None if value is None else value[0]
+        elif tag in ("robot", "robotGlobal"):
+            pose = _numbers(rest, 3)
+            if pose is None:
+                report.drop(f"{tag}: not X Y TH", where=f"line {number}")
+            elif tag == "robot":
+                robot = (pose[0], pose[1], pose[2])
+            else:
+                robot_global = (pose[0], pose[1], pose[2])
+        elif tag == "cairn":
+            report.records_read += 1
+            report.drop("goal marker (cairn:) skipped", where=f"line {number}")
+        elif tag in ("sick1pose", "scan1pose", "sick1conf", "scan1conf", "version"):
+            if beams is not None and tag in ("sick1conf", "scan1conf"):
+                report.note(f"{tag} after the first scan ignored (line {number})")
+            else:
+                header[tag] = (rest.strip(), number)
+                if tag in ("sick1conf", "scan1conf"):
+                    header["conf"] = header[tag]
+                if tag in ("sick1pose", "scan1pose"):
+                    header["pose"] = header[tag]
+        elif tag not in ("scanId", "scan1Id", "velocities", "locationTypes", "robotRaw"):
+            unknown.add(tag)
     if unknown:
         report.note(f"unknown tags ignored: {', '.join(sorted(unknown))}")
     if not seen_magic and "conf" not in header:
