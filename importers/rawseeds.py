@@ -37,6 +37,7 @@ Decisions (also stored in meta.json under "rawseeds"):
 from __future__ import annotations
 
 import concurrent.futures
+import json
 import math
 import re
 import tempfile
@@ -208,7 +209,7 @@ def chunks(path: Path, size: int | None = None) -> Iterator[Chunk]:
                 rest = data
                 continue
             rest = data[cut:]
-            yield Chunk(data[:cut], line)
+            yield Chunk(data[:cut] if rest else data, line)
             line += data.count(b"\n", 0, cut)
         if compressed:
             bar.update(TaskID(tid), completed=raw_size)
@@ -247,10 +248,32 @@ def _locate_non_numeric(path: Path, chunk: Chunk, arrow_message: str) -> FormatE
 
 @dataclass
 class Parsed:
-    """One chunk parsed: the columns as float arrays, and the rows that had the wrong field count."""
+    """One chunk parsed: a table of float columns, and the rows that had the wrong field count."""
 
-    columns: list[np.ndarray]
+    table: pa.Table
     bad_rows: list[tuple[int, str]] = field(default_factory=list)  # (row number, text)
+
+    @property
+    def rows(self) -> int:
+        return int(self.table.num_rows)
+
+    def column(self, i: int) -> np.ndarray:
+        """Column i as numpy; empty fields are NaN."""
+        col = self.table.column(i)
+        if col.null_count:
+            col = pc.fill_null(col, math.nan)
+        return col.to_numpy()
+
+    def fill(self, out: np.ndarray, first: int) -> None:
+        """out[:, k] = column first + k, piece by piece (no concatenated copy of each column)."""
+        for k in range(out.shape[1]):
+            col = self.table.column(first + k)
+            if col.null_count:
+                col = pc.fill_null(col, math.nan)
+            row = 0
+            for piece in col.chunks:
+                out[row : row + len(piece), k] = piece.to_numpy(zero_copy_only=False)
+                row += len(piece)
 
 
 def parse_chunk(
@@ -286,13 +309,9 @@ def parse_chunk(
         )
     except pa.ArrowInvalid as e:
         if "Empty CSV" in str(e):
-            return Parsed([np.empty(0, np.float64) for _ in range(ncols)], bad)
+            return Parsed(pa.schema(list(types.items())).empty_table(), bad)
         raise _locate_non_numeric(path, chunk, str(e)) from None
-    cols = []
-    for col in table.columns:
-        arr = col.to_numpy() if col.null_count == 0 else pc.fill_null(col, math.nan).to_numpy()
-        cols.append(arr)
-    return Parsed(cols, bad)
+    return Parsed(table, bad)
 
 
 def _where(chunk: Chunk, text: str) -> str:
@@ -382,11 +401,11 @@ def stream_laser(
 
     try:
         for chunk in chunks(path):
-            saw_text = saw_text or bool(chunk.data.strip())
+            saw_text = saw_text or not chunk.data.isspace()  # no copy of the chunk
             parsed = parse_chunk(path, chunk, spec.columns, float32_from=spec.lead)
             _count_bad_rows(path, chunk, parsed, report, prefix, "ranges")
             t, ranges = _clean_scans(path, parsed, spec, report, prefix, result)
-            result.rows_read += len(parsed.columns[0]) + len(parsed.bad_rows)
+            result.rows_read += parsed.rows + len(parsed.bad_rows)
             if len(t) == 0:
                 continue
             if pending is not None:
@@ -422,14 +441,13 @@ def _clean_scans(
     result: LaserResult,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Check the lead fields, make an S x B float32 array, and turn invalid readings into NaN."""
-    cols = parsed.columns
-    t = cols[0]
+    t = parsed.column(0)
     n = len(t)
     ok = np.isfinite(t)
     if not ok.all():
         report.drop(prefix + "timestamp not a number", int((~ok).sum()), path.name)
     if spec.lead == 3:
-        count = cols[1]
+        count = parsed.column(1)
         match = count == spec.geometry.beams
         bad = ok & ~match
         if bad.any():
@@ -439,24 +457,28 @@ def _clean_scans(
                 f"{path.name} t={t[bad][0]:.6f} n_ranges={count[bad][0]:g}",
             )
         ok &= match
-        offsets, counts = np.unique(cols[2][ok], return_counts=True)
+        offsets, counts = np.unique(parsed.column(2)[ok], return_counts=True)
         for value, c in zip(offsets.tolist(), counts.tolist(), strict=True):
             result.offsets[value] = result.offsets.get(value, 0) + int(c)
     ranges = np.empty((n, spec.geometry.beams), dtype=np.float32)
-    for i, col in enumerate(cols[spec.lead :]):
-        ranges[:, i] = col
+    parsed.fill(ranges, spec.lead)
     if not ok.all():
         t, ranges = t[ok], ranges[ok]
-    invalid = ~np.isfinite(ranges) | (ranges < 0)
     g = spec.geometry
-    with np.errstate(invalid="ignore"):
-        no_return = ~invalid & ((ranges >= g.range_max) | (ranges <= g.range_min))
-        if spec.lead == 1:  # Hokuyo: error codes are small values, not the maximum
-            no_return = ~invalid & ((ranges > g.range_max) | (ranges < g.range_min))
+    lo, hi = np.float32(g.range_min), np.float32(g.range_max)
+    # one pass for the mask of readings that become NaN (comparisons with NaN are False)
+    if spec.lead == 1:  # Hokuyo: valid in [range_min, range_max]; below are error codes
+        lost = ~((ranges >= lo) & (ranges <= hi))
+    else:  # SICK: valid in (0, range_max); 0 and the 8183..8191 cm codes are no return
+        lost = ~((ranges > lo) & (ranges < hi))
+    n_lost = int(np.count_nonzero(lost))
+    if n_lost:
+        values = ranges[lost]
+        n_invalid = int(np.count_nonzero(~np.isfinite(values) | (values < 0)))
+        result.invalid += n_invalid
+        result.no_return += n_lost - n_invalid
+        np.putmask(ranges, lost, np.float32(np.nan))
     result.readings += ranges.size
-    result.invalid += int(invalid.sum())
-    result.no_return += int(no_return.sum())
-    ranges[invalid | no_return] = np.nan
     return t, ranges
 
 
@@ -477,7 +499,7 @@ def read_rows(path: Path, ncols: int, report: ImportReport, prefix: str) -> np.n
     chunk = Chunk(data, 1, unterminated)
     parsed = parse_chunk(path, chunk, ncols)
     _count_bad_rows(path, chunk, parsed, report, prefix, "fields")
-    return np.column_stack(parsed.columns) if parsed.columns else np.empty((0, ncols))
+    return np.column_stack([parsed.column(i) for i in range(ncols)])
 
 
 def read_pose_stream(
@@ -541,6 +563,9 @@ def find_session(sources: Sequence[Path]) -> Session:
         else:
             raise ToolkitError("no such file or directory", file=src)
         for path, (session, stream) in hits:
+            if sessions and session not in sessions:
+                others = ", ".join(sorted(sessions | {session}))
+                raise FormatError(f"files of several sessions ({others}); give one", file=path)
             if stream in files and files[stream] != path:
                 plain = files[stream].name.removesuffix(".bz2") == path.name
                 if plain or path.name.removesuffix(".bz2") == files[stream].name:
@@ -550,10 +575,6 @@ def find_session(sources: Sequence[Path]) -> Session:
                 )
             files[stream] = path
             sessions.add(session)
-    if len(sessions) > 1:
-        raise FormatError(
-            f"files of several sessions ({', '.join(sorted(sessions))}); give one", file=sources[0]
-        )
     return Session(next(iter(sessions)), files, where)
 
 
@@ -613,8 +634,6 @@ class Rawseeds(Importer):
             raise FormatError(f"no {spec.stream} csv in {session.where}")
         with atomic_dir(out, force=force) as tmp:
             meta = self._import(session, spec, gt_choice, tmp)
-            import json
-
             (tmp / META).write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
         return out
 
@@ -734,7 +753,7 @@ def _with_offset(spec: LaserSpec, res: LaserResult) -> LaserGeometry:
 # ---------------------------------------------------------------- writer
 
 
-def _fixed(values: np.ndarray, decimals: int) -> pa.Array:
+def fixed_text(values: np.ndarray, decimals: int) -> pa.Array:
     """Numbers as fixed-point text ('%.{decimals}f'), vectorised through a decimal cast."""
     arr = pa.array(np.asarray(values, dtype=np.float64))  # the cast rounds half away from 0
     return pc.cast(pc.cast(arr, pa.decimal128(18 + decimals, decimals), safe=False), pa.string())
@@ -773,38 +792,38 @@ def write(
             t = ds.t[start : start + chunk]
             r = ds.ranges[start : start + chunk]
             r = np.where(np.isfinite(r) & (r < SICK_RANGE_MAX) & (r > 0), r, SICK_NO_RETURN)
-            f.write(_sick_lines(t, r))
+            f.write(sick_lines(t, r))
     written.append(laser_path)
     if ds.odometry is not None:
         odo = ds.odometry
         n = len(odo)
         path = out / f"{session}-ODOMETRY_XYT.csv"
         cols = [
-            _fixed(odo["t"].to_numpy(), 6),
+            fixed_text(odo["t"].to_numpy(), 6),
             pa.array([str(i % 65536) for i in range(n)]),
             pa.array(["0"] * n),
             pa.array(["0"] * n),
-        ] + [_fixed(odo[c].to_numpy(), odometry_decimals) for c in ("x", "y", "theta")]
+        ] + [fixed_text(odo[c].to_numpy(), odometry_decimals) for c in ("x", "y", "theta")]
         _write_lines(path, cols)
         written.append(path)
     if ds.groundtruth is not None:
         gt = ds.groundtruth
         path = out / f"{session}-GROUNDTRUTH.csv"
         zero = pa.array(["0.000000"] * len(gt))
-        cols = [_fixed(gt[c].to_numpy(), 6) for c in ("t", "x", "y", "theta")] + [zero] * 9
+        cols = [fixed_text(gt[c].to_numpy(), 6) for c in ("t", "x", "y", "theta")] + [zero] * 9
         _write_lines(path, cols)
         written.append(path)
     return written
 
 
-def _sick_lines(t: np.ndarray, ranges: np.ndarray) -> str:
+def sick_lines(t: np.ndarray, ranges: np.ndarray) -> str:
     """'t,181,0,R1,...,R181' lines, built column-wise by pyarrow (no loop per scan or beam)."""
     rows, beams = ranges.shape
     if rows == 0:
         return ""
-    flat = _fixed(ranges.reshape(-1), 3)
+    flat = fixed_text(ranges.reshape(-1), 3)
     offsets = pa.array(np.arange(0, rows * beams + 1, beams, dtype=np.int32))
     per_row = pc.binary_join(pa.ListArray.from_arrays(offsets, flat), ",")
     head = pa.scalar(f"{beams},0")
-    lines = pc.binary_join_element_wise(_fixed(t, 6), head, per_row, ",")
+    lines = pc.binary_join_element_wise(fixed_text(t, 6), head, per_row, ",")
     return "\n".join(lines.to_pylist()) + "\n"

@@ -458,3 +458,34 @@ def test_cli_import_success_and_one_line_failure(
     assert res.returncode == 1
     assert res.stderr.splitlines() == [f"error: {bad}:8: non-numeric value 'x0' in field 3"]
     assert not out.exists() and not list(tmp_path.glob(".bad.*"))
+
+
+def test_hokuyo_stream_geometry_and_error_codes(
+    session: tuple[Path, Dataset], tmp_path: Path
+) -> None:
+    d, truth = session
+    rng = np.random.default_rng(5)
+    ranges = rng.uniform(0.1, 5.0, (40, 681)).round(3)
+    ranges[:, 0] = 0.005  # URG-04LX error code (< 20 mm)
+    ranges[:, 1] = 5.9  # beyond its 5.6 m
+    t = truth.t[0] + np.arange(40) / 10.0
+    np.savetxt(
+        d / f"{S27}-HOKUYO_FRONT.csv", np.column_stack([t, ranges]), fmt="%.6f", delimiter=","
+    )
+    ds = run_import(d, tmp_path / "ds", laser="hokuyo_front")
+    assert ds.n_scans == 40 and ds.n_beams == 681
+    assert math.isclose(ds.laser.angle_increment, 2 * math.pi / 1024)
+    assert math.isclose(ds.laser.angle_min, -340 * 2 * math.pi / 1024)
+    assert np.isnan(ds.ranges[:, :2]).all()
+    np.testing.assert_array_equal(ds.ranges[:, 2:], ranges[:, 2:].astype(np.float32))
+    assert ds.meta["range_readings"]["hokuyo_front"]["no_return"] == 80
+    assert set(ds.lasers) == {"sick_front"} and ds.lasers["sick_front"].t.shape == truth.t.shape
+
+
+def test_files_of_two_sessions_are_refused(real: Path, tmp_path: Path) -> None:
+    a = real_dir(real, SESSIONS[0]) / f"{SESSIONS[0]}-GROUNDTRUTH.csv"
+    b = real_dir(real, S27) / f"{S27}-GT-extended.csv"
+    with pytest.raises(FormatError, match="files of several sessions"):
+        run_import([a, b], tmp_path / "ds")
+    with pytest.raises(FormatError, match="no SICK_FRONT csv in given files"):
+        run_import([b], tmp_path / "ds")
