@@ -51,12 +51,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
+from rich.progress import TaskID
 
 from importers import register
 from importers.base import Importer, ImportOptions, head_bytes, open_text
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, Scans, make_meta
 from toolkit.errors import FormatError, ToolkitError
+from toolkit.progress import task
 
 #: a value is a no-return code if it is the largest one recurring at least this often
 CODE_MIN_COUNT = 5
@@ -67,6 +69,7 @@ MIN_DISTINCT = 0.5
 #: ... or more than this fraction are out of order
 MAX_OUT_OF_ORDER = 0.25
 NOMINAL_RATE = 1.0
+PROGRESS_STEP = 8192
 
 #: old-format beam layouts: beams -> (first angle, step), degrees
 OLD_LAYOUTS: dict[int, tuple[float, float]] = {
@@ -107,6 +110,7 @@ class _Lines:
     skipped: Counter[str] = field(default_factory=Counter)
     dpslam_odometry: int = 0  # DP-SLAM Odometry lines, all
     bad: list[tuple[str, int]] = field(default_factory=list)  # (reason, line) of damaged ones
+    stream_error: str | None = None  # the compressed stream ended early
     last_line: int = 0  # number of the last line, if it lacks its newline (else 0)
 
 
@@ -130,44 +134,61 @@ class _LaserStream:
 
 def _split_lines(path: Path) -> _Lines:
     """One pass over the file: tokens of every data line, grouped by message."""
+    chunks: list[str] = []
+    cut = None
     with open_text(path) as f:
         try:
-            text = f.read()
-        except (OSError, EOFError) as e:
-            raise FormatError(f"cannot read: {e}", file=path) from None
+            while chunk := f.read(1 << 16):  # small: a damaged stream loses only its last one
+                chunks.append(chunk)
+        except (OSError, EOFError) as e:  # a damaged compressed stream: keep what came out
+            cut = str(e)
+    text = "".join(chunks)
+    if cut is not None and not text:
+        raise FormatError(f"cannot read: {cut}", file=path)
     if not text.strip():
         raise FormatError("empty file", file=path)
-    out = _Lines()
+    out = _Lines(stream_error=cut)
     lines = text.splitlines()
     if not text.endswith(("\n", "\r")):
         out.last_line = len(lines)
     dpslam_pose: list[str] | None = None
-    for number, line in enumerate(lines, start=1):
-        tokens = line.split()
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        msg = tokens[0]
-        if msg in OLD_LASERS or msg in NEW_LASERS:
-            out.lasers.setdefault(msg, []).append(_Line(number, tokens))
-        elif msg == "ODOM":
-            out.odom.append(_Line(number, tokens))
-        elif msg == "TRUEPOS":
-            out.truepos.append(_Line(number, tokens))
-        elif msg == "PARAM":
-            if len(tokens) >= 3:
-                out.params.setdefault(tokens[1], []).append(tokens[2])
-        elif msg.lower() == "odometry":
-            out.dpslam_odometry += 1
-            dpslam_pose = tokens[1:4] if len(tokens) == 4 else None
-            if dpslam_pose is None:
-                out.bad.append(("Odometry wrong number of fields", number))
-        elif msg.lower() == "laser":
-            # as an old-format laser line without clock: laser pose = robot pose = Odometry
-            pose = dpslam_pose if dpslam_pose is not None else ["nan"] * 3
-            out.lasers.setdefault(DPSLAM_LASER, []).append(_Line(number, tokens + pose + pose))
-        else:
-            out.skipped[msg] += 1
+    with task(f"reading {path.name}", total=len(lines)) as (bar, job):
+        for number, line in enumerate(lines, start=1):
+            if not number % PROGRESS_STEP:
+                bar.advance(TaskID(job), PROGRESS_STEP)
+            dpslam_pose = _sort_line(out, number, line, dpslam_pose)
     return out
+
+
+def _sort_line(
+    out: _Lines, number: int, line: str, dpslam_pose: list[str] | None
+) -> list[str] | None:
+    """File one line under its message; returns the DP-SLAM Odometry pose now in force."""
+    tokens = line.split()
+    if not tokens or tokens[0].startswith("#"):
+        return dpslam_pose
+    msg = tokens[0]
+    if msg in OLD_LASERS or msg in NEW_LASERS:
+        out.lasers.setdefault(msg, []).append(_Line(number, tokens))
+    elif msg == "ODOM":
+        out.odom.append(_Line(number, tokens))
+    elif msg == "TRUEPOS":
+        out.truepos.append(_Line(number, tokens))
+    elif msg == "PARAM":
+        if len(tokens) >= 3:
+            out.params.setdefault(tokens[1], []).append(tokens[2])
+    elif msg.lower() == "odometry":
+        out.dpslam_odometry += 1
+        dpslam_pose = tokens[1:4] if len(tokens) == 4 else None
+        if dpslam_pose is None:
+            out.bad.append(("Odometry wrong number of fields", number))
+    elif msg.lower() == "laser":
+        # as an old-format laser line without clock: laser pose = robot pose = Odometry
+        pose = dpslam_pose if dpslam_pose is not None else ["nan"] * 3
+        out.lasers.setdefault(DPSLAM_LASER, []).append(_Line(number, tokens + pose + pose))
+    else:
+        out.skipped[msg] += 1
+    return dpslam_pose
 
 
 def _layout(msg: str, tokens: list[str]) -> tuple[int, int, bool] | str:
@@ -385,7 +406,12 @@ class _Reader:
         built = {name: self._build(s) for name, s in streams.items()}
         main = built[primary]
         decisions: dict[str, Any] = {"primary_laser": primary, **main.decisions}
+        for name, b in built.items():  # the other lasers' choices, under their names
+            decisions.update({k: v for k, v in b.decisions.items() if k.startswith(name)})
         odometry, groundtruth, poses = self._poses(main, decisions)
+        if lines.stream_error is not None:
+            report.note(f"the compressed stream is damaged ({lines.stream_error}); "
+                        "the lines before the damage were read")  # fmt: skip
         for name, count in sorted(lines.skipped.items()):
             report.note(f"skipped {count} {name} line(s): not used")
         report.records_read = read + len(lines.odom) + len(lines.truepos) + lines.dpslam_odometry
@@ -541,8 +567,9 @@ class _Reader:
                                  f"laser-robot pose difference {dx:.3f} m; PARAM used")  # fmt: skip
         else:
             x, source = dx, "laser pose - robot pose in the laser lines"
-        if rear and abs(dyaw) < 1e-6 and offset is not None and not abs(dx) > 1e-6:
-            dyaw = math.pi  # a rear laser faces backwards; the poses did not say otherwise
+        if rear and max(abs(dx), abs(dy), abs(dyaw)) < 1e-6:
+            dyaw = math.pi  # the poses say nothing; a rear laser faces backwards
+            self.report.note(f"{s.name}: laser and robot poses are equal; yaw pi assumed")
         mount = {"x": round(x, 6), "y": round(dy, 6), "yaw": round(dyaw, 6)}  # poses: 6 decimals
         self.report.note(f"{s.name}: mounting x {mount['x']:g} m ({source}), "
                          f"y {mount['y']:g} m, yaw {mount['yaw']:g} rad")  # fmt: skip

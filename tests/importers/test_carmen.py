@@ -424,6 +424,25 @@ def test_compressed_damaged_copy(tmp_path: Path, intel_lines: list[str]) -> None
     assert Carmen().sniff(path)
 
 
+def test_truncated_gzip_keeps_the_lines_before_the_damage(real: Path, tmp_path: Path) -> None:
+    data = (real / RADISH / "intel-corrected.log.gz").read_bytes()
+    path = tmp_path / "cut.log.gz"
+    path.write_bytes(data[: len(data) // 2])
+    ds = Carmen().read([path], ImportOptions())
+    assert 300 < ds.n_scans < 906
+    assert any("compressed stream is damaged" in n for n in ds.report.notes)
+    assert ds.report.dropped.get("truncated last line", 0) <= 1
+
+
+def test_range_max_option(real: Path) -> None:
+    path = real / RADISH / "intel-corrected.log.gz"
+    off = Carmen().read([path], ImportOptions(extra={"range_max": "none"}))
+    assert np.isnan(off.ranges).sum() == 0 and np.nanmax(off.ranges) == np.float32(81.83)
+    at30 = Carmen().read([path], ImportOptions(extra={"range_max": "30"}))
+    assert at30.laser.range_max == 30.0
+    np.testing.assert_array_equal(np.isnan(at30.ranges), off.ranges >= 30.0)
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [
