@@ -3,8 +3,9 @@
 Telegrams (``STX 0x02 | ADDR | LEN u16 | CMD | DATA | STATUS | CRC u16``, little-endian, see
 FORMATS.md) are found by a vectorized search over the whole buffer: every ``0x02`` followed by
 address 0x80/0x81, a reply command (high bit set) and a plausible LEN (2..806) is a candidate;
-the CRC of all candidates is computed at once (byte position by byte position across frames,
-or with numba: ``-O crc=numba``; the benchmark compares the two). Valid telegrams are accepted
+the CRC of all candidates is computed at once, compiled with numba (default) or in numpy
+byte position by byte position across frames (``-O crc=numpy``; bench_import_lms200
+compares the two: numba about 3x faster). Valid telegrams are accepted
 greedily in stream order, a valid telegram consuming its bytes, so line noise, ACK/NAK bytes
 and damaged frames are skipped and the search resynchronises on the next intact telegram.
 Every skipped byte and rejected frame is counted in the import report.
@@ -142,6 +143,15 @@ def crc_frames_numba(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -
 CRC_METHODS = {"numpy": crc_frames_numpy, "numba": crc_frames_numba}
 
 
+def default_crc_method() -> str:
+    """numba where it imports (about 3x faster, see bench_import_lms200), else numpy."""
+    try:
+        import importers._lms200_crc  # noqa: F401
+    except Exception:  # numba missing or broken: the numpy path needs nothing more
+        return "numpy"
+    return "numba"
+
+
 # ---------------------------------------------------------------- telegram search
 
 
@@ -224,28 +234,23 @@ def _gap_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.n
 def decode_values(buf: np.ndarray, starts: np.ndarray, count: int) -> np.ndarray:
     """The raw 13-bit values of B0 telegrams at `starts` with `count` values each (S x N).
 
-    Values are read as little-endian u16 through two views of the buffer (even and odd byte
-    alignment), one gather per value.
+    A sliding-window view of the buffer turns the value bytes of every telegram into one row
+    gather (a copy per block of CHUNK telegrams), read as little-endian u16.
     """
     out = np.empty((starts.size, count), np.uint16)
-    n = buf.size
-    views = (buf[: n // 2 * 2].view("<u2"), buf[1 : 1 + (n - 1) // 2 * 2].view("<u2"))
+    windows = np.lib.stride_tricks.sliding_window_view(buf, 2 * count)
     first = starts + 7
-    ramp = np.arange(count, dtype=np.int64)
-    for parity, view in enumerate(views):
-        rows = np.flatnonzero(first % 2 == parity)
-        for a in range(0, rows.size, CHUNK):
-            block = rows[a : a + CHUNK]
-            out[block] = view[(first[block, None] - parity) // 2 + ramp]
-    out &= VALUE_MASK
+    for a in range(0, starts.size, CHUNK):
+        rows = windows[first[a : a + CHUNK]]
+        np.bitwise_and(rows.view("<u2"), VALUE_MASK, out=out[a : a + CHUNK])
     return out
 
 
 def values_to_ranges(values: np.ndarray, scale: float) -> np.ndarray:
-    ranges = values.astype(np.float32)
-    ranges /= np.float32(round(1 / scale))  # exact integer / exact divisor: correctly rounded
-    ranges[values >= SPECIAL_MIN] = np.nan
-    return ranges
+    """13-bit values to metres through a table of all 8192 (special codes -> NaN): one gather."""
+    table = (np.arange(VALUE_MASK + 1) / round(1 / scale)).astype(np.float32)
+    table[SPECIAL_MIN:] = np.nan
+    return table[values]
 
 
 def geometry(count: int, units: str, **mount: float) -> LaserGeometry:
@@ -265,7 +270,7 @@ class LMS200(Importer):
     options: ClassVar[dict[str, str]] = {
         "baud": f"line speed for times without a side file or --rate (default {DEFAULT_BAUD})",
         "times": "side file of 'OFFSET T' lines (default: <capture>.times if present)",
-        "crc": "numpy (default) or numba: how the CRCs of all candidates are computed",
+        "crc": "numba (default where it imports) or numpy: how the candidates' CRCs are computed",
     }
 
     def sniff(self, path: Path) -> bool:
@@ -283,7 +288,7 @@ class LMS200(Importer):
         capture, times_file = _sources(sources, options)
         report = ImportReport()
         buf = np.frombuffer(_read_capture(capture, report), np.uint8)
-        crc = options.get("crc", "numpy") or "numpy"
+        crc = options.get("crc") or default_crc_method()
         if crc not in CRC_METHODS:
             raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
         tg = Telegrams(buf, crc)

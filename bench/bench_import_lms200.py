@@ -1,0 +1,104 @@
+"""LMS-200 raw captures: telegram search + CRC + decode throughput in MB/s (target: 50 MB/s).
+
+A capture of ~80 MB (quick: ~10 MB) written by the lms200 writer: 361 values in mm per scan,
+random ranges, 4 noise bytes between telegrams on average, a bit error rate of 1e-7 (a few
+damaged frames) and a cut-off last telegram. Figures, medians of 3 runs on the same file:
+
+- `crc numpy` / `crc numba`: the CRC of every candidate telegram alone, the two
+  implementations side by side (numba after a warm-up call, compile time excluded and
+  reported separately as `numba first call`);
+- `read numpy` / `read numba`: the whole reader (file read, search, CRC, decode, times) to a
+  Dataset in memory;
+- `import`: `toolkit import lms200` to a dataset directory (reader + Parquet + meta.json).
+
+Every row checks that the scans found are exactly the writer's intact frames.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from importers import ImportOptions, import_log
+from importers.lms200 import LMS200, _candidates, crc_frames_numba, crc_frames_numpy, write
+from toolkit.dataset import Dataset, LaserGeometry
+
+REPEATS = 3
+BEAMS = 361
+
+
+def _capture(directory: Path, megabytes: float) -> tuple[Path, list[int]]:
+    frame = 7 + 2 * BEAMS + 3
+    scans = int(megabytes * 1e6 / (frame + 4))
+    rng = np.random.default_rng(200)
+    ranges = rng.uniform(0.05, 8.5, (scans, BEAMS)).astype(np.float32)
+    laser = LaserGeometry.sick_180(BEAMS, range_max=8.191)
+    ds = Dataset(t=np.arange(scans) / 75.0, ranges=ranges, laser=laser)
+    capture, _, truth = write(
+        ds, directory, noise_bytes=4.0, bit_error_rate=1e-7, truncate_last=True, seed=1
+    )
+    return capture, json.loads(truth.read_text())["intact"]
+
+
+def _median(fn: Callable[[], Any]) -> tuple[float, Any]:
+    times, result = [], None
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), result
+
+
+def run(out: Path, quick: bool) -> list[dict[str, object]]:
+    rows: list[dict[str, object]] = []
+    with tempfile.TemporaryDirectory(dir=out) as tmp_name:
+        tmp = Path(tmp_name)
+        capture, intact = _capture(tmp / "capture", 10.0 if quick else 80.0)
+        megabytes = capture.stat().st_size / 1e6
+        buf = np.fromfile(capture, np.uint8)
+        starts, lengths, _ = _candidates(buf)
+
+        def row(name: str, seconds: float, scans: int | None = None) -> None:
+            rows.append(
+                {
+                    "name": name,
+                    "MB": round(megabytes, 1),
+                    "seconds": round(seconds, 4),
+                    "MB_per_s": round(megabytes / seconds, 1),
+                    "scans": scans,
+                    "intact_frames": len(intact),
+                    "candidates": int(starts.size),
+                }
+            )
+
+        t0 = time.perf_counter()
+        crc_frames_numba(buf[:64], np.array([0]), np.array([8]))
+        rows.append({"name": "numba first call", "seconds": round(time.perf_counter() - t0, 3)})
+        crcs = {}
+        for method, fn in (("numpy", crc_frames_numpy), ("numba", crc_frames_numba)):
+            seconds, crcs[method] = _median(lambda fn=fn: fn(buf, starts, lengths - 2))
+            row(f"crc {method}", seconds)
+        assert np.array_equal(crcs["numpy"], crcs["numba"])
+        for method in ("numpy", "numba"):
+            options = ImportOptions(extra={"crc": method})
+            seconds, ds = _median(lambda o=options: LMS200().read([capture], o))
+            assert ds.n_scans == len(intact), (ds.n_scans, len(intact))
+            row(f"read {method}", seconds, ds.n_scans)
+        target = tmp / "dataset"
+
+        def full_import() -> int:
+            import_log("lms200", [capture], target, force=True)
+            return len(json.loads((target / "meta.json").read_text())["source"]["files"])
+
+        seconds, _ = _median(full_import)
+        row("import (numpy, to Parquet)", seconds, len(intact))
+        shutil.rmtree(target, ignore_errors=True)
+    return rows
