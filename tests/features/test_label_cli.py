@@ -1,0 +1,182 @@
+"""`toolkit label` end to end on simulated logs written by `toolkit simulate`: the files of a
+run, applying a saved model to another log, and one-line errors with exit status 1."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from toolkit.features import FeatureModel
+
+
+def cli(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: object
+) -> tuple[int, str, str]:
+    from toolkit.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["toolkit", *map(str, args)])
+    try:
+        main()
+        code = 0
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def sim_dirs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """Two simulated corridor logs (seeds 0 and 1) as `toolkit simulate --format dataset`
+    writes them: a dataset directory with regions.csv and truth.parquet."""
+    from toolkit.sim import simulate
+    from toolkit.sim.output import write_simulation
+
+    root = tmp_path_factory.mktemp("sim")
+    dirs = []
+    for seed in (0, 1):
+        out = root / f"corridor-{seed}"
+        write_simulation(simulate("corridor", seed=seed), out, "dataset")
+        dirs.append(out)
+    return dirs[0], dirs[1]
+
+
+def test_label_writes_the_run(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    data, _ = sim_dirs
+    run = tmp_path / "run"
+    code, out, err = cli(
+        monkeypatch, capsys, "label", data, "--regions", data / "regions.csv", "--out", run
+    )
+    assert code == 0, err
+    assert "balanced accuracy" in out  # truth.parquet beside the scans is used for scores
+    labels = pd.read_parquet(run / "labels.parquet")
+    regions = pd.read_csv(data / "regions.csv")
+    features = list(dict.fromkeys(regions["feature"]))
+    assert list(labels.columns) == ["t", *[f"p_{f}" for f in features], "p_none", "label"]
+    probs = labels[[c for c in labels.columns if c.startswith("p_")]].to_numpy()
+    assert np.allclose(probs.sum(axis=1), 1.0)
+    truth = pd.read_parquet(data / "truth.parquet")
+    assert np.array_equal(labels["t"].to_numpy(), truth["t"].to_numpy())
+    model = json.loads((run / "model.json").read_text())
+    assert [f["name"] for f in model["features"]] == features
+    assert len(model["features"][0]["mean"]) == 181 and model["laser"]["beams"] == 181
+    assert [s["feature"] for s in model["training_spans"]] == regions["feature"].tolist()
+    assert all(s["scans"] == 10 for s in model["training_spans"])
+    metrics = json.loads((run / "labels-metrics.json").read_text())
+    assert metrics["poses"] == "groundtruth"
+    # the paper's model is scored alongside: the toolkit's must do better on the same log
+    code, _, err = cli(
+        monkeypatch,
+        capsys,
+        "label",
+        data,
+        "--regions",
+        data / "regions.csv",
+        "--out",
+        tmp_path / "paper",
+        "--paper",
+    )
+    assert code == 0, err
+    paper = json.loads((tmp_path / "paper" / "labels-metrics.json").read_text())
+    assert metrics["truth"]["balanced_accuracy"] > paper["truth"]["balanced_accuracy"] + 0.2
+    assert metrics["truth"]["ece"] < paper["truth"]["ece"] - 0.3
+    assert (run / "membership.png").stat().st_size > 10_000
+    import open3d as o3d
+
+    cloud = o3d.io.read_point_cloud(str(run / "labels-cloud.ply"))
+    assert len(cloud.points) == metrics["cloud_points"] > 100_000
+    assert np.allclose(np.asarray(cloud.points)[:, 2], 0.30)  # the laser's mounting height
+    # a second run into the same directory needs --force
+    code, _, err = cli(
+        monkeypatch, capsys, "label", data, "--regions", data / "regions.csv", "--out", run
+    )
+    assert code == 1 and "--force" in err and len(err.strip().splitlines()) == 1
+
+
+def test_saved_model_applies_to_another_log(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    first, second = sim_dirs
+    code, _, err = cli(
+        monkeypatch,
+        capsys,
+        "label",
+        first,
+        "--regions",
+        first / "regions.csv",
+        "--out",
+        tmp_path / "a",
+    )
+    assert code == 0, err
+    code, _, err = cli(
+        monkeypatch,
+        capsys,
+        "label",
+        second,
+        "--model",
+        tmp_path / "a" / "model.json",
+        "--out",
+        tmp_path / "b",
+    )
+    assert code == 0, err
+    applied = json.loads((tmp_path / "b" / "labels-metrics.json").read_text())
+    learnt = json.loads((tmp_path / "a" / "labels-metrics.json").read_text())
+    assert applied["model"].endswith("model.json")
+    # a model from one log finds the places of another log of the same sensor about as well
+    assert applied["truth"]["balanced_accuracy"] > learnt["truth"]["balanced_accuracy"] - 0.1
+    model = FeatureModel.load(tmp_path / "b" / "model.json")
+    assert model.features == FeatureModel.load(tmp_path / "a" / "model.json").features
+
+
+def test_trajectory_option_and_errors(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    data, _ = sim_dirs
+    odo = pd.read_parquet(data / "odometry.parquet")
+    odo.to_parquet(tmp_path / "trajectory.parquet")
+    code, _, err = cli(
+        monkeypatch,
+        capsys,
+        "label",
+        data,
+        "--regions",
+        data / "regions.csv",
+        "--out",
+        tmp_path / "run",
+        "--trajectory",
+        tmp_path / "trajectory.parquet",
+    )
+    assert code == 0, err
+    metrics = json.loads((tmp_path / "run" / "labels-metrics.json").read_text())
+    assert metrics["poses"].startswith("trajectory")
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("feature,start,end\ndoor,1,2\n")
+    result = subprocess.run(  # the installed entry point: exit status 1, one line
+        [sys.executable, "-m", "toolkit", "label", str(data), "--regions", str(bad), "--out", str(tmp_path / "x")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 1, result
+    assert result.stderr.startswith(f"error: {bad}:2: span 1.0..2.0 is outside the log")
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+    assert not (tmp_path / "x").exists()
+
+    code, _, err = cli(monkeypatch, capsys, "label", data, "--out", tmp_path / "y")
+    assert code == 1 and "--regions" in err
+
+    model = json.loads((tmp_path / "run" / "model.json").read_text())
+    model["laser"]["beams"] = 361
+    (tmp_path / "other.json").write_text(json.dumps(model))
+    code, _, err = cli(
+        monkeypatch,
+        capsys,
+        "label",
+        data,
+        "--model",
+        tmp_path / "other.json",
+        "--out",
+        tmp_path / "z",
+    )
+    assert code == 1 and "learnt on 361 beams, the dataset has 181" in err
+    assert len(err.strip().splitlines()) == 1

@@ -1,0 +1,194 @@
+"""The feature model's math: the vectorized log-likelihoods against a per-beam reference, the
+decisions the paper leaves open (no-returns, variance floor, shifted copies, temperature),
+smoothing along the trajectory, persistence, and the scores."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.features.world import LASER, cast, drive
+from toolkit.errors import ToolkitError
+from toolkit.features import PAPER, Config, FeatureModel, classify, fit, loglik
+from toolkit.features.classify import (
+    beam_terms,
+    feature_loglik,
+    fit_temperature,
+    robust_loglik,
+    smooth,
+    world_terms,
+)
+from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
+from toolkit.features.model import beam_statistics, fit_background, shifted_copies
+
+
+@pytest.fixture(scope="module")
+def world() -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    _, poses, label = drive()
+    ranges = cast(poses)
+    training = {}
+    for feature in ("corridor", "room", "hall"):
+        idx = np.flatnonzero(label == feature)
+        training[feature] = idx[len(idx) // 2 - 5 : len(idx) // 2 + 5]
+    return ranges, poses, label, training
+
+
+def reference_loglik(model: FeatureModel, ranges: np.ndarray) -> np.ndarray:
+    """Per feature, the sum over beams of each beam's term: the unvectorized definition."""
+    cols = [
+        beam_terms(ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model).sum(axis=1)
+        for k in range(len(model.features))
+    ]  # fmt: skip
+    return np.column_stack(cols)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [PAPER, dataclasses.replace(PAPER, no_return=True), dataclasses.replace(Config(), robust=0.0)],
+)
+def test_matrix_product_equals_the_per_beam_sum(world, config: Config) -> None:  # type: ignore[no-untyped-def]
+    ranges, _, _, training = world
+    model = fit(ranges, LASER, training, config)
+    fast = feature_loglik(model, ranges, chunk=64)  # several chunks
+    ref = reference_loglik(model, ranges)
+    scale = np.maximum(1.0, np.abs(ref))
+    assert np.max(np.abs(fast - ref) / scale) < 1e-9
+
+
+def test_robust_kernel_equals_the_mixture_per_beam(world) -> None:  # type: ignore[no-untyped-def]
+    ranges, _, _, training = world
+    model = fit(ranges, LASER, training, Config())
+    ll, bg = robust_loglik(model, ranges)
+    bg_terms = world_terms(ranges.astype(np.float64), model)
+    assert np.allclose(bg, bg_terms.sum(axis=1), atol=1e-6)
+    for k in range(len(model.features)):
+        ratio = beam_terms(
+            ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model
+        )
+        assert np.allclose(ll[:, k], (ratio + bg_terms).sum(axis=1), atol=1e-3)
+
+
+def test_no_return_is_a_bernoulli_not_a_number() -> None:
+    rng = np.random.default_rng(1)
+    scans = np.full((10, LASER.beams), 2.0) + rng.normal(0, 0.01, (10, LASER.beams))
+    scans[:, :20] = np.nan  # the first 20 beams never return while learning
+    mean, var, p = beam_statistics(scans, LASER, Config(shifts=0))
+    assert np.all(np.isinf(var[:20])) and np.all(p[:20] < 0.05) and np.all(p[20:] > 0.95)
+    assert np.allclose(mean[20:], 2.0, atol=0.02)
+    lit_mean, _, _ = beam_statistics(scans, LASER, PAPER)
+    assert np.allclose(lit_mean[:20], LASER.range_max)  # the literal model averages the code
+
+
+def test_variance_floor_and_literal_epsilon() -> None:
+    scans = np.full((10, LASER.beams), 3.0)  # a perfectly still wall: sample variance 0
+    _, var, _ = beam_statistics(scans, LASER, Config(shifts=0))
+    assert np.allclose(var, 0.02**2 + (0.01 * 3.0) ** 2)
+    _, lit_var, _ = beam_statistics(scans, LASER, PAPER)
+    assert np.allclose(lit_var, 1e-6)
+
+
+def test_shifted_copies_mark_edges_missing_not_no_return() -> None:
+    scans = np.arange(2 * 6, dtype=np.float64).reshape(2, 6)
+    copies, valid = shifted_copies(scans, 1)
+    assert copies.shape == (6, 6)
+    assert not valid[0, -1] and not valid[4, 0] and valid[2].all()
+    assert copies[0, 0] == scans[0, 1] and copies[4, 1] == scans[0, 0]
+    # shifted-in edge beams hold no data: they do not count as no-returns
+    wall = np.full((10, LASER.beams), 2.0)
+    _, _, p = beam_statistics(wall, LASER, Config(shifts=3))
+    assert np.all(p > 0.98)
+
+
+def test_temperature_is_the_design_effect_of_correlated_beams() -> None:
+    rng = np.random.default_rng(2)
+    n, b = 40, LASER.beams
+    base = np.full((n, b), 3.0)
+    independent = base + rng.normal(0, 0.05, (n, b))
+    common = base + rng.normal(0, 0.05, (n, 1))  # one offset for all beams: fully correlated
+    cfg = Config(shifts=0, robust=0.0, none_class=False, noise_sigma=0.001, range_rel_sigma=0.0)
+    taus = []
+    for scans in (independent, common):
+        model = fit(scans.astype(np.float32), LASER, {"wall": np.arange(n)}, cfg)
+        taus.append(fit_temperature(model, scans, {"wall": np.arange(n)})[0])
+    assert taus[0] > 0.7  # independent beams: close to 1
+    assert taus[1] < 5.0 / b  # one common offset: about one effective beam
+
+
+def test_forward_filter_is_causal_and_smoothing_fixes_isolated_errors() -> None:
+    rng = np.random.default_rng(3)
+    truth = np.repeat([0, 1, 0, 2], 50)
+    emit = np.full((len(truth), 3), 0.1)
+    emit[np.arange(len(truth)), truth] = 0.8
+    flip = rng.random(len(truth)) < 0.15
+    emit[flip] = emit[flip][:, ::-1]
+    eps = np.full(len(truth), 0.02)
+    raw_errors = np.sum(emit.argmax(axis=1) != truth)
+    both = smooth(emit, eps, "forward-backward")
+    assert np.sum(both.argmax(axis=1) != truth) < raw_errors / 3
+    assert np.allclose(both.sum(axis=1), 1.0)
+    fwd = smooth(emit, eps, "forward")
+    changed = emit.copy()
+    changed[120:] = 1.0 / 3
+    assert np.allclose(smooth(changed, eps, "forward")[:120], fwd[:120])  # no look-ahead
+    assert not np.allclose(smooth(changed, eps, "forward-backward")[:120], both[:120])
+
+
+def test_model_json_round_trip_and_sensor_check(world, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    ranges, poses, _, training = world
+    model = fit(ranges, LASER, training)
+    path = model.save(tmp_path / "model.json")
+    again = FeatureModel.load(path)
+    assert again.features == model.features and again.config == model.config
+    assert np.allclose(
+        classify(again, ranges, poses).prob, classify(model, ranges, poses).prob, atol=1e-9
+    )
+    with pytest.raises(ToolkitError, match="learnt on 181 beams, the dataset has 180"):
+        again.check_laser(dataclasses.replace(LASER, beams=180))
+    with pytest.raises(ToolkitError, match="angle_increment"):
+        again.check_laser(dataclasses.replace(LASER, angle_increment=LASER.angle_increment / 2))
+    (tmp_path / "bad.json").write_text('{"version": 1, "features": 3}')
+    with pytest.raises(ToolkitError, match="not a feature model"):
+        FeatureModel.load(tmp_path / "bad.json")
+
+
+def test_background_density_integrates_to_one() -> None:
+    ranges = cast(drive()[1])
+    bg = fit_background(ranges, LASER)
+    widths = np.diff(np.exp(bg.edges))
+    assert np.allclose((np.exp(bg.log_density) * widths).sum(axis=1), 1.0)
+
+
+def test_probabilities_and_labels_on_the_ray_cast_world(world) -> None:  # type: ignore[no-untyped-def]
+    ranges, poses, label, training = world
+    test = np.ones(len(label), dtype=bool)
+    test[np.concatenate(list(training.values()))] = False
+    scores = {}
+    for name, config in (("paper", PAPER), ("toolkit", Config())):
+        model = fit(ranges, LASER, training, config)
+        out = classify(model, ranges, poses)
+        assert out.prob.shape == (len(ranges), len(model.classes))
+        assert np.allclose(out.prob.sum(axis=1), 1.0)
+        correct = out.label[test] == label[test]
+        scores[name] = (
+            balanced_accuracy(label[test], out.label[test]),
+            expected_calibration_error(out.confidence[test], correct),
+        )
+        # every training scan is labelled as its own feature
+        for feature, idx in training.items():
+            assert np.mean(out.label[idx] == feature) >= 0.9, (name, feature)
+    assert scores["toolkit"][0] > scores["paper"][0] + 0.2
+    assert scores["toolkit"][1] < scores["paper"][1]
+
+
+def test_balanced_accuracy_and_ece_by_hand() -> None:
+    truth = np.array(["a", "a", "a", "a", "b", "none"])
+    pred = np.array(["a", "a", "a", "b", "b", "a"])
+    assert balanced_accuracy(truth, pred) == pytest.approx((0.75 + 1.0 + 0.0) / 3)
+    conf = np.array([0.95, 0.95, 0.55, 0.55])
+    correct = np.array([1, 1, 1, 0])
+    # bin (0.933, 1]: acc 1 vs conf 0.95; bin (0.533, 0.6]: acc 0.5 vs conf 0.55
+    assert expected_calibration_error(conf, correct) == pytest.approx(0.5 * 0.05 + 0.5 * 0.05)
+    assert loglik is not None

@@ -1,0 +1,58 @@
+"""`toolkit label DATASET --regions REGIONS.csv --out RUN [--trajectory RUN/trajectory.parquet]`"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from toolkit.cli import app
+
+
+@app.command("label")
+def label_command(
+    dataset: Annotated[Path, typer.Argument(help="dataset directory")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="run directory to write into")],
+    regions: Annotated[
+        Path | None,
+        typer.Option(help="training spans: CSV feature,start,end (times inclusive)"),
+    ] = None,
+    model: Annotated[
+        Path | None, typer.Option("--model", help="apply a saved model.json instead of learning")
+    ] = None,
+    trajectory: Annotated[
+        Path | None,
+        typer.Option(
+            help="poses t,x,y,theta (e.g. RUN/trajectory.parquet from `toolkit map`); "
+            "default: the dataset's ground truth, else its odometry"
+        ),
+    ] = None,
+    smoothing: Annotated[
+        str, typer.Option(help="along the trajectory: none, forward (Eq. 7) or forward-backward")
+    ] = "none",
+    paper: Annotated[
+        bool, typer.Option("--paper", help="the paper's literal per-scan model (for comparison)")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace earlier label outputs")] = False,
+) -> None:
+    """Learn places from a few scans each and find them along the whole log (Eq. 7-9)."""
+    from dataclasses import replace
+
+    from toolkit.errors import ToolkitError
+    from toolkit.features.model import PAPER, SMOOTHINGS, Config
+    from toolkit.features.run import label_run
+
+    if smoothing not in SMOOTHINGS:
+        raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
+    config = replace(PAPER if paper else Config(), smoothing=smoothing)
+    metrics = label_run(dataset, out, regions, model, trajectory, config, force)
+    counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
+    typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")
+    if "truth" in metrics:
+        t = metrics["truth"]
+        typer.echo(
+            f"against truth ({t['scored_scans']} scans): balanced accuracy "
+            f"{t['balanced_accuracy']:.3f}, ECE {t['ece']:.3f}"
+        )
+    typer.echo(f"wrote {out}/ (labels.parquet, model.json, membership.png, labels-cloud.ply)")
