@@ -62,7 +62,7 @@ def _u32_column(buf: np.ndarray, offset: int) -> np.ndarray:
 
 
 def _f32_block(buf: np.ndarray, offset: int, count: int) -> np.ndarray:
-    return np.ascontiguousarray(buf[:, offset : offset + 4 * count]).view("<f4")
+    return np.array(buf[:, offset : offset + 4 * count], order="C").view("<f4")  # a copy
 
 
 def decode_scans(raws: Sequence[bytes | memoryview], cdr: bool, beams: int | None) -> ScanBatch:

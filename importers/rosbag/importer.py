@@ -328,11 +328,9 @@ def _assemble(
     sec = np.concatenate([b.sec[b.ok] for b in keep])
     nsec = np.concatenate([b.nsec[b.ok] for b in keep])
     params = np.concatenate([b.params[b.ok] for b in keep])
-    ranges = (
-        np.concatenate([b.ranges[b.ok] for b in keep])
-        if len(keep) > 1
-        else keep[0].ranges[keep[0].ok]
-    )
+    parts = [b.ranges if b.ok.all() else b.ranges[b.ok] for b in keep]
+    ranges = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    del parts
     frame_id = next((b.frame_id for b in keep if b.frame_id), "")
     bag_time = bag_time[ok]
     del got.scans

@@ -64,6 +64,16 @@ def test_round_trip_through_each_bag_kind(tmp_path: Path, version: str) -> None:
     assert meta["invalid_readings"] == int(np.isnan(ds.ranges).sum())
 
 
+@pytest.mark.parametrize("version", ["ros1", "ros2"])
+def test_single_scan_bag(tmp_path: Path, version: str) -> None:
+    ranges = np.array([[1.0, 0.0, np.nan, 3.5]], np.float32)
+    ds = Dataset(np.array([7.25]), ranges, LaserGeometry(4, -0.3, 0.2, 4.0))
+    (bag,) = ROSBAG.write(ds, tmp_path, version=version)
+    back = ROSBAG.read([bag], ImportOptions())
+    np.testing.assert_array_equal(back.ranges, [[1.0, np.nan, np.nan, 3.5]])  # 0 = invalid
+    assert back.t.tolist() == [7.25] and back.odometry is None
+
+
 def test_raw_and_rosbags_decoders_agree(tmp_path: Path) -> None:
     (bag,) = ROSBAG.write(_dataset(beams=361), tmp_path, version="mcap")
     raw = ROSBAG.read([bag], ImportOptions())
