@@ -280,27 +280,12 @@ def test_two_odometry_topics_need_a_choice(tmp_path: Path) -> None:
 def test_recovery_reader_matches_rosbags_when_the_index_is_lost(
     tmp_path: Path, compression: str | None
 ) -> None:
-    from rosbags.rosbag1 import Writer
-
-    ds = _dataset(scans=40)
-    msgs = _Messages(_typestore(True), True)
-    path = tmp_path / "c.bag"
-    w = Writer(path)
-    if compression:
-        w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
-    w.chunk_threshold = 20_000  # several chunks
-    with w:
-        conn = w.add_connection("/scan", SCAN, typestore=msgs.store)
-        for i, t in enumerate(ds.t.tolist()):
-            ranges = np.nan_to_num(ds.ranges[i], nan=np.inf)
-            scan = _laserscan(msgs, t, 181, ranges=ranges, range_max=30.0, range_min=0.0)
-            w.write(conn, round(t * 1e9), msgs.serialize(scan, SCAN))
+    path = _chunked_bag(tmp_path / "c.bag", compression)
     whole = ROSBAG.read([path], ImportOptions())
     assert whole.meta["rosbag"]["reader"] == "rosbags"
     # cut the index section off: rosbags cannot open the bag, the chunks are all there
     data = path.read_bytes()
-    at = data.index(b"index_pos=") + len(b"index_pos=")
-    index_pos = int.from_bytes(data[at : at + 8], "little")
+    index_pos = _index_pos(data)
     cut = tmp_path / "cut.bag"
     cut.write_bytes(data[:index_pos])
     recovered = ROSBAG.read([cut], ImportOptions())
@@ -315,6 +300,43 @@ def test_recovery_reader_matches_rosbags_when_the_index_is_lost(
     assert any("stopped at byte" in n for n in partial.report.notes)
 
 
+def test_lz4_chunks_without_the_lz4_package_are_one_clear_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    data = _chunked_bag(tmp_path / "c.bag", "lz4").read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(data[: _index_pos(data)])
+    monkeypatch.setitem(sys.modules, "lz4", None)
+    monkeypatch.setitem(sys.modules, "lz4.frame", None)
+    with pytest.raises(FormatError, match="lz4-compressed chunks need the lz4 package"):
+        ROSBAG.read([cut], ImportOptions())
+
+
+def _chunked_bag(path: Path, compression: str | None) -> Path:
+    """40 scans in chunks of ~20 kB, compressed or not, written by rosbags."""
+    from rosbags.rosbag1 import Writer
+
+    ds = _dataset(scans=40)
+    msgs = _Messages(_typestore(True), True)
+    w = Writer(path)
+    if compression:
+        w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+    w.chunk_threshold = 20_000
+    with w:
+        conn = w.add_connection("/scan", SCAN, typestore=msgs.store)
+        for i, t in enumerate(ds.t.tolist()):
+            ranges = np.nan_to_num(ds.ranges[i], nan=np.inf)
+            scan = _laserscan(msgs, t, 181, ranges=ranges, range_max=30.0, range_min=0.0)
+            w.write(conn, round(t * 1e9), msgs.serialize(scan, SCAN))
+    return path
+
+
+def _index_pos(data: bytes) -> int:
+    """Where the bag header says the index section (connections, chunk infos) starts."""
+    at = data.index(b"index_pos=") + len(b"index_pos=")
+    return int.from_bytes(data[at : at + 8], "little")
+
+
 # ---------------------------------------------------------------- damaged input
 
 
@@ -327,6 +349,8 @@ def clean_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     out["ros1"] = ros1.read_bytes()
     (mcap,) = ROSBAG.write(ds, root / "b", version="mcap")
     out["mcap"] = next(mcap.glob("*.mcap")).read_bytes()
+    (ros2,) = ROSBAG.write(ds, root / "c", version="ros2")
+    out["db3"] = next(ros2.glob("*.db3")).read_bytes()
     return out
 
 
@@ -334,7 +358,7 @@ def clean_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(
-    kind=st.sampled_from(["ros1", "mcap"]),
+    kind=st.sampled_from(["ros1", "mcap", "db3"]),
     damage=st.sampled_from(["truncate", "flip", "prefix", "empty", "huge"]),
     where=st.floats(0, 1),
     bit=st.integers(0, 7),
@@ -354,7 +378,7 @@ def test_damaged_bags_give_a_dataset_or_one_clear_error(
         data = bytearray()
     else:
         data[at : at + 4] = b"\xff\xff\xff\x7f"
-    path = tmp_path / f"x{hash((damage, at, bit))}.{'bag' if kind == 'ros1' else 'mcap'}"
+    path = tmp_path / f"x{hash((damage, at, bit))}.{'bag' if kind == 'ros1' else kind}"
     path.write_bytes(bytes(data))
     try:
         ds = ROSBAG.read([path], ImportOptions())
