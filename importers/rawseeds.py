@@ -74,6 +74,7 @@ from toolkit.errors import FormatError, ToolkitError
 from toolkit.progress import task
 
 CHUNK_BYTES = 32 << 20  # decompressed text handed to one multithreaded parse
+COMPRESSED_READ = 1 << 20  # a truncated compressed stream loses at most this much
 SICK_RANGE_MAX = 81.83  # first LMS-2xx error code in cm mode (8183 cm); at or above = no return
 SICK_NO_RETURN = 81.91  # what the writer writes for NaN: the LMS "no echo" code 8191 cm
 HOKUYO_RANGE_MIN = 0.02  # URG-04LX error codes are 0..19 mm
@@ -188,31 +189,51 @@ class Chunk:
     unterminated: bool = False
 
 
-def chunks(path: Path, size: int | None = None) -> Iterator[Chunk]:
-    """Cut the decompressed text into chunks of whole lines (about CHUNK_BYTES each)."""
+_COMPRESSED_MAGIC = (b"BZh", b"\x1f\x8b", b"\xfd7z")
+
+
+def _read(f: IO[bytes], n: int | None, path: Path, notes: list[str]) -> bytes:
+    """Up to n (None: all) decompressed bytes; b'' at the end, also at the end of a truncated stream."""
+    try:
+        return f.read() if n is None else f.read(n)
+    except (OSError, EOFError) as e:
+        if isinstance(e, EOFError) or "runcated" in str(e):
+            notes.append(f"{path.name}: compressed stream ends early; imported what it held")
+            return b""
+        raise FormatError(f"cannot decompress: {e}", file=path) from None
+
+
+def chunks(path: Path, notes: list[str], size: int | None = None) -> Iterator[Chunk]:
+    """Cut the decompressed text into chunks of whole lines (about CHUNK_BYTES each).
+    Compressed streams are read COMPRESSED_READ at a time: a truncated one loses at most that."""
     size = size or CHUNK_BYTES
     line = 1
     rest = b""
-    with _open_stream(path) as f, task(f"read {path.name}", path.stat().st_size) as (bar, tid):
-        raw_size = path.stat().st_size
-        magic = _raw_magic(path)
-        compressed = magic.startswith(b"BZh") or magic.startswith(b"\x1f\x8b")
+    raw_size = path.stat().st_size
+    compressed = _raw_magic(path).startswith(_COMPRESSED_MAGIC)
+    step = min(size, COMPRESSED_READ) if compressed else size
+    with _open_stream(path) as f, task(f"read {path.name}", raw_size) as (bar, tid):
+        pieces: list[bytes] = [rest]
+        have = 0
         while True:
-            block = f.read(size)
+            block = _read(f, step, path, notes)
+            if block:
+                pieces.append(block)
+                have += len(block)
+                if not compressed:
+                    bar.advance(TaskID(tid), len(block))
+                if have < size:
+                    continue
+            data = b"".join(pieces)
+            cut = data.rfind(b"\n") + 1
+            rest = data[cut:]
+            if cut:
+                yield Chunk(data[:cut] if rest else data, line)
+                line += data.count(b"\n", 0, cut)
             if not block:
                 break
-            if not compressed:
-                bar.advance(TaskID(tid), len(block))
-            data = rest + block if rest else block
-            cut = data.rfind(b"\n") + 1
-            if cut == 0:  # a line longer than a chunk: keep reading
-                rest = data
-                continue
-            rest = data[cut:]
-            yield Chunk(data[:cut] if rest else data, line)
-            line += data.count(b"\n", 0, cut)
-        if compressed:
-            bar.update(TaskID(tid), completed=raw_size)
+            pieces, have = [rest], len(rest)
+        bar.update(TaskID(tid), completed=raw_size)
     if rest.strip():
         yield Chunk(rest, line, unterminated=True)
 
@@ -399,8 +420,9 @@ def stream_laser(
             future.result()
         future = pool.submit(writer.write, t, ranges)
 
+    notes: list[str] = []
     try:
-        for chunk in chunks(path):
+        for chunk in chunks(path, notes):
             saw_text = saw_text or not chunk.data.isspace()  # no copy of the chunk
             parsed = parse_chunk(path, chunk, spec.columns, float32_from=spec.lead)
             _count_bad_rows(path, chunk, parsed, report, prefix, "ranges")
@@ -418,8 +440,12 @@ def stream_laser(
     finally:
         pool.shutdown(wait=True)
         writer.close()
+    for note in notes:
+        report.note(note)
     if not saw_text:
-        raise FormatError("empty file", file=path)
+        raise FormatError(
+            "empty file" if not notes else "no complete line before the stream ends", file=path
+        )
     if result.rows_kept == 0:
         raise FormatError(
             f"no valid scans: {result.rows_read} lines read, all dropped ({_reasons(report)})",
@@ -488,8 +514,11 @@ def _clean_scans(
 def read_rows(path: Path, ncols: int, report: ImportReport, prefix: str) -> np.ndarray:
     """An N x ncols float64 array from a small Rawseeds file (comma, ", " or whitespace
     separated); wrong field counts and a truncated last line are skipped and counted."""
+    notes: list[str] = []
     with _open_stream(path) as f:
-        data = f.read()
+        data = _read(f, None, path, notes)
+    for note in notes:
+        report.note(note)
     if not data.strip():
         raise FormatError("empty file", file=path)
     # one separator: "a, b", "a b  c" and "a,b" all become "a,b"

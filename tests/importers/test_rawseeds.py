@@ -489,3 +489,26 @@ def test_files_of_two_sessions_are_refused(real: Path, tmp_path: Path) -> None:
         run_import([a, b], tmp_path / "ds")
     with pytest.raises(FormatError, match="no SICK_FRONT csv in given files"):
         run_import([b], tmp_path / "ds")
+
+
+def test_truncated_and_corrupt_bz2(
+    session: tuple[Path, Dataset], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    d, truth = session
+    monkeypatch.setattr(rawseeds, "COMPRESSED_READ", 16384)  # the file is only ~0.5 MB
+    packed = bz2.compress(sick_file(d).read_bytes(), compresslevel=1)  # 100 kB blocks
+    cut = tmp_path / f"{S27}-SICK_FRONT.csv.bz2"
+    cut.write_bytes(packed[: len(packed) // 2])
+    ds = run_import(cut, tmp_path / "ds")
+    assert 0 < ds.n_scans < truth.n_scans
+    np.testing.assert_allclose(ds.t, truth.t[: ds.n_scans], rtol=0, atol=1e-6)
+    assert ds.report.dropped.get("truncated last line", 0) <= 1
+    assert f"{cut.name}: compressed stream ends early; imported what it held" in ds.report.notes
+    spoiled = bytearray(packed)
+    spoiled[len(packed) // 2 : len(packed) // 2 + 4] = b"\xff\x00\xff\x00"
+    bad = tmp_path / "bad" / f"{S27}-SICK_FRONT.csv.bz2"
+    bad.parent.mkdir()
+    bad.write_bytes(bytes(spoiled))
+    with pytest.raises(FormatError, match=r"-SICK_FRONT.csv.bz2: cannot decompress: bz2"):
+        run_import(bad, tmp_path / "ds2")
+    assert not (tmp_path / "ds2").exists()
