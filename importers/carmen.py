@@ -24,9 +24,10 @@ Reading, and the decisions a log leaves open (each is stated in meta.json and th
   timestamps are broken (fewer than half distinct: all 0, printed with too few digits; or more
   than a quarter out of order: garbage), falls back to scan order: t = index / rate, rate from
   `--rate` or 1 Hz nominal; meta["time_source"] = "scan_order".
-- Odometry: the ODOM stream at its own times (out-of-order lines dropped and counted) when the
-  log has a usable clock; otherwise the robot (odometry) pose of each laser line at scan
-  times. Ground truth: TRUEPOS lines. `-O poses=groundtruth` stores the laser lines' robot
+- Odometry: the ODOM stream at its own times when the log has a usable clock (lines out of
+  order are dropped and counted, the fewest that restore the order: one stray timestamp costs
+  one line; the Radish logs have an ODOM line stamped 0 after each FLASER); otherwise the
+  robot (odometry) pose of each laser line at scan times. Ground truth: TRUEPOS lines. `-O poses=groundtruth` stores the laser lines' robot
   poses as ground truth instead (the Radish "corrected" logs: SLAM-corrected poses used as
   approximate truth). Laser lines' robot poses that are neither odometry nor ground truth are
   kept as the pose stream `scan_pose`.
@@ -41,10 +42,11 @@ from ds.groundtruth; timestamps with 6 decimals, ranges with 3 (mm), NaN as the 
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -312,7 +314,9 @@ def _reason(reason: str, line: int, last_line: int) -> str:
 # ---------------------------------------------------------------- decisions
 
 
-def broken_clock(stamp: np.ndarray) -> str | None:
+def broken_clock(
+    stamp: np.ndarray, kept: Callable[[np.ndarray], np.ndarray] | None = None
+) -> str | None:
     """Why a stream's timestamps cannot serve as a clock, or None if they can."""
     if stamp.size < 2:
         return None
@@ -321,7 +325,7 @@ def broken_clock(stamp: np.ndarray) -> str | None:
     distinct = np.unique(stamp).size
     if distinct < MIN_DISTINCT * stamp.size:
         return f"only {distinct} distinct timestamps in {stamp.size} (all 0, or too few digits)"
-    late = int((~in_order(stamp)).sum())
+    late = int((~(kept or in_order)(stamp)).sum())
     if late > MAX_OUT_OF_ORDER * stamp.size:
         return f"{late} of {stamp.size} timestamps out of order"
     return None
@@ -333,6 +337,28 @@ def in_order(stamp: np.ndarray) -> np.ndarray:
         return np.zeros(0, dtype=bool)
     before = np.maximum.accumulate(np.concatenate([[-np.inf], stamp[:-1]]))
     return stamp >= before
+
+
+def longest_in_order(stamp: np.ndarray) -> np.ndarray:
+    """True on a longest non-decreasing subsequence: the fewest lines dropped to restore order
+    (a pose stream's stray timestamp, early or late, costs one line, not all lines after it)."""
+    tails: list[float] = []  # smallest last stamp of an in-order run of each length
+    ends: list[int] = []  # index of that last stamp
+    before = np.full(stamp.size, -1)
+    for i, value in enumerate(stamp.tolist()):  # sequential by nature; bisect keeps it O(n log n)
+        j = bisect.bisect_right(tails, value)
+        if j == len(tails):
+            tails.append(value)
+            ends.append(i)
+        else:
+            tails[j], ends[j] = value, i
+        before[i] = ends[j - 1] if j else -1
+    keep = np.zeros(stamp.size, dtype=bool)
+    i = ends[-1] if ends else -1
+    while i >= 0:
+        keep[i] = True
+        i = before[i]
+    return keep
 
 
 def no_return_code(ranges: np.ndarray) -> float | None:
@@ -646,12 +672,17 @@ class _Reader:
         if not clock:
             report.note(f"{msg} lines not used: the scans have no usable clock to align them to")
             return None
+        finite = np.isfinite(values).all(axis=1)
+        if not finite.all():
+            report.drop(f"{msg} NaN or inf value", int((~finite).sum()),
+                        _where(path, good[int(np.argmin(finite))].number))  # fmt: skip
+            values, good = values[finite], [e for e, f in zip(good, finite, strict=True) if f]
         stamp = values[:, 3]
-        why = broken_clock(stamp)
+        why = broken_clock(stamp, longest_in_order)
         if why is not None:
             report.note(f"{msg} lines not used: {why}")
             return None
-        keep = in_order(stamp) & np.isfinite(values).all(axis=1)
+        keep = longest_in_order(stamp)
         late = np.flatnonzero(~keep)
         if late.size:
             report.drop(f"{msg} timestamp out of order", late.size,

@@ -443,6 +443,21 @@ def test_range_max_option(real: Path) -> None:
     np.testing.assert_array_equal(np.isnan(at30.ranges), off.ranges >= 30.0)
 
 
+def test_a_stray_odom_timestamp_costs_one_line(tmp_path: Path) -> None:
+    truth = _all_messages_log(tmp_path / "all.log")
+    lines = (tmp_path / "all.log").read_text().splitlines()
+    odom = [i for i, ln in enumerate(lines) if ln.startswith("ODOM ")]
+    tok = lines[odom[3]].split()
+    tok[7] = tok[9] = "4000000000.0"  # a garbage stamp, far in the future
+    lines[odom[3]] = " ".join(tok)
+    path = _write(tmp_path, lines)
+    ds = Carmen().read([path], ImportOptions())
+    assert ds.report.dropped == {"ODOM timestamp out of order": 1}
+    assert ds.report.examples["ODOM timestamp out of order"] == f"{path}:{odom[3] + 1}"
+    assert ds.odometry is not None
+    np.testing.assert_allclose(ds.odometry["t"], np.delete(truth["t"] - 0.1, 3))
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [
