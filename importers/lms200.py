@@ -37,6 +37,7 @@ Time: a capture has no clock. In order of preference:
 
 from __future__ import annotations
 
+import io
 import json
 import lzma
 from collections import Counter
@@ -231,26 +232,24 @@ def _gap_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.n
 # ---------------------------------------------------------------- measured values
 
 
-def decode_values(buf: np.ndarray, starts: np.ndarray, count: int) -> np.ndarray:
-    """The raw 13-bit values of B0 telegrams at `starts` with `count` values each (S x N).
+def decode_ranges(buf: np.ndarray, starts: np.ndarray, count: int, scale: float) -> np.ndarray:
+    """Ranges (m, S x N float32) of the B0 telegrams at `starts` with `count` values each.
 
     A sliding-window view of the buffer turns the value bytes of every telegram into one row
-    gather (a copy per block of CHUNK telegrams), read as little-endian u16.
+    gather, read as little-endian u16 and masked to 13 bits; metres by a float32 division
+    (exact integer / exact divisor: correctly rounded), special codes -> NaN; block by
+    block, so temporaries stay small.
     """
-    out = np.empty((starts.size, count), np.uint16)
+    divisor = np.float32(round(1 / scale))
+    out = np.empty((starts.size, count), np.float32)
     windows = np.lib.stride_tricks.sliding_window_view(buf, 2 * count)
     first = starts + 7
     for a in range(0, starts.size, CHUNK):
-        rows = windows[first[a : a + CHUNK]]
-        np.bitwise_and(rows.view("<u2"), VALUE_MASK, out=out[a : a + CHUNK])
+        values = windows[first[a : a + CHUNK]].view("<u2") & VALUE_MASK
+        block = out[a : a + CHUNK]
+        np.divide(values, divisor, out=block, dtype=np.float32)
+        np.copyto(block, np.float32(np.nan), where=values >= SPECIAL_MIN)
     return out
-
-
-def values_to_ranges(values: np.ndarray, scale: float) -> np.ndarray:
-    """13-bit values to metres through a table of all 8192 (special codes -> NaN): one gather."""
-    table = (np.arange(VALUE_MASK + 1) / round(1 / scale)).astype(np.float32)
-    table[SPECIAL_MIN:] = np.nan
-    return table[values]
 
 
 def geometry(count: int, units: str, **mount: float) -> LaserGeometry:
@@ -287,7 +286,7 @@ class LMS200(Importer):
     def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
         capture, times_file = _sources(sources, options)
         report = ImportReport()
-        buf = np.frombuffer(_read_capture(capture, report), np.uint8)
+        buf = _read_capture(capture, report)
         crc = options.get("crc") or default_crc_method()
         if crc not in CRC_METHODS:
             raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
@@ -325,7 +324,7 @@ class LMS200(Importer):
         report.drop("measured values: variant differs from the capture's", int(np.sum(ok & ~same)))
         units, scale = UNITS[variant[1]]
         s = s[same]
-        ranges = values_to_ranges(decode_values(buf, s, variant[0]), scale)
+        ranges = decode_ranges(buf, s, variant[0], scale)
         t, time_source = _times(s, times_file, options, capture)
         order_ok = np.concatenate([[True], np.diff(t) >= 0])
         if not np.all(order_ok):  # a side file out of step with the capture
@@ -367,7 +366,7 @@ class LMS200(Importer):
         return write(ds, out, **options)  # type: ignore[arg-type]
 
 
-def _read_capture(path: Path, report: ImportReport) -> bytes:
+def _read_capture(path: Path, report: ImportReport) -> np.ndarray:
     """The capture's bytes, decompressed if it is gz/bz2/xz.
 
     A damaged compressed stream keeps what decompressed before the damage; a file that only
@@ -376,7 +375,10 @@ def _read_capture(path: Path, report: ImportReport) -> bytes:
     errors = (OSError, EOFError, lzma.LZMAError)
     try:
         with open_binary(path) as f:
-            return f.read()
+            if isinstance(f, io.BufferedReader):  # not compressed: map it, no copy
+                size = path.stat().st_size
+                return np.memmap(path, np.uint8, "r") if size else np.zeros(0, np.uint8)
+            return np.frombuffer(f.read(), np.uint8)
     except errors:
         pass
     parts: list[bytes] = []  # read again block by block to keep what decompresses
@@ -387,10 +389,9 @@ def _read_capture(path: Path, report: ImportReport) -> bytes:
     except errors as e:
         if not parts:
             report.note(f"starts like a compressed file but does not decompress ({e}): read raw")
-            with open(path, "rb") as raw:
-                return raw.read()
+            return np.fromfile(path, np.uint8)
         report.note(f"compressed stream damaged after {sum(map(len, parts))} bytes ({e})")
-    return b"".join(parts)
+    return np.frombuffer(b"".join(parts), np.uint8)
 
 
 def _where(path: Path, what: str) -> str:
@@ -557,7 +558,8 @@ def write(
     frames[:, 7 : 7 + 2 * count] = values.astype("<u2").view(np.uint8).reshape(scans, -1)
     frames[:, 7 + 2 * count] = 0x10  # status: ok
     flat = frames.reshape(-1)
-    crc = crc_frames_numpy(flat, np.arange(scans) * frame_len, np.full(scans, frame_len - 2))
+    crc_all = CRC_METHODS[default_crc_method()]
+    crc = crc_all(flat, np.arange(scans) * frame_len, np.full(scans, frame_len - 2))
     frames[:, -2] = crc & 0xFF
     frames[:, -1] = crc >> 8
 
@@ -577,18 +579,16 @@ def write(
     gap_bytes = rng.integers(0, 256, gap_total, dtype=np.uint8)
     gap_ends = np.cumsum(gap_len)
     gap_bytes[gap_ends[flag] - 1] = np.where(rng.random(int(flag.sum())) < 0.5, ACK, NAK)
-    # stream = head, then per scan: gap, frame (built by scatter, no Python loop per scan)
+    # stream = head, then per scan: gap, frame; frames written as rows of a sliding window
     frame_starts = len(head) + gap_ends + frame_len * np.arange(scans)
     total = len(head) + gap_total + frame_len * scans
     stream = np.empty(total, np.uint8)
     stream[: len(head)] = np.frombuffer(bytes(head), np.uint8)
-    frame_mask = np.zeros(total, bool)
-    idx = (frame_starts[:, None] + np.arange(frame_len)).reshape(-1)
-    stream[idx] = flat
-    frame_mask[idx] = True
-    frame_mask[: len(head)] = True
-    stream[~frame_mask] = gap_bytes
-    del idx, frame_mask
+    if scans:
+        windows = np.lib.stride_tricks.sliding_window_view(stream, frame_len, writeable=True)
+        windows[frame_starts] = frames
+    gap_at = np.repeat(frame_starts - gap_ends, gap_len) + np.arange(gap_total)
+    stream[gap_at] = gap_bytes
 
     damaged = np.zeros(scans, bool)
     if bit_error_rate > 0:
