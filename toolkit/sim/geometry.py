@@ -143,12 +143,16 @@ def cast(
     angles: np.ndarray,
     max_range: float,
     chunk_elements: int = 1 << 18,
+    near: float = 8.0,
 ) -> Hits:
     """Cast rays from `origins` (P x 2) at `headings` (P,) + beam `angles` (B,).
 
-    Work is broadcast over a chunk of poses x beams x segments; the chunk size keeps each
-    temporary near `chunk_elements` values (cache sized). Segments and circles farther than
-    `max_range` from every origin of a chunk are dropped for that chunk.
+    Work is broadcast over a chunk of poses x beams x objects, in passes of growing reach R
+    (`near`, 3 `near`, ... up to `max_range`): each pass takes the objects within R of the
+    chunk's origins, so a hit closer than R is exact (any closer hit would lie on one of
+    them); the rays left without one go on to the next pass. Indoors most beams end on a
+    wall nearby, so the far passes are small. Temporaries stay near `chunk_elements` values
+    (cache sized).
     """
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 2)
     headings = np.asarray(headings, dtype=np.float64).reshape(-1)
@@ -164,36 +168,41 @@ def cast(
         return hits
 
     is_glass = world.material == GLASS
-    wall_ids, pane_ids = np.flatnonzero(~is_glass), np.flatnonzero(is_glass)
-    circles = world.circles
-    n_obj = max(1, len(world.segments) + len(circles))
-    step = max(1, chunk_elements // (n_beams * n_obj))
+    walls = _Objects(world, np.flatnonzero(~is_glass), with_circles=True)
+    panes = _Objects(world, np.flatnonzero(is_glass), with_circles=False)
+    reach = min(near, max_range)
+    step = max(1, chunk_elements // (n_beams * 32))
     for start in range(0, n_poses, step):
         sl = slice(start, start + step)
         o = origins[sl]
-        lo, hi = o.min(axis=0) - max_range, o.max(axis=0) + max_range
+        omin, omax = o.min(axis=0), o.max(axis=0)
         directions = headings[sl, None] + angles[None, :]
         dx, dy = np.cos(directions).astype(np.float32), np.sin(directions).astype(np.float32)
         # work in chunk-local coordinates: small numbers keep float32 exact enough
         centre = o.mean(axis=0)
-        oc = (o - centre).astype(np.float32)
-        shift = np.tile(centre, 2)
+        ox, oy = (o - centre).astype(np.float32).T
+        grid = (ox[:, None, None], oy[:, None, None], dx[:, :, None], dy[:, :, None])
 
-        ids = wall_ids[_segments_near(world.segments[wall_ids], lo, hi)]
-        r, k = _hit_segments(world.segments[ids] - shift, oc, dx, dy)
-        obj = np.where(np.isfinite(r), ids[k] if len(ids) else -1, -1)
-        if len(circles):
-            cids = np.flatnonzero(_circles_near(circles, lo, hi))
-            rc, kc = _hit_circles(circles[cids] - np.array([*centre, 0.0]), oc, dx, dy)
-            closer = rc < r
-            r = np.where(closer, rc, r)
-            obj = np.where(closer, len(world.segments) + cids[kc] if len(cids) else -1, obj)
+        r, obj = walls.hit(centre, omin - reach, omax + reach, *grid)
+        while reach < max_range:  # widen the reach for the rays without a hit yet
+            far = ~(r <= reach)
+            reach = min(reach * 3, max_range)
+            if not far.any():
+                continue
+            pi, bi = np.nonzero(far)
+            rays = (ox[pi], oy[pi], dx[pi, bi], dy[pi, bi])
+            lo, hi = omin - reach, omax + reach
+            k = max(1, chunk_elements // max(1, walls.count(lo, hi)))
+            for j in range(0, len(pi), k):
+                part = tuple(a[j : j + k, None] for a in rays)
+                r_far, obj_far = walls.hit(centre, lo, hi, *part)
+                r[pi[j : j + k], bi[j : j + k]] = r_far
+                obj[pi[j : j + k], bi[j : j + k]] = obj_far
         hits.opaque[sl], hits.opaque_id[sl] = r, obj
 
-        ids = pane_ids[_segments_near(world.segments[pane_ids], lo, hi)]
-        if len(ids):
-            g, k = _hit_segments(world.segments[ids] - shift, oc, dx, dy)
-            seg = world.segments[ids[k]]
+        if len(panes.ids):
+            g, pane = panes.hit(centre, omin - max_range, omax + max_range, *grid)
+            seg = world.segments[np.maximum(pane, 0)]
             ex, ey = seg[..., 2] - seg[..., 0], seg[..., 3] - seg[..., 1]
             cosine = np.abs(dx * ey - dy * ex) / np.hypot(ex, ey)
             in_front = g < r
@@ -202,51 +211,83 @@ def cast(
     return hits
 
 
-def _segments_near(seg: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    smin = np.minimum(seg[:, :2], seg[:, 2:])
-    smax = np.maximum(seg[:, :2], seg[:, 2:])
-    return np.all((smax >= lo) & (smin <= hi), axis=1)
+class _Objects:
+    """Some of a world's segments (and its circles): nearest hits of rays, by object id."""
 
+    def __init__(self, world: World, ids: np.ndarray, with_circles: bool) -> None:
+        self.ids = ids
+        self.segments = world.segments[ids]
+        self.smin = np.minimum(self.segments[:, :2], self.segments[:, 2:])
+        self.smax = np.maximum(self.segments[:, :2], self.segments[:, 2:])
+        self.circles = world.circles if with_circles else np.zeros((0, 3))
+        self.circle_base = len(world.segments)
 
-def _circles_near(circles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    xy, r = circles[:, :2], circles[:, 2:3]
-    return np.all((xy + r >= lo) & (xy - r <= hi), axis=1)
+    def _near(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        seg = np.all((self.smax >= lo) & (self.smin <= hi), axis=1)
+        xy, rad = self.circles[:, :2], self.circles[:, 2:3]
+        circ = np.all((xy + rad >= lo) & (xy - rad <= hi), axis=1)
+        return np.flatnonzero(seg), np.flatnonzero(circ)
+
+    def count(self, lo: np.ndarray, hi: np.ndarray) -> int:
+        seg, circ = self._near(lo, hi)
+        return len(seg) + len(circ)
+
+    def hit(
+        self,
+        centre: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        ox: np.ndarray,
+        oy: np.ndarray,
+        dx: np.ndarray,
+        dy: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest range and object id (-1: none) of rays o + t d, origins relative to
+        `centre`; arrays broadcast with a trailing object axis of length 1."""
+        seg_k, circ_k = self._near(lo, hi)
+        shift = np.tile(centre, 2)
+        r, k = _hit_segments((self.segments[seg_k] - shift).astype(np.float32), ox, oy, dx, dy)
+        obj = np.where(np.isfinite(r), self.ids[seg_k][k] if len(seg_k) else -1, -1)
+        if len(circ_k):
+            c = (self.circles[circ_k] - np.array([*centre, 0.0])).astype(np.float32)
+            rc, kc = _hit_circles(c, ox, oy, dx, dy)
+            closer = rc < r
+            r = np.where(closer, rc, r)
+            obj = np.where(closer, self.circle_base + circ_k[kc], obj)
+        return r, obj.astype(np.int32)
 
 
 def _hit_segments(
-    seg: np.ndarray, o: np.ndarray, dx: np.ndarray, dy: np.ndarray
+    seg: np.ndarray, ox: np.ndarray, oy: np.ndarray, dx: np.ndarray, dy: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest hit range (P x B) of rays o + t d with segments, and which segment (index)."""
-    n_poses, n_beams = dx.shape
+    """Nearest hit range of rays o + t d with segments s0 + u e (u in [0, 1]), and which.
+
+    Origins broadcast as (..., 1) against the segments' last axis; with origins (P, 1, 1)
+    and directions (P, B, 1), the numerator of t is computed once per pose and segment.
+    """
+    shape = np.broadcast_shapes(ox.shape, dx.shape)[:-1]
     if len(seg) == 0:
-        return np.full((n_poses, n_beams), np.inf, np.float32), np.zeros(dx.shape, np.intp)
-    seg = seg.astype(np.float32)
-    ex, ey = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]  # (N,)
-    wx = seg[None, :, 0] - o[:, 0:1]  # (P, N): segment start relative to the origin
-    wy = seg[None, :, 1] - o[:, 1:2]
-    num_t = (wx * ey - wy * ex)[:, None, :]  # (P, 1, N)
-    dxe, dye = dx[:, :, None], dy[:, :, None]
-    denom = dxe * ey - dye * ex  # (P, B, N)
-    num_s = wx[:, None, :] * dye - wy[:, None, :] * dxe
+        return np.full(shape, np.inf, np.float32), np.zeros(shape, np.intp)
+    ex, ey = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
+    wx, wy = seg[:, 0] - ox, seg[:, 1] - oy  # segment start relative to the origin
+    num_t = wx * ey - wy * ex
+    denom = dx * ey - dy * ex
+    num_u = wx * dy - wy * dx
     with np.errstate(divide="ignore", invalid="ignore"):
         t = num_t / denom
-        s = num_s / denom
-    t = np.where((s >= 0) & (s <= 1) & (t > 0), t, np.float32(np.inf))
+        u = num_u / denom
+    t = np.where((u >= 0) & (u <= 1) & (t > 0), t, np.float32(np.inf))
     return _nearest(t)
 
 
 def _hit_circles(
-    c: np.ndarray, o: np.ndarray, dx: np.ndarray, dy: np.ndarray
+    c: np.ndarray, ox: np.ndarray, oy: np.ndarray, dx: np.ndarray, dy: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest hit range (P x B) of rays with circles (entering hits only), and which."""
-    if len(c) == 0:
-        return np.full(dx.shape, np.inf, np.float32), np.zeros(dx.shape, np.intp)
-    c = c.astype(np.float32)
-    wx = o[:, 0:1] - c[None, :, 0]  # (P, M)
-    wy = o[:, 1:2] - c[None, :, 1]
-    cc = (wx * wx + wy * wy - c[None, :, 2] ** 2)[:, None, :]  # (P, 1, M)
-    b = dx[:, :, None] * wx[:, None, :] + dy[:, :, None] * wy[:, None, :]  # (P, B, M)
-    disc = b * b - cc
+    """Nearest hit range of rays with circles (entering hits only), and which circle."""
+    wx, wy = ox - c[:, 0], oy - c[:, 1]
+    b = dx * wx + dy * wy
+    miss = wx * dy - wy * dx  # distance of the centre from the ray's line: no cancellation
+    disc = c[:, 2] ** 2 - miss * miss
     with np.errstate(invalid="ignore"):
         t = -b - np.sqrt(disc)
     t = np.where((disc >= 0) & (t > 0), t, np.float32(np.inf))
@@ -254,5 +295,5 @@ def _hit_circles(
 
 
 def _nearest(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    k = np.argmin(t, axis=2)
-    return np.take_along_axis(t, k[:, :, None], axis=2)[:, :, 0], k
+    k = np.argmin(t, axis=-1)
+    return np.take_along_axis(t, k[..., None], axis=-1)[..., 0], k
