@@ -536,34 +536,35 @@ class _Reader:
             if n not in OLD_LAYOUTS:
                 self.report.note(f"{s.name}: {n} beams is no known layout; assumed 180° from -90°")
             start, res, max_range = math.radians(first), math.radians(step), math.nan
-        explicit = self.options.get("range_max")
+        explicit = (self.options.get("range_max") or "").strip().lower()
         param = _param_float(self.lines, RANGE_PARAM, self.report)
-        code: float | None
-        if explicit is not None and explicit.lower() == "none":
-            code, how = None, "detection off (-O range_max=none)"
-        elif explicit is not None:
+        given = float(max_range) if math.isfinite(max_range) and max_range > 0 else None
+        range_max: float | None = None
+        code: float | None = None  # ranges at or above it become NaN
+        if explicit == "none":
+            range_max, how = given, "detection off (-O range_max=none)"
+        elif explicit:
             try:
-                code, how = float(explicit), "-O range_max"
+                range_max = code = float(explicit)
             except ValueError:
                 raise ToolkitError(f"-O range_max={explicit!r} is not a number") from None
-        elif math.isfinite(max_range) and max_range > 0:
-            code, how = float(max_range) - 5e-4, "max_range in the laser lines"
-        elif param is not None:
-            code, how = param - 5e-4, f"PARAM {RANGE_PARAM}"
+            how = "-O range_max"
+        elif given is not None or param is not None:
+            range_max = given if given is not None else param
+            how = "max_range in the laser lines" if given is not None else f"PARAM {RANGE_PARAM}"
+            assert range_max is not None
+            code = range_max - 5e-4  # printed to the mm: the code itself, not a return below it
         else:
             found = no_return_code(ranges)
-            code = None if found is None else found * (1 - CODE_BAND)
             how = "detected: largest value recurring at the top"
             if found is not None:
-                max_range = found
-        if code is None:
+                range_max, code = found, found * (1 - CODE_BAND)
+            else:
+                how += "; none found"
+        if range_max is None:
             finite = ranges[np.isfinite(ranges)]
             range_max = float(finite.max()) if finite.size else 81.91
-            how = f"{how}; none found, range_max = largest reading" if explicit is None else how
-        elif math.isfinite(max_range) and max_range > 0:
-            range_max = float(max_range)
-        else:
-            range_max = float(param if param is not None and explicit is None else code)
+            how += ", range_max = the largest reading"
         return LaserGeometry(n, float(start), float(res), range_max, **self._mount(s)), code, how
 
     def _mount(self, s: _LaserStream) -> dict[str, float]:
