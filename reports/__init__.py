@@ -24,7 +24,7 @@ from pathlib import Path
 from types import ModuleType
 
 from reports.base import NotAvailable, Section
-from reports.context import Context, Source, default_real
+from reports.context import RESERVED, Context, Source, default_real
 from toolkit.errors import ToolkitError
 
 GENERATORS = (
@@ -81,7 +81,7 @@ def sources_from_paths(paths: Sequence[Path], regions: Path | None = None) -> di
             raise ToolkitError(f"not a dataset: {', '.join(missing)} missing", file=path)
         name = path.resolve().name
         k = 2
-        while name in sources:
+        while name in sources or name in RESERVED:
             name, k = f"{path.resolve().name}-{k}", k + 1
         sources[name] = Source(name, path, "command line", regions or regions_for(path))
     return sources
@@ -121,7 +121,7 @@ def build(
     work = Path(tempfile.mkdtemp(prefix="toolkit-report-"))
     try:
         with atomic_dir(out, force=force) as tmp, task("report", len(mods)) as (bar, k):
-            ctx = Context(tmp, work, quick=quick, seed=seed, sources=sources, real=real_dir)
+            ctx = Context(tmp, work, quick=quick, seed=seed, sources=sources, real_dir=real_dir)
             sections = []
             task_id = TaskID(k)
             for mod in mods:

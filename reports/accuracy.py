@@ -1,14 +1,75 @@
-"""placeholder"""
+"""Accuracy against ground truth, which the paper does not give: ATE and RPE of every method
+on every log that has ground truth, with the time spent aligning, measured in this run."""
 
 from __future__ import annotations
 
-from reports.base import NotAvailable, Section
+from typing import Any
+
+import pandas as pd
+
+from reports.base import Section, save_table
 from reports.context import Context
 
 KEY = "accuracy"
-TITLE = "accuracy"
-INTRO = ""
+TITLE = "Accuracy against ground truth (ATE, RPE)"
+INTRO = (
+    "Absolute trajectory error (RMS position error after the best rigid alignment) and "
+    "relative pose error per scan step, for odometry alone and every scan matcher, on every "
+    "log; a failure is a step off by more than 0.2 m or 5°. Logs without ground truth show "
+    "only the time."
+)
 
 
 def generate(ctx: Context, section: Section) -> None:
-    raise NotAvailable("not written yet")
+    rows: list[dict[str, Any]] = []
+    for name in ctx.map_logs():
+        with ctx.part(section, f"accuracy on {name}"):
+            ds = ctx.dataset(name)
+            for method in ("odometry", *ctx.matchers):
+                run = ctx.run(name, method)
+                rows.append(_row(name, ds.n_scans, method, run.metrics))
+            if ds.groundtruth is None:
+                section.notes.append(f"{name} has no ground truth: ATE and RPE are not computable.")
+    if not rows:
+        return
+    table = pd.DataFrame(rows)
+    section.data["accuracy"] = table
+    section.tables.append(
+        save_table(
+            table,
+            ctx.out,
+            "accuracy",
+            "Accuracy of every method on every log",
+            "ATE RMSE (m), RPE per step (translation cm, rotation deg, RMS), failed steps, time "
+            "spent aligning (s) and pairs aligned per second, measured in this run.",
+            {
+                "ATE (m)": "{:.3f}",
+                "RPE (cm)": "{:.2f}",
+                "RPE (deg)": "{:.3f}",
+                "failures (%)": "{:.1f}",
+                "aligning (s)": "{:.2f}",
+                "pairs/s": "{:.0f}",
+            },
+        )
+    )
+
+
+def _row(name: str, scans: int, method: str, metrics: dict[str, Any]) -> dict[str, Any]:
+    nan = float("nan")
+    ate = metrics.get("ate", {})
+    rpe = metrics.get("rpe", {})
+    fails = metrics.get("failures", {})
+    steps = fails.get("steps") or 0
+    aligning = metrics.get("seconds_aligning") if method != "odometry" else None
+    pairs_per_s = metrics.get("pairs_per_second") if method != "odometry" else None
+    return {
+        "log": name,
+        "scans": scans,
+        "method": method,
+        "ATE (m)": ate.get("rmse", nan),
+        "RPE (cm)": 100 * rpe["translation"] if "translation" in rpe else nan,
+        "RPE (deg)": rpe.get("rotation_deg", nan),
+        "failures (%)": 100 * fails["count"] / steps if steps else nan,
+        "aligning (s)": nan if aligning is None else float(aligning),
+        "pairs/s": nan if pairs_per_s is None else float(pairs_per_s),
+    }

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from reports.base import NotAvailable, require
@@ -22,7 +23,19 @@ from toolkit.dataset import Dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 CORRIDOR = "corridor"
-METHODS = ("odometry", "gaussian", "icp")
+MATCHERS = ("gaussian", "icp", "icp-point")  # scan matchers: ours, ICP point-to-line, Open3D
+QUICK_MATCHERS = ("gaussian", "icp")
+QUICK_CORRIDOR_SCANS = 400  # quick mode: the same corridor in 8 sections of 50 scans
+QUICK_REAL_SCANS = 300  # quick mode: the first scans of each real log
+
+
+# real logs the paper's figures use: name -> (format, path under the real folder, options)
+REAL_LOGS: dict[str, tuple[str, str, dict[str, str]]] = {
+    "dpslam_loop5": ("auto", "dpslam_loop5/loop5.log", {}),
+    "intel": ("carmen", "carmen_radish_corrected/intel-corrected.log.gz", {"poses": "groundtruth"}),
+}
+INTEL_DRIFT = "intel+drift"
+RESERVED = {CORRIDOR, INTEL_DRIFT, *REAL_LOGS}  # names a dataset given by path does not take
 
 
 def default_real() -> Path | None:
@@ -64,10 +77,15 @@ class Context:
     quick: bool = False
     seed: int = 0
     sources: dict[str, Source] = field(default_factory=dict)
-    real: Path | None = None
+    real_dir: Path | None = None
     step: Callable[[str], None] = lambda _: None  # progress: called with what starts
     _datasets: dict[str, Dataset] = field(default_factory=dict)
     _cache: dict[Any, Any] = field(default_factory=dict)
+
+    @property
+    def matchers(self) -> tuple[str, ...]:
+        """The scan matchers compared (quick mode leaves out the slow Open3D ICP)."""
+        return QUICK_MATCHERS if self.quick else MATCHERS
 
     # ------------------------------------------------------------ logs
 
@@ -89,7 +107,8 @@ class Context:
         def make() -> Any:
             sim_mod = require("toolkit.sim", "simulate")
             self.step("simulate the corridor")
-            sim = sim_mod.simulate(CORRIDOR, seed=self.seed)
+            extra = {"scans": QUICK_CORRIDOR_SCANS} if self.quick else {}
+            sim = sim_mod.simulate(CORRIDOR, seed=self.seed, **extra)
             self._datasets[CORRIDOR] = sim.dataset
             self.sources.setdefault(CORRIDOR, Source(CORRIDOR, None, "simulated"))
             return sim
@@ -98,24 +117,35 @@ class Context:
 
     def dataset(self, name: str) -> Dataset:
         """A log by name, loaded once."""
-        if name == CORRIDOR:
-            self.corridor()
+        if name not in self._datasets:
+            if name == CORRIDOR:
+                self.corridor()
+            elif name == INTEL_DRIFT:
+                self.drifted(INTEL_DRIFT, "intel")
+            elif name in REAL_LOGS:
+                self.real_named(name)
         if name not in self._datasets:
             source = self.sources.get(name)
             if source is None or source.path is None:
                 raise NotAvailable(f"no log named {name!r}")
             from toolkit.dataset import load
 
-            self._datasets[name] = load(source.path)
+            ds = load(source.path)
+            if self.quick and source.origin == "real" and ds.n_scans > QUICK_REAL_SCANS:
+                from reports.runs import slice_scans
+
+                ds = slice_scans(ds, np.arange(QUICK_REAL_SCANS))
+                source.note += f", first {QUICK_REAL_SCANS} scans (quick mode)"
+            self._datasets[name] = ds
         return self._datasets[name]
 
     def real_log(self, name: str, fmt: str, relpath: str, **options: str) -> str:
         """Import a real log from the real-data folder once; its name for `dataset()`."""
 
         def make() -> str:
-            if self.real is None:
+            if self.real_dir is None:
                 raise NotAvailable("the real logs folder is not here (set TOOLKIT_REAL_DATA)")
-            source = self.real / relpath
+            source = self.real_dir / relpath
             if not source.exists():
                 raise NotAvailable(f"{source} is missing")
             importers = require("importers", "import_log", "ImportOptions")
@@ -132,6 +162,23 @@ class Context:
             return name
 
         return self.cached(("real", name), make)
+
+    def drifted(self, name: str, base: str) -> str:
+        """Log `base` with its odometry replaced by drifting wheel odometry simulated along its
+        ground truth (the simulator's odometry model), registered as `name`."""
+
+        def make() -> str:
+            from reports.runs import with_drift
+
+            ds = self.dataset(base)
+            self._datasets[name] = with_drift(ds, self.seed)
+            origin = self.sources[base]
+            self.sources[name] = Source(
+                name, None, origin.origin, note=f"{origin.note}, drift added"
+            )
+            return name
+
+        return self.cached(("drift", name), make)
 
     # ------------------------------------------------------------ runs
 
@@ -159,6 +206,18 @@ class Context:
 
     def logs(self, origin: str | None = None) -> list[str]:
         return [n for n, s in self.sources.items() if origin is None or s.origin == origin]
+
+    def map_logs(self) -> list[str]:
+        """The logs mapped by every method: the corridor, the real DP-SLAM loop and the Intel
+        lab with drift added (when the real logs are here), then the datasets given.
+        `dataset(name)` simulates or imports each on first use (or says not available)."""
+        given = [n for n, s in self.sources.items() if s.origin in ("command line", "bundled")]
+        real = ["dpslam_loop5", INTEL_DRIFT] if self.real_dir is not None else []
+        return [CORRIDOR, *real, *given]
+
+    def real_named(self, name: str) -> str:
+        fmt, relpath, options = REAL_LOGS[name]
+        return self.real_log(name, fmt, relpath, **options)
 
     @contextmanager
     def part(self, section: Any, what: str) -> Iterator[None]:

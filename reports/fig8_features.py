@@ -14,7 +14,7 @@ import pandas as pd
 
 from reports.base import NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import CORRIDOR, Context
-from reports.runs import LabelRun, path_distance, poses_at
+from reports.runs import LabelRun, path_distance, poses_at, world_points
 
 KEY = "features"
 TITLE = "Fig. 8-10: learnt features"
@@ -25,7 +25,7 @@ INTRO = (
     "the 3D map coloured by the label of the scan that saw each point."
 )
 
-MAX_MAP_POINTS = 60_000
+MAX_MAP_POINTS = 25_000  # drawn in the 3D view (all are counted)
 
 
 def labelled_logs(ctx: Context) -> list[str]:
@@ -156,19 +156,6 @@ def _fig8(ctx: Context, name: str, data: dict[str, Any], run: LabelRun, how: str
     )
 
 
-def _map_points(ds: Any, poses: np.ndarray) -> np.ndarray:
-    """World points (N x 3) of every return, through the toolkit's map builder."""
-    from reports.base import require
-
-    mapping = require("toolkit.mapping", "world_points")
-    return np.asarray(mapping.world_points(ds, poses))
-
-
-def _thin(points: np.ndarray, limit: int = MAX_MAP_POINTS) -> np.ndarray:
-    step = max(1, len(points) // limit)
-    return points[::step]
-
-
 def _fig9(
     ctx: Context, name: str, data: dict[str, Any], ds: Any, poses: np.ndarray, how: str
 ) -> Any:
@@ -178,15 +165,15 @@ def _fig9(
     fig = new_figure(4.2 * cols, 3.6 * rows)
     axes = fig.subplots(rows, cols, squeeze=False).ravel()
     try:
-        background = _thin(_map_points(ds, poses))[:, :2]
+        background = world_points(ds, poses, every=max(1, ds.n_scans // 400))[0][:, :2]
     except NotAvailable:
         background = None
     for ax, f in zip(axes, features, strict=False):
         found = data["found"][f]
         if background is not None:
             ax.plot(*background.T, ",", color="0.75", rasterized=True)
-        ax.scatter(*poses[~found, :2].T, s=3, c="tab:blue", label="not found", rasterized=True)
-        ax.scatter(*poses[found, :2].T, s=5, c="tab:red", label="found", rasterized=True)
+        ax.plot(*poses[~found, :2].T, ".", ms=2, color="tab:blue", label="not found")
+        ax.plot(*poses[found, :2].T, ".", ms=3, color="tab:red", label="found")
         ax.set_title(f, fontsize=9)
         ax.set_aspect("equal", adjustable="datalim")
         ax.tick_params(labelsize=7)
@@ -207,37 +194,24 @@ def _fig9(
 def _fig10(
     ctx: Context, name: str, data: dict[str, Any], ds: Any, poses: np.ndarray, how: str
 ) -> Any:
-    points = _map_points(ds, poses)
-    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
-
+    points, scan_of_point = world_points(ds, poses)
     fig = new_figure(8.0, 6.0)
     ax = fig.add_subplot(projection="3d")
-    # which scan each point comes from, to colour it by that scan's label
-    per_scan = np.isfinite(ds.ranges).sum(axis=1)
-    scan_of_point = np.repeat(np.arange(ds.n_scans), per_scan)
-    labels = data["label"][scan_of_point] if len(scan_of_point) == len(points) else None
+    labels = data["label"][scan_of_point]  # each point takes the label of the scan that saw it
     thin = slice(None, None, max(1, len(points) // MAX_MAP_POINTS))
-    shown = points[thin]
+    shown, shown_labels = points[thin], labels[thin]
     counts: dict[str, int] = {}
-    if labels is not None:
-        shown_labels = labels[thin]
-        for k, cls in enumerate(["none", *data["features"]]):
-            sel = shown_labels == cls
-            counts[cls] = int((labels == cls).sum())
-            if sel.any():
-                ax.scatter(
-                    *shown[sel].T,
-                    s=0.3,
-                    color="0.6" if cls == "none" else f"C{k}",
-                    label=cls,
-                    rasterized=True,
-                )
-        ax.legend(fontsize=7, markerscale=12, loc="upper left")
-    else:
-        ax.scatter(*shown.T, s=0.3, color="0.4", rasterized=True)
+    for k, cls in enumerate(["none", *data["features"]]):
+        counts[cls] = int((labels == cls).sum())
+        sel = shown_labels == cls
+        if sel.any():
+            colour = "0.6" if cls == "none" else f"C{k}"
+            ax.plot(*shown[sel].T, ".", ms=0.8, color=colour, label=cls, rasterized=True)
+    ax.legend(fontsize=7, markerscale=12, loc="upper left")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
+    ax.set_zlim(0.0, max(1.0, 2.0 * float(ds.laser.z)))
     return save_figure(
         fig,
         ctx.out,

@@ -59,7 +59,86 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
 
 def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
     """The trajectory of `ds` by `method`, timed, with ATE/RPE against ground truth if any."""
-    raise NotAvailable("toolkit.trajectory is not in the toolkit yet")
+    from reports.context import Run
+
+    traj = require("toolkit.trajectory", "build", "truth_poses")
+    metrics = require("toolkit.metrics", "evaluate")
+    warm_up(ds, method)
+    result = traj.build(ds, method)
+    truth = traj.truth_poses(ds)
+    scores: dict[str, Any] = {}
+    if truth is not None:
+        scores = metrics.evaluate(result.poses, truth)
+    scores["seconds_aligning"] = result.seconds
+    scores["pairs_per_second"] = result.pairs_per_second
+    return Run(name, method, result.frame, result.seconds, scores)
+
+
+_warm: set[tuple[str, int]] = set()
+
+
+def warm_up(ds: Dataset, method: str) -> None:
+    """Match a few pairs first so that a timing never includes compiling the kernels."""
+    if method == "odometry" or (method, ds.n_beams) in _warm or ds.n_scans < 3:
+        return
+    from toolkit.trajectory import build
+
+    build(slice_scans(ds, np.arange(3)), method)
+    _warm.add((method, ds.n_beams))
+
+
+def slice_scans(ds: Dataset, index: np.ndarray) -> Dataset:
+    """The scans `index` (consecutive) of `ds`, with odometry and ground truth over their time."""
+    index = np.asarray(index)
+    t = ds.t[index]
+
+    def cut(frame: pd.DataFrame | None) -> pd.DataFrame | None:
+        if frame is None:
+            return None
+        ft = frame["t"].to_numpy()
+        lo = max(int(np.searchsorted(ft, t[0], side="right")) - 1, 0)
+        hi = int(np.searchsorted(ft, t[-1], side="left")) + 1
+        return frame.iloc[lo:hi].reset_index(drop=True)
+
+    return Dataset(
+        t=t,
+        ranges=ds.ranges[index],
+        laser=ds.laser,
+        odometry=cut(ds.odometry),
+        groundtruth=cut(ds.groundtruth),
+        meta=ds.meta,
+    )
+
+
+def with_drift(ds: Dataset, seed: int = 0) -> Dataset:
+    """`ds` with odometry made by the simulator's wheel-odometry model (default parameters:
+    unequal wheels, scale error, noise, slips) along its ground truth at the scan times."""
+    sim = require("toolkit.sim", "OdometryModel")
+    traj = require("toolkit.trajectory", "truth_poses")
+    truth = traj.truth_poses(ds)
+    if truth is None:
+        raise NotAvailable("no ground truth to add drift to")
+    odo = sim.OdometryModel().integrate(truth, np.random.default_rng(seed))
+    frame = pd.DataFrame({"t": ds.t, "x": odo[:, 0], "y": odo[:, 1], "theta": odo[:, 2]})
+    meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
+    return Dataset(
+        t=ds.t,
+        ranges=ds.ranges,
+        laser=ds.laser,
+        odometry=frame,
+        groundtruth=ds.groundtruth,
+        meta=meta,
+        path=ds.path,
+    )
+
+
+def world_points(ds: Dataset, poses: np.ndarray, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Every return at its world position and the laser's height (N x 3), and its scan index,
+    through the toolkit's own map geometry."""
+    figures = require("toolkit.features.figures", "world_points")
+    xy, scan = figures.world_points(ds.ranges, poses, ds.laser, every=every)
+    z = np.full((len(xy), 1), float(ds.laser.z))
+    return np.hstack([np.asarray(xy), z]), np.asarray(scan)
 
 
 def path_distance(xy: np.ndarray) -> np.ndarray:
@@ -69,9 +148,5 @@ def path_distance(xy: np.ndarray) -> np.ndarray:
 
 
 def poses_at(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
-    """Poses (S x 3) of a pose table at times `t` (linear in x, y and unwrapped theta)."""
-    ft = frame["t"].to_numpy()
-    x = np.interp(t, ft, frame["x"].to_numpy())
-    y = np.interp(t, ft, frame["y"].to_numpy())
-    th = np.interp(t, ft, np.unwrap(frame["theta"].to_numpy()))
-    return np.column_stack([x, y, np.arctan2(np.sin(th), np.cos(th))])
+    """Poses (S x 3) of a pose table at times `t` (the trajectory module's interpolation)."""
+    return np.asarray(require("toolkit.trajectory", "poses_at").poses_at(frame, t))

@@ -30,7 +30,7 @@ SIZES = (100, 500, 1000, 5000, 10_000)  # the paper's
 LABELS = {"gaussian": "Gaussian (text Eq. 6)", "gaussian-paper": "Gaussian (printed Eq. 6)"}
 
 
-QUICK_TRIALS = 3
+QUICK_TRIALS = 2
 
 
 @contextmanager

@@ -15,9 +15,9 @@ from reports import Report
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory: pytest.TempPathFactory) -> Report:
+def report(tmp_path_factory: pytest.TempPathFactory, real: Path) -> Report:
     out = tmp_path_factory.mktemp("rep") / "report"
-    return reports.build(out, quick=True, real=False, command="test")
+    return reports.build(out, quick=True, real=real, command="test")
 
 
 class Refs(HTMLParser):
@@ -108,3 +108,116 @@ def test_machine_section(report: Report) -> None:
     assert info["cpus (logical)"] >= 1
     assert info["numpy"] == np.__version__
     assert info["python"].count(".") == 2
+
+
+def test_table1_has_eight_sections_and_each_method(report: Report) -> None:
+    from reports.context import QUICK_MATCHERS
+
+    section = report.section("table1")
+    rows = section.data["rows"]
+    assert sorted(set(rows["section"])) == list(range(1, 9))
+    assert set(rows["method"]) == {"odometry", *QUICK_MATCHERS}
+    assert len(rows) == 8 * (1 + len(QUICK_MATCHERS))
+    assert (rows["pairs"] >= 40).all()  # quick mode: 8 sections of 50 scans
+    assert np.isfinite(rows[["error_m", "std_m"]].to_numpy()).all()
+    assert (rows["error_m"] >= 0).all() and (rows["std_m"] >= 0).all()
+    timed = rows[rows["method"] != "odometry"]
+    assert (timed["seconds"] > 0).all()
+    table = section.data["table1"]
+    assert list(table["section"]) == list(range(1, 9))
+    gauss = rows[rows["method"] == "gaussian"].reset_index(drop=True)
+    assert np.allclose(table["gaussian error (cm)"], 100 * gauss["error_m"])
+
+
+def test_table1_errors_are_the_metric_of_the_runs(report: Report) -> None:
+    """Recompute one section's error from scratch with the toolkit and compare."""
+    from reports.context import QUICK_CORRIDOR_SCANS
+    from reports.runs import slice_scans
+    from toolkit.metrics import RPE
+    from toolkit.sim import simulate
+    from toolkit.trajectory import build, truth_poses
+
+    sim = simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS)
+    part = slice_scans(sim.dataset, np.flatnonzero(sim.sections == 3))
+    err, _ = RPE.step_errors(build(part, "gaussian").poses, truth_poses(part))
+    rows = report.section("table1").data["rows"]
+    row = rows[(rows["section"] == 4) & (rows["method"] == "gaussian")].iloc[0]
+    assert row["error_m"] == pytest.approx(err.mean())
+    assert row["std_m"] == pytest.approx(err.std(ddof=1))
+
+
+def test_fig3_pairs_close_and_distant(report: Report) -> None:
+    data = report.section("pairs").data["pairs"]
+    assert set(data) == {"close", "distant"}
+    assert data["close"]["median_range_m"] < data["distant"]["median_range_m"]
+    for pair in data.values():
+        assert set(pair["estimate"]) >= {"odometry", "gaussian", "icp"}
+        for method, pose in pair["estimate"].items():
+            assert pose.shape == (3,)
+            err = 100 * np.hypot(*(pose[:2] - pair["truth"][:2]))
+            assert pair["error_cm"][method] == pytest.approx(err)
+        # consecutive scans 0.08 m apart: every method is within 10 cm of the truth
+        assert max(pair["error_cm"].values()) < 10
+
+
+def test_fig6_odometry_map_against_corrected(report: Report) -> None:
+    from toolkit.metrics import ATE
+    from toolkit.trajectory import truth_poses
+
+    section = report.section("maps")
+    data = section.data["corridor"]
+    assert data["methods"][0] == "odometry"
+    ds = report_dataset(report)
+    gt = truth_poses(ds)
+    for method in data["methods"]:
+        poses = data["trajectories"][method]
+        assert poses.shape == (ds.n_scans, 3)
+        assert data["ate"][method] == pytest.approx(ATE.compute(poses, gt).rmse)
+        assert data["points"][method] > 1000
+    odo = data["trajectories"]["odometry"]
+    assert np.allclose(odo, ds.odometry[["x", "y", "theta"]].to_numpy())
+    # the paper's claim, measured: the Gaussian-corrected map beats odometry alone
+    assert data["ate"]["gaussian"] < data["ate"]["odometry"]
+    assert section.figure("fig6_maps_corridor").files
+
+
+def report_dataset(report: Report) -> object:
+    from reports.context import QUICK_CORRIDOR_SCANS
+    from toolkit.sim import simulate
+
+    return simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS).dataset
+
+
+@pytest.mark.real
+def test_fig7_real_logs(report: Report) -> None:
+    from reports.context import QUICK_REAL_SCANS
+
+    section = report.section("maps")
+    loop5, intel = section.data["dpslam_loop5"], section.data["intel+drift"]
+    assert all(v is None for v in loop5["ate"].values())  # no ground truth: no ATE claimed
+    assert loop5["scans"] == intel["scans"] == QUICK_REAL_SCANS  # quick mode: the first scans
+    for data in (loop5, intel):
+        for poses in data["trajectories"].values():
+            assert poses.shape == (data["scans"], 3)
+    assert intel["ate"]["odometry"] > 1.0  # the drift added is visible
+    assert all(np.isfinite(v) for v in intel["ate"].values())
+    names = {f.name for f in section.figures}
+    assert {"fig7_maps_dpslam_loop5", "fig7_maps_intel_drift"} <= names
+
+
+def test_accuracy_every_method_and_log(report: Report) -> None:
+    from reports.context import QUICK_MATCHERS
+
+    table = report.section("accuracy").data["accuracy"]
+    logs = list(dict.fromkeys(table["log"]))
+    assert logs == ["corridor", "dpslam_loop5", "intel+drift"]
+    for log in logs:
+        assert list(table.loc[table["log"] == log, "method"]) == ["odometry", *QUICK_MATCHERS]
+    with_truth = table[table["log"] != "dpslam_loop5"]
+    assert np.isfinite(with_truth[["ATE (m)", "RPE (cm)", "RPE (deg)"]].to_numpy()).all()
+    assert table.loc[table["log"] == "dpslam_loop5", "ATE (m)"].isna().all()
+    matched = table[table["method"] != "odometry"]
+    assert (matched["aligning (s)"] > 0).all() and (matched["pairs/s"] > 0).all()
+    maps = report.section("maps").data["corridor"]["ate"]
+    corridor = table[table["log"] == "corridor"].set_index("method")["ATE (m)"]
+    assert corridor.to_dict() == pytest.approx(maps)  # one run per log and method, shared
