@@ -25,13 +25,15 @@ import numpy as np
 import pandas as pd
 
 from toolkit.features.model import (
+    BIN_STEP,
     Config,
     FeatureModel,
     background_bins,
     beam_statistics,
+    bin_table,
 )
 
-CHUNK = 32768
+CHUNK = 8192
 LOG_2PI = float(np.log(2 * np.pi))
 
 
@@ -156,34 +158,31 @@ def _robust_kernel(  # pragma: no cover - numba
     bg_table: np.ndarray,
     bg_hit: np.ndarray,
     bg_miss: np.ndarray,
-    lo: float,
-    scale: float,
+    bin_of: np.ndarray,
+    bin_scale: float,
     log_eps: float,
     out: np.ndarray,
     bg_out: np.ndarray,
 ) -> None:
     s_count, nb = ranges.shape
     nf = mean.shape[1]
-    k = bg_table.shape[1]
+    last = len(bin_of) - 1
     for s in numba.prange(s_count):
-        acc = np.zeros(nf)
+        for f in range(nf):
+            out[s, f] = 0.0
         bg_sum = 0.0
         for b in range(nb):
             r = ranges[s, b]
             if np.isfinite(r):
-                pos = (np.log(max(r, 1e-9)) - lo) * scale
-                i = min(max(int(pos), 0), k - 1)
-                world = bg_table[b, i] + bg_hit[b]
+                world = bg_table[b, bin_of[min(max(int(r * bin_scale), 0), last)]] + bg_hit[b]
                 for f in range(nf):
                     d = r - mean[b, f]
-                    acc[f] += _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], world + log_eps)
+                    out[s, f] += _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], world + log_eps)
             else:
                 world = bg_miss[b]
                 for f in range(nf):
-                    acc[f] += _logaddexp(miss[b, f], world + log_eps)
+                    out[s, f] += _logaddexp(miss[b, f], world + log_eps)
             bg_sum += world
-        for f in range(nf):
-            out[s, f] = acc[f]
         bg_out[s] = bg_sum
 
 
@@ -211,7 +210,7 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
         raise ValueError("robust beams need the background model")
     mean, prec, hit, miss = _robust_params(model)
     q = np.clip(bg.p_return, 1e-9, 1 - 1e-9)
-    k = bg.log_density.shape[1]
+    bin_of = bin_table(bg.edges)
     out = np.empty((len(ranges), len(model.features)))
     bg_out = np.empty(len(ranges))
     _robust_kernel(
@@ -223,8 +222,8 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
         np.ascontiguousarray(bg.log_density),
         np.log(q),
         np.log1p(-q),
-        float(bg.edges[0]),
-        float(k / (bg.edges[-1] - bg.edges[0])),
+        bin_of,
+        1.0 / BIN_STEP,
         float(np.log(model.config.robust)),
         out,
         bg_out,

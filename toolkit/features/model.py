@@ -296,13 +296,23 @@ def fit_background(ranges: np.ndarray, laser: LaserGeometry, chunk: int = 65536)
     return Background(p_return, edges, log_density)
 
 
-def background_bins(block: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Bin index of each range (NaN and out of range clamped; callers mask no-returns)."""
+BIN_STEP = 0.002  # m: ranges are binned by table on this grid (no logarithm per reading)
+
+
+def bin_table(edges: np.ndarray) -> np.ndarray:
+    """Log-range bin of each 2 mm cell from 0 to the last edge."""
     k = len(edges) - 1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        pos = (np.log(block) - edges[0]) * (k / (edges[-1] - edges[0]))
-    pos = np.nan_to_num(pos, nan=0.0, posinf=k - 1, neginf=0.0)
-    return np.clip(pos, 0, k - 1).astype(np.intp)
+    cells = int(np.ceil(np.exp(edges[-1]) / BIN_STEP)) + 1
+    centres = (np.arange(cells) + 0.5) * BIN_STEP
+    pos = (np.log(centres) - edges[0]) * (k / (edges[-1] - edges[0]))
+    return np.clip(pos, 0, k - 1).astype(np.int32)
+
+
+def background_bins(block: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Bin index of each range (NaN clamped to bin 0: callers mask no-returns)."""
+    table = bin_table(edges)
+    cell = np.nan_to_num(np.asarray(block, dtype=np.float64) / BIN_STEP, nan=0.0)
+    return table[np.clip(cell, 0, len(table) - 1).astype(np.intp)]
 
 
 def fit(
