@@ -37,10 +37,12 @@ Decisions (also stored in meta.json under "rawseeds"):
 from __future__ import annotations
 
 import concurrent.futures
+import hashlib
 import json
 import math
 import re
 import tempfile
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -387,54 +389,53 @@ class LaserResult:
 def stream_laser(
     path: Path, spec: LaserSpec, out: Path, report: ImportReport, prefix: str = ""
 ) -> LaserResult:
-    """Parse a laser CSV chunk by chunk into a scans Parquet file; drops go to `report`."""
+    """Parse a laser CSV chunk by chunk into a scans Parquet file; drops go to `report`.
+
+    Two stages: this thread reads and parses chunk k+1 (pyarrow, multithreaded) and checks
+    its times, while a worker turns chunk k into an S x B array, applies the no-return rules
+    and appends it to the Parquet file. Chunk k's order check needs chunk k+1's first time,
+    so one parsed chunk waits; memory stays at about three chunks."""
     result = LaserResult()
-    beams = spec.geometry.beams
-    pending: tuple[np.ndarray, np.ndarray] | None = None
+    notes: list[str] = []
+    pending: tuple[Parsed, np.ndarray, np.ndarray] | None = None  # parsed, t, rows ok
     prev_t = -math.inf
     saw_text = False
+    writer = ScansWriter(out, spec.geometry.beams)
+    pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="rawseeds-scans")
+    future: concurrent.futures.Future[None] | None = None
 
-    def flush(t: np.ndarray, ranges: np.ndarray, nxt: float) -> None:
-        nonlocal prev_t
-        keep = order_mask(t, prev_t, nxt)
+    def hand_over(parsed: Parsed, t: np.ndarray, ok: np.ndarray, nxt: float) -> None:
+        nonlocal prev_t, future
+        rows = np.flatnonzero(ok)
+        keep = order_mask(t[rows], prev_t, nxt)
         if not keep.all():
-            first_bad = t[~keep][0]
             report.drop(
                 prefix + "timestamp out of order",
                 int((~keep).sum()),
-                f"{path.name} t={first_bad:.6f}",
+                f"{path.name} t={t[rows[~keep][0]]:.6f}",
             )
-            t, ranges = t[keep], ranges[keep]
-        if len(t):
-            prev_t = float(t[-1])
-        result.rows_kept += len(t)
-        submit(t, ranges)
-
-    pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="rawseeds-write")
-    future: concurrent.futures.Future[None] | None = None
-    writer = ScansWriter(out, beams)
-
-    def submit(t: np.ndarray, ranges: np.ndarray) -> None:
-        nonlocal future
+            rows = rows[keep]
+        if len(rows):
+            prev_t = float(t[rows[-1]])
+        result.rows_kept += len(rows)
         if future is not None:
             future.result()
-        future = pool.submit(writer.write, t, ranges)
+        future = pool.submit(_write_scans, writer, parsed, t, rows, spec, result)
 
-    notes: list[str] = []
     try:
         for chunk in chunks(path, notes):
             saw_text = saw_text or not chunk.data.isspace()  # no copy of the chunk
             parsed = parse_chunk(path, chunk, spec.columns, float32_from=spec.lead)
             _count_bad_rows(path, chunk, parsed, report, prefix, "ranges")
-            t, ranges = _clean_scans(path, parsed, spec, report, prefix, result)
             result.rows_read += parsed.rows + len(parsed.bad_rows)
-            if len(t) == 0:
+            t, ok = _check_lead(path, parsed, spec, report, prefix, result)
+            if not ok.any():
                 continue
             if pending is not None:
-                flush(*pending, nxt=float(t[0]))
-            pending = (t, ranges)
+                hand_over(*pending, nxt=float(t[ok][0]))
+            pending = (parsed, t, ok)
         if pending is not None:
-            flush(*pending, nxt=math.inf)
+            hand_over(*pending, nxt=math.inf)
         if future is not None:
             future.result()
     finally:
@@ -458,7 +459,7 @@ def _reasons(report: ImportReport) -> str:
     return ", ".join(f"{k}: {v}" for k, v in report.dropped.items()) or "none"
 
 
-def _clean_scans(
+def _check_lead(
     path: Path,
     parsed: Parsed,
     spec: LaserSpec,
@@ -466,9 +467,8 @@ def _clean_scans(
     prefix: str,
     result: LaserResult,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Check the lead fields, make an S x B float32 array, and turn invalid readings into NaN."""
+    """Times, and which rows have a usable time and (SICK) the right n_ranges field."""
     t = parsed.column(0)
-    n = len(t)
     ok = np.isfinite(t)
     if not ok.all():
         report.drop(prefix + "timestamp not a number", int((~ok).sum()), path.name)
@@ -486,10 +486,22 @@ def _clean_scans(
         offsets, counts = np.unique(parsed.column(2)[ok], return_counts=True)
         for value, c in zip(offsets.tolist(), counts.tolist(), strict=True):
             result.offsets[value] = result.offsets.get(value, 0) + int(c)
-    ranges = np.empty((n, spec.geometry.beams), dtype=np.float32)
+    return t, ok
+
+
+def _write_scans(
+    writer: ScansWriter,
+    parsed: Parsed,
+    t: np.ndarray,
+    rows: np.ndarray,
+    spec: LaserSpec,
+    result: LaserResult,
+) -> None:
+    """The worker's stage: the kept rows as S x B float32, no-return rules, appended."""
+    ranges = np.empty((parsed.rows, spec.geometry.beams), dtype=np.float32)
     parsed.fill(ranges, spec.lead)
-    if not ok.all():
-        t, ranges = t[ok], ranges[ok]
+    if len(rows) != parsed.rows:
+        ranges, t = ranges[rows], t[rows]
     g = spec.geometry
     lo, hi = np.float32(g.range_min), np.float32(g.range_max)
     # one pass for the mask of readings that become NaN (comparisons with NaN are False)
@@ -505,7 +517,7 @@ def _clean_scans(
         result.no_return += n_lost - n_invalid
         np.putmask(ranges, lost, np.float32(np.nan))
     result.readings += ranges.size
-    return t, ranges
+    writer.write(t, ranges)
 
 
 # ---------------------------------------------------------------- small files, whole
@@ -671,6 +683,26 @@ class Rawseeds(Importer):
     ) -> dict[str, Any]:
         report = ImportReport()
         files = session.files
+        # sha256 of every source on a thread of its own, while the lasers are parsed
+        stop = threading.Event()
+        hasher = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="rawseeds-sha256")
+        hashes = hasher.submit(_source_entries, list(files.values()), stop)
+        hasher.shutdown(wait=False)
+        try:
+            return self._import_streams(session, spec, gt_choice, tmp, report, hashes)
+        finally:
+            stop.set()  # after a failure, stop hashing at once
+
+    def _import_streams(
+        self,
+        session: Session,
+        spec: LaserSpec,
+        gt_choice: str,
+        tmp: Path,
+        report: ImportReport,
+        hashes: concurrent.futures.Future[list[dict[str, Any]]],
+    ) -> dict[str, Any]:
+        files = session.files
         primary = stream_laser(files[spec.stream], spec, tmp / SCANS, report)
         report.records_read, report.records_kept = primary.rows_read, primary.rows_kept
         readings = {spec.name: _readings(primary)}
@@ -738,9 +770,9 @@ class Rawseeds(Importer):
         if total:
             lost = sum(r["no_return"] + r["invalid"] for r in readings.values())
             report.note(f"{lost} of {total} range readings are NaN (no return or invalid)")
-        return make_meta(
+        meta = make_meta(
             "rawseeds",
-            list(files.values()),
+            [],
             _with_offset(spec, primary),
             report,
             lasers=lasers,
@@ -758,9 +790,23 @@ class Rawseeds(Importer):
                 "angular_offset": {f"{k:g}": v for k, v in sorted(primary.offsets.items())},
             },
         )
+        meta["source"]["files"] = hashes.result()
+        return meta
 
     def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
         return write(ds, out, **options)  # type: ignore[arg-type]
+
+
+def _source_entries(paths: Sequence[Path], stop: threading.Event) -> list[dict[str, Any]]:
+    """Like toolkit.dataset.source_entries (path, bytes, sha256), but stops when told to."""
+    entries = []
+    for p in sorted(set(paths)):
+        h = hashlib.sha256()
+        with open(p, "rb") as f:
+            while (block := f.read(1 << 22)) and not stop.is_set():
+                h.update(block)
+        entries.append({"path": str(p), "bytes": p.stat().st_size, "sha256": h.hexdigest()})
+    return entries
 
 
 def _readings(res: LaserResult) -> dict[str, int]:

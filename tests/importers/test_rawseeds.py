@@ -19,7 +19,7 @@ import pytest
 import importers
 from importers import rawseeds
 from importers.base import ImportOptions
-from toolkit.dataset import Dataset, LaserGeometry, load
+from toolkit.dataset import Dataset, LaserGeometry, load, sha256
 from toolkit.errors import FormatError, ToolkitError
 
 SESSIONS = [
@@ -178,6 +178,11 @@ def test_session_round_trip_to_written_precision(
     assert ds.laser == LaserGeometry.sick_180(181, range_max=81.83, x=0.08, y=0.0, z=0.45)
     assert math.isclose(ds.laser.angle_min, -math.pi / 2)
     assert ds.meta["source"]["format"] == "rawseeds" and ds.meta["session"] == S27
+    sources = {Path(e["path"]).name: e for e in ds.meta["source"]["files"]}
+    assert len(sources) == 6  # SICK, odometry, GT, GT-extended, relations, cartographer csv
+    for name in (sick_file(d).name, f"{S27}-GROUNDTRUTH.csv"):
+        assert sources[name]["sha256"] == sha256(d / name)
+        assert sources[name]["bytes"] == (d / name).stat().st_size
     assert ds.report.records_read == ds.report.records_kept == truth.n_scans
     assert ds.report.records_dropped == 0
     readings = ds.meta["range_readings"]["sick_front"]
