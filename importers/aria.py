@@ -24,6 +24,8 @@ or has no scan, is a FormatError.
 
 from __future__ import annotations
 
+import csv
+import io
 import lzma
 import math
 import re
@@ -46,6 +48,7 @@ MAX_BEAMS = 10000
 SUFFIXES = (".2d", ".2d.gz", ".2d.bz2", ".2d.xz")
 LASER_TAGS = ("scan1", "sick1")
 TIME_TAGS = ("logTime", "time")
+_NUMBER_CHARS = re.compile(r"[0-9.eE+\- \t]*")
 _TAG = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_]*)\s*:(.*)$")
 
 
@@ -53,9 +56,10 @@ class _Scans:
     """Scan records as parsed, before the vectorized conversion."""
 
     def __init__(self) -> None:
+        self.width = 0  # numbers per laser line
         self.lines: list[int] = []
         self.t: list[float] = []
-        self.values: list[np.ndarray] = []
+        self.text: list[str] = []  # the laser lines' numbers, parsed all at once in _build
         self.robot: list[tuple[float, float, float] | None] = []
         self.global_: list[tuple[float, float, float] | None] = []
 
@@ -144,6 +148,43 @@ def _lines(path: Path, report: ImportReport) -> Iterator[tuple[int, str]]:
         report.note(f"compressed stream damaged after line {number} ({e}): the rest is lost")
 
 
+def parse_rows(texts: list[str], width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parse whitespace-separated numbers, `width` per text, all texts in one C-parser call.
+
+    Returns (ok per text, values of the ok texts, n_ok x width). A text is not ok if it holds
+    more or fewer numbers, something that is not a number, or a non-finite value.
+    """
+    ok = np.zeros(len(texts), bool)
+    if not texts or width <= 0:
+        return ok, np.zeros((0, max(width, 0)))
+    # only number characters (a stray quote or carriage return would confuse the CSV parser)
+    clean = [row if _NUMBER_CHARS.fullmatch(row) else "" for row in texts]
+    # each row starts with its index: rows the parser skips (too many fields) are known
+    text = "\n".join(f"{i} {row}" for i, row in enumerate(clean))
+    frame = pd.read_csv(
+        io.StringIO(text),
+        sep=r"\s+",
+        header=None,
+        names=range(width + 1),
+        index_col=False,
+        on_bad_lines="skip",
+        quoting=csv.QUOTE_NONE,
+        skip_blank_lines=False,
+        low_memory=False,
+    )
+    numbers = frame.apply(pd.to_numeric, errors="coerce").to_numpy(np.float64)
+    index = numbers[:, 0]
+    finite = np.isfinite(numbers).all(axis=1)
+    rows = np.flatnonzero(finite & (index >= 0) & (index < len(texts)) & (index % 1 == 0))
+    at = index[rows].astype(np.int64)
+    unique = np.unique(at, return_index=True)[1]  # a row index seen twice: keep the first
+    rows, at = rows[unique], at[unique]
+    ok[at] = True
+    values = np.empty((len(texts), width))
+    values[at] = numbers[rows, 1:]
+    return ok, values[ok]
+
+
 def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]], _Scans]:
     """One pass over the lines: header tags, and per scan its time, poses and raw values."""
     header: dict[str, tuple[str, int]] = {}
@@ -173,16 +214,13 @@ def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]]
             report.records_read += 1
             if beams is None:
                 beams = _beams_from_header(header, tag, rest, path, number)
-            width = 2 * beams if tag == "scan1" else beams
-            values = _numbers(rest, width)
-            if values is None:
-                report.drop(f"{tag}: not {width} numbers", where=f"line {number}")
-            elif header.setdefault("laser_tag", (tag, number))[0] != tag:
+            if header.setdefault("laser_tag", (tag, number))[0] != tag:
                 report.drop(f"{tag}: log mixes scan1 and sick1", where=f"line {number}")
             else:
+                scans.width = 2 * beams if tag == "scan1" else beams
                 scans.lines.append(number)
                 scans.t.append(math.nan if t is None else t)
-                scans.values.append(np.asarray(values, np.float64))
+                scans.text.append(rest)
                 scans.robot.append(robot)
                 scans.global_.append(robot_global)
             t = robot = robot_global = None
@@ -300,13 +338,21 @@ def _build(
     range_max: float,
     fmt: str,
 ) -> Dataset:
-    if not scans.values:
+    tag = header["laser_tag"][0] if "laser_tag" in header else "scan1"
+    ok, values = parse_rows(scans.text, scans.width)
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        where = f"line {scans.lines[int(bad[0])]}"
+        report.drop(f"{tag}: not {scans.width} numbers", int(bad.size), where)
+    if not ok.any():
         raise FormatError(
             f"no intact scan ({report.records_read} laser lines, {report.records_dropped} dropped)",
             file=path,
         )
-    tag = header["laser_tag"][0]
-    values = np.stack(scans.values)
+    good = np.flatnonzero(ok).tolist()
+    scans.t = [scans.t[i] for i in good]
+    scans.robot = [scans.robot[i] for i in good]
+    scans.global_ = [scans.global_[i] for i in good]
     beams = values.shape[1] // 2 if tag == "scan1" else values.shape[1]
     laser, note = _geometry(header, beams, range_max, path)
     if note:
