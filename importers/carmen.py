@@ -46,7 +46,7 @@ import bisect
 import math
 import re
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -314,10 +314,9 @@ def _reason(reason: str, line: int, last_line: int) -> str:
 # ---------------------------------------------------------------- decisions
 
 
-def broken_clock(
-    stamp: np.ndarray, kept: Callable[[np.ndarray], np.ndarray] | None = None
-) -> str | None:
-    """Why a stream's timestamps cannot serve as a clock, or None if they can."""
+def broken_clock(stamp: np.ndarray, kept: np.ndarray | None = None) -> str | None:
+    """Why a stream's timestamps cannot serve as a clock, or None if they can; `kept` marks
+    the stamps that stay in order (default: those not below an earlier one)."""
     if stamp.size < 2:
         return None
     if not np.isfinite(stamp).all():
@@ -325,7 +324,7 @@ def broken_clock(
     distinct = np.unique(stamp).size
     if distinct < MIN_DISTINCT * stamp.size:
         return f"only {distinct} distinct timestamps in {stamp.size} (all 0, or too few digits)"
-    late = int((~(kept or in_order)(stamp)).sum())
+    late = int((~(in_order(stamp) if kept is None else kept)).sum())
     if late > MAX_OUT_OF_ORDER * stamp.size:
         return f"{late} of {stamp.size} timestamps out of order"
     return None
@@ -342,6 +341,8 @@ def in_order(stamp: np.ndarray) -> np.ndarray:
 def longest_in_order(stamp: np.ndarray) -> np.ndarray:
     """True on a longest non-decreasing subsequence: the fewest lines dropped to restore order
     (a pose stream's stray timestamp, early or late, costs one line, not all lines after it)."""
+    if stamp.size < 2 or bool(np.all(np.diff(stamp) >= 0)):
+        return np.ones(stamp.size, dtype=bool)
     tails: list[float] = []  # smallest last stamp of an in-order run of each length
     ends: list[int] = []  # index of that last stamp
     before = np.full(stamp.size, -1)
@@ -679,11 +680,11 @@ class _Reader:
                         _where(path, good[int(np.argmin(finite))].number))  # fmt: skip
             values, good = values[finite], [e for e, f in zip(good, finite, strict=True) if f]
         stamp = values[:, 3]
-        why = broken_clock(stamp, longest_in_order)
+        keep = longest_in_order(stamp)
+        why = broken_clock(stamp, keep)
         if why is not None:
             report.note(f"{msg} lines not used: {why}")
             return None
-        keep = longest_in_order(stamp)
         late = np.flatnonzero(~keep)
         if late.size:
             report.drop(f"{msg} timestamp out of order", late.size,

@@ -3,6 +3,7 @@ them, the writer -> reader round trip, and the CLI."""
 
 from __future__ import annotations
 
+import bisect
 import bz2
 import gzip
 import math
@@ -15,10 +16,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import importers
 from importers.base import ImportOptions
-from importers.carmen import CODE_BAND, Carmen
+from importers.carmen import CODE_BAND, Carmen, in_order, longest_in_order
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError
 
@@ -457,6 +460,20 @@ def test_a_stray_odom_timestamp_costs_one_line(tmp_path: Path) -> None:
     assert ds.report.examples["ODOM timestamp out of order"] == f"{path}:{odom[3] + 1}"
     assert ds.odometry is not None
     np.testing.assert_allclose(ds.odometry["t"], np.delete(truth["t"] - 0.1, 3))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 30), max_size=60))
+def test_longest_in_order_drops_the_fewest(values: list[int]) -> None:
+    stamp = np.array(values, dtype=float)
+    keep = longest_in_order(stamp)
+    assert np.all(np.diff(stamp[keep]) >= 0)
+    assert keep.sum() >= in_order(stamp).sum()  # never worse than "drop what is below the max"
+    # optimal: no longer non-decreasing run exists (patience sorting length, computed apart)
+    tails: list[float] = []
+    for v in values:
+        tails[bisect.bisect_right(tails, v) : bisect.bisect_right(tails, v) + 1] = [v]
+    assert keep.sum() == len(tails)
 
 
 @pytest.mark.parametrize(
