@@ -52,7 +52,7 @@ def _config(path: Path | None) -> dict[str, Any]:
     params = data.get("params", data)  # a simulation.json works as a config too
     if not isinstance(params, dict):
         raise ToolkitError("'params' must be an object", file=path)
-    params = {k: v for k, v in params.items() if k != "rate_hz"}
+    params = {k: v for k, v in params.items() if k not in ("rate_hz", "head")}  # derived
     if "seed" in data:
         params.setdefault("seed", data["seed"])
     return params

@@ -55,6 +55,27 @@ class Simulation:
     params: dict[str, Any] = field(default_factory=dict)  # every model parameter used
     world: World | None = None
 
+    def head(self, n: int) -> Simulation:
+        """The first `n` scans, with their truth (regions re-chosen within them)."""
+        ds = self.dataset
+        t = ds.t[:n]
+        cut = Dataset(
+            t=t,
+            ranges=ds.ranges[:n],
+            laser=ds.laser,
+            odometry=None if ds.odometry is None else ds.odometry.iloc[:n],
+            groundtruth=None if ds.groundtruth is None else ds.groundtruth.iloc[:n],
+            meta={**ds.meta, "head": n},
+        )
+        return dataclasses.replace(
+            self,
+            dataset=cut,
+            labels=self.labels[:n],
+            regions=training_regions(t, self.labels[:n]),
+            sections=self.sections[:n],
+            params={**self.params, "head": n},
+        )
+
     def truth(self) -> pd.DataFrame:
         """Per scan: t, true x, y, theta, label, section (what truth.parquet holds)."""
         gt = self.dataset.groundtruth
