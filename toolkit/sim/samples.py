@@ -3,7 +3,7 @@
     python -m toolkit.sim.samples [--out datasets]
 
 Each sample is a simulation written in a native format (then compressed the way such logs
-ship: gzip for ARIA, bzip2 for Rawseeds; every importer reads them compressed) with its
+ship: gzip for ARIA and CARMEN, bzip2 for Rawseeds; every importer reads them compressed) with its
 truth.parquet, regions.csv and simulation.json; datasets/catalog.json names them all.
 """
 
@@ -46,6 +46,13 @@ SAMPLES = [
         "the paper's corridor (Fig. 1), 8 sections x 250 scans, as a Pioneer's ARIA .2d log "
         "(robot: drifting odometry, robotGlobal: ground truth)",
         options={"version": 4, "points": True},
+        compress="gz",
+    ),
+    Sample(
+        "corridor-carmen",
+        "corridor",
+        "carmen",
+        "the same corridor log as a CARMEN log (ODOM: drifting odometry, TRUEPOS: ground truth)",
         compress="gz",
     ),
     Sample(
