@@ -35,16 +35,19 @@ from typing import ClassVar
 
 import numpy as np
 import pandas as pd
+from rich.progress import TaskID
 
 from importers import register
 from importers.base import Importer, ImportOptions, head_bytes, open_text
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
+from toolkit.progress import task
 
 MM = 0.001
 DEFAULT_RANGE_MAX = 81.91
 MAX_BEAMS = 10000
+PROGRESS_LINES = 4096
 SUFFIXES = (".2d", ".2d.gz", ".2d.bz2", ".2d.xz")
 LASER_TAGS = ("scan1", "sick1")
 TIME_TAGS = ("logTime", "time")
@@ -138,9 +141,14 @@ def _numbers(text: str, count: int | None = None) -> list[float] | None:
 def _lines(path: Path, report: ImportReport) -> Iterator[tuple[int, str]]:
     """Numbered lines; a damaged compressed stream ends them (noted), what came before is kept."""
     number = 0
+    size = path.stat().st_size
     try:
-        with open_text(path) as f:
+        with open_text(path) as f, task(f"reading {path.name}", total=size) as (bar, job):
+            done = 0
             for number, line in enumerate(f, 1):
+                done += len(line)
+                if number % PROGRESS_LINES == 0:
+                    bar.update(TaskID(job), completed=min(done, size))
                 yield number, line
     except (OSError, EOFError, lzma.LZMAError) as e:
         if number == 0:

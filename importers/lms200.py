@@ -47,12 +47,14 @@ from typing import ClassVar
 
 import numpy as np
 import pandas as pd
+from rich.progress import TaskID
 
 from importers import register
 from importers.base import Importer, ImportOptions, head_bytes, open_binary, open_text
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
+from toolkit.progress import task
 
 STX, ACK, NAK = 0x02, 0x06, 0x15
 MAX_TELEGRAM = 812
@@ -68,6 +70,7 @@ VARIANTS = {181: (-90.0, 1.0), 361: (-90.0, 0.5), 101: (-50.0, 1.0), 201: (-50.0
 REPLY_NAMES = {0xA0: "mode change", 0xBB: "variant", 0x92: "command rejected", 0x90: "power-on"}
 CAPTURE_SUFFIXES = (".lms", ".bin", ".raw")
 TIMES_SUFFIX = ".times"
+TRUTH_SUFFIX = ".truth.json"
 DEFAULT_BAUD = 38400
 BITS_PER_BYTE = 10  # 8N1
 CHUNK = 8192  # frames decoded per block: bounded index arrays
@@ -290,7 +293,9 @@ class LMS200(Importer):
         crc = options.get("crc") or default_crc_method()
         if crc not in CRC_METHODS:
             raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
-        tg = Telegrams(buf, crc)
+        with task(f"searching {capture.name}", total=1) as (bar, job):
+            tg = Telegrams(buf, crc)
+            bar.advance(TaskID(job))
         report.records_read = int(tg.start.size) + tg.rejected_crc + tg.truncated
         report.drop("telegram CRC mismatch", tg.rejected_crc, _where(capture, "CRC"))
         report.drop("telegram cut off at end of capture", tg.truncated)
@@ -416,6 +421,7 @@ def _sources(sources: Sequence[Path], options: ImportOptions) -> tuple[Path, Pat
                 file=paths[0],
             )
         paths = [capture]
+    paths = [p for p in paths if not p.name.endswith(TRUTH_SUFFIX)]  # the writer's truth file
     times = [p for p in paths if p.name.endswith(TIMES_SUFFIX)]
     captures = [p for p in paths if p not in times]
     if len(captures) != 1 or len(times) > 1:
@@ -606,7 +612,7 @@ def write(
     out.mkdir(parents=True, exist_ok=True)
     capture = out / f"{name}.lms"
     times = out / f"{name}.lms{TIMES_SUFFIX}"
-    truth = out / f"{name}.truth.json"
+    truth = out / f"{name}{TRUTH_SUFFIX}"
     with atomic_file(capture) as tmp:
         stream.tofile(tmp)
     with atomic_file(times) as tmp, open(tmp, "w") as f:

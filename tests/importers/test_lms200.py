@@ -237,7 +237,7 @@ def test_time_sources(tmp_path: Path) -> None:
     by_rate = LMS200().read([capture], ImportOptions(rate=75.0))
     np.testing.assert_allclose(by_rate.t, intact / 75.0, atol=1e-9)  # gaps stay gaps
     assert by_rate.meta["time_source"].startswith("rate 75")
-    by_file = _read(capture, moved)
+    by_file = _read(capture, moved, truth_file)  # the writer's truth file is ignored
     np.testing.assert_array_equal(by_file.t, ds.t[intact])
     # offsets read back, and a side file that covers only part of the capture extrapolates
     xp, _ = read_times(moved)
