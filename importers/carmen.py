@@ -598,7 +598,7 @@ class _Reader:
         if rear and max(abs(dx), abs(dy), abs(dyaw)) < 1e-6:
             dyaw = math.pi  # the poses say nothing; a rear laser faces backwards
             self.report.note(f"{s.name}: laser and robot poses are equal; yaw pi assumed")
-        mount = {"x": round(x, 6), "y": round(dy, 6), "yaw": round(dyaw, 6)}  # poses: 6 decimals
+        mount = {k: round(v, 6) + 0.0 for k, v in (("x", x), ("y", dy), ("yaw", dyaw))}  # no -0
         self.report.note(f"{s.name}: mounting x {mount['x']:g} m ({source}), "
                          f"y {mount['y']:g} m, yaw {mount['yaw']:g} rad")  # fmt: skip
         return mount
