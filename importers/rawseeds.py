@@ -1,11 +1,13 @@
 """Rawseeds (Bicocca, Bovisa) session CSVs: SICK and Hokuyo lasers, odometry, ground truth.
 
 A session is a directory of comma-separated files without header, each `<session>-<STREAM>.csv`
-(optionally `.bz2`); see FORMATS.md "Rawseeds". The laser CSVs of a session run to gigabytes,
-so lasers are streamed: the decompressed text is cut at line ends into ~32 MB chunks, each
-chunk is parsed by pyarrow's multithreaded CSV reader and appended to a `ScansWriter` on a
-background thread while the next chunk is parsed. Memory stays at a few chunks, whatever the
-file size.
+(optionally `.bz2`); see FORMATS.md "Rawseeds". A session dir or single files are accepted;
+a file with another name is taken as SICK_FRONT if its first line has the SICK layout.
+The laser CSVs of a session run to gigabytes, so lasers are streamed: the decompressed text is
+cut at line ends into ~32 MB chunks; this thread parses chunk k+1 with pyarrow's multithreaded
+CSV reader while a worker turns chunk k into an S x B float32 array and appends it to a
+`ScansWriter`; the sources' sha256 is computed on a third thread. Memory stays at a few
+chunks whatever the file size (about 0.5 GB peak RSS for a 1 GB CSV).
 
 Decisions (also stored in meta.json under "rawseeds"):
 
@@ -26,7 +28,14 @@ Decisions (also stored in meta.json under "rawseeds"):
 - `<session>.relations` (Freiburg: pose of t2 in the frame of t1, for RPE) is kept as
   `relations.parquet` (t1, t2, x, y, z, roll, pitch, yaw), in file order.
 - `*-GROUNDTRUTH-CARTOGRAPHER.csv` is a SLAM estimate added by a later repository, not ground
-  truth: kept as `poses-cartographer.parquet`, never as ground truth.
+  truth: kept as `poses-cartographer.parquet`, never as ground truth (its `.relations` file
+  is ignored).
+- SICK `angular_offset` [1/4 deg]: angle_min is -90 deg plus the most common offset (0 in
+  every file we write); the counts per value are in meta. Hokuyo mounting is not documented
+  beyond a 12.5 deg downward tilt: x = y = z = 0, yaw 0 (front) or pi (rear), noted.
+- Writer (`write`, used by the simulator): SICK_FRONT (181 beams at 1 deg only; t with 6
+  decimals, ranges with 3, NaN as 81.910), ODOMETRY_XYT (ticks 0; x, y, theta with 3
+  decimals as the Rawseeds odometry example line), GROUNDTRUTH (6 decimals, zero covariance).
 - Damage that a long recording can carry is skipped and counted in the import report: lines
   with the wrong number of fields, an `n_ranges` field that does not match, a truncated last
   line, timestamps out of order (the out-of-order record is dropped, file order kept). A
@@ -720,6 +729,8 @@ class Rawseeds(Importer):
             lasers[other.name] = _with_offset(other, res)
             readings[other.name] = _readings(res)
 
+        if any(LASERS[n].stream in files for n in ("hokuyo_front", "hokuyo_rear")):
+            report.note("Hokuyo mounting is not documented: x = y = z = 0, yaw 0 front / pi rear")
         if "ODOMETRY_XYT" in files:
             odo = read_pose_stream(files["ODOMETRY_XYT"], 7, (0, 4, 5, 6), report, "odometry: ")
             write_poses(tmp / ODOMETRY, odo)
