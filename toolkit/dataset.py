@@ -73,10 +73,15 @@ class LaserGeometry:
 
         181 beams = 1°, 361 = 0.5°, and the 180/360 variants that drop the last beam.
         """
-        step = {181: 1.0, 180: 1.0, 361: 0.5, 360: 0.5, 401: 0.25}.get(beams)
+        step = {181: 1.0, 180: 1.0, 361: 0.5, 360: 0.5}.get(beams)
         if step is None:
             step = 180.0 / (beams - 1)
         return cls(beams, np.deg2rad(-90.0), np.deg2rad(step), range_max, **mount)
+
+    @classmethod
+    def sick_100(cls, beams: int, range_max: float = 81.9, **mount: float) -> LaserGeometry:
+        """A SICK LMS-2xx 100° scan (101, 201 or 401 beams), centred: -50° to +50°."""
+        return cls(beams, np.deg2rad(-50.0), np.deg2rad(100.0 / (beams - 1)), range_max, **mount)
 
 
 @dataclass
