@@ -448,6 +448,8 @@ def write(
     ``robotGlobal:`` from ds.groundtruth (else ds.poses["robotGlobal"]), interpolated at the
     scan times, 0.1 mm and 0.001°.
     """
+    if opts:
+        raise ToolkitError(f"aria writer: unknown option(s) {', '.join(sorted(opts))}; known: version, points, name")  # fmt: skip
     if version not in (2, 3, 4):
         raise ToolkitError(f"aria writer: version must be 2, 3 or 4, not {version}")
     laser = ds.laser

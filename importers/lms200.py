@@ -548,8 +548,15 @@ def write(
     each bit of the stream flipping; `truncate_last`: cut the last telegram short;
     `start_mid_frame`: begin with the tail of a telegram.
     """
+    if opts:
+        known = (
+            "baud, units, noise_bytes, bit_error_rate, truncate_last, seed, start_mid_frame, name"
+        )
+        raise ToolkitError(f"lms200 writer: unknown option(s) {', '.join(sorted(opts))}; known: {known}")  # fmt: skip
     if units not in ("cm", "mm"):
         raise ToolkitError(f"lms200 writer: units must be cm or mm, not {units!r}")
+    if not noise_bytes >= 0 or not 0 <= bit_error_rate <= 1:
+        raise ToolkitError("lms200 writer: noise_bytes must be >= 0, bit_error_rate in [0, 1]")
     count = _variant_of(ds)
     rng = np.random.default_rng(seed)
     unit_bits = 0 if units == "cm" else 1

@@ -170,6 +170,15 @@ def test_writer_pose_sources_and_no_odometry(tmp_path: Path) -> None:
     assert _read(tmp_path / "b" / "log.2d").poses == {}
 
 
+def test_writer_refuses_unknown_options_and_versions(tmp_path: Path) -> None:
+    ds = _dataset(scans=3)
+    with pytest.raises(ToolkitError, match="unknown option"):
+        write(ds, tmp_path, verison=3)
+    with pytest.raises(ToolkitError, match="version must be 2, 3 or 4"):
+        write(ds, tmp_path, version=5)
+    assert list(tmp_path.iterdir()) == []
+
+
 def _lines(ds: Dataset, tmp_path: Path) -> list[str]:
     return write(ds, tmp_path / "w").read_text().splitlines()
 

@@ -329,6 +329,16 @@ def test_damaged_input_never_crashes_nor_yields_a_corrupt_scan(
     assert report["records_kept"] == back.n_scans <= report["records_read"]
 
 
+def test_writer_refuses_unknown_options_and_non_lms_geometry(tmp_path: Path) -> None:
+    ds = _dataset(scans=3, beams=181)
+    with pytest.raises(ToolkitError, match="unknown option"):
+        write(ds, tmp_path, bits=7)
+    odd = Dataset(t=ds.t, ranges=ds.ranges[:, :180], laser=LaserGeometry.sick_180(180))
+    with pytest.raises(ToolkitError, match="no LMS-2xx variant"):
+        write(odd, tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_compressed_and_cut_compressed_captures(tmp_path: Path) -> None:
     ds = _dataset(scans=200, beams=181)
     capture, _, _ = write(ds, tmp_path / "w")
