@@ -322,9 +322,8 @@ class LMS200(Importer):
                 f"({tg.rejected_crc} with bad CRC, {tg.start.size} valid telegrams)",
                 file=capture,
             )
-        variant = Counter(zip(count[ok].tolist(), unit_code[ok].tolist(), strict=True)).most_common(
-            1
-        )[0][0]
+        variants = Counter(zip(count[ok].tolist(), unit_code[ok].tolist(), strict=True))
+        variant = variants.most_common(1)[0][0]
         same = ok & (count == variant[0]) & (unit_code == variant[1])
         report.drop("measured values: variant differs from the capture's", int(np.sum(ok & ~same)))
         units, scale = UNITS[variant[1]]
@@ -363,7 +362,6 @@ class LMS200(Importer):
                 "truncated": tg.truncated,
                 "crc_method": crc,
             },
-            frame_offsets_first_last=[int(s[0]), int(s[-1])],
         )
         return Dataset(t=t, ranges=ranges, laser=laser, meta=meta)
 
