@@ -435,6 +435,13 @@ def test_sniff(session: tuple[Path, Dataset], real: Path, tmp_path: Path) -> Non
     comma_carmen.write_text("FLASER,181,0," + ",".join(["1.5"] * 181) + "\n")
     assert not sniff(comma_carmen)
     assert not sniff(tmp_path / "missing")
+    real_carmen = sorted((real / "carmen_radish_corrected").glob("*.log.gz"))[:3]
+    real_carmen += [
+        real / "dpslam_loop5" / "loop5.log",
+        real / "csm_laserazos" / "laserazosSM3.log",
+    ]
+    assert len(real_carmen) == 5 and all(p.is_file() for p in real_carmen)
+    assert not any(sniff(p) for p in real_carmen)
 
 
 def toolkit_cli(*args: str) -> subprocess.CompletedProcess[str]:
