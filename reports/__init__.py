@@ -24,7 +24,7 @@ from pathlib import Path
 from types import ModuleType
 
 from reports.base import NotAvailable, Section
-from reports.context import RESERVED, Context, Source, default_real
+from reports.context import RESERVED, Context, Source, catalog_sources, default_real
 from toolkit.errors import ToolkitError
 
 GENERATORS = (
@@ -98,11 +98,13 @@ def build(
     force: bool = False,
     only: Sequence[str] = (),
     command: str | None = None,
+    bundled: bool = True,
 ) -> Report:
     """Run what the report needs and write it to `out` atomically (index.html, figures, tables).
 
     `real`: True looks for the real logs in the default place, a path names the folder,
-    False/None leaves them out. `quick` uses fewer trials and sizes (tests, CI).
+    False/None leaves them out. Without `datasets`, the bundled logs of datasets/catalog.json
+    are used (unless `bundled` is False). `quick` uses fewer trials and sizes (tests, CI).
     """
     from rich.progress import TaskID
 
@@ -113,6 +115,8 @@ def build(
     out = Path(out)
     check_output(out, force)
     sources = sources_from_paths(list(datasets), regions)
+    if not datasets and bundled:
+        sources = catalog_sources()
     real_dir = default_real() if real is True else (Path(real) if real else None)
     if real_dir is not None and not real_dir.is_dir():
         raise ToolkitError("no such folder of real logs", file=real_dir)

@@ -8,6 +8,7 @@ this report's run.
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -15,18 +16,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from reports.base import NotAvailable, require
 from toolkit.dataset import Dataset
+from toolkit.errors import ToolkitError
 
 ROOT = Path(__file__).resolve().parents[1]
 CORRIDOR = "corridor"
 MATCHERS = ("gaussian", "icp", "icp-point")  # scan matchers: ours, ICP point-to-line, Open3D
 QUICK_MATCHERS = ("gaussian", "icp")
 QUICK_CORRIDOR_SCANS = 400  # quick mode: the same corridor in 8 sections of 50 scans
-QUICK_REAL_SCANS = 300  # quick mode: the first scans of each real log
+CATALOG = ROOT / "datasets" / "catalog.json"  # the bundled simulated logs
+REAL_REGIONS = ROOT / "datasets" / "real-regions"  # training regions for the real logs
 
 
 # real logs the paper's figures use: name -> (format, path under the real folder, options)
@@ -50,10 +52,41 @@ class Source:
     """A log the report covers: where it is, where it came from, its training regions."""
 
     name: str
-    path: Path | None
+    path: Path | None  # the dataset folder (None until imported, or made in memory)
     origin: str  # "simulated", "command line", "bundled", "real"
     regions: Path | None = None
     note: str = ""
+    truth: Path | None = None  # the simulator's truth.parquet (true label per scan)
+    native: tuple[str, list[Path]] | None = None  # (format, sources) to import from
+
+
+def catalog_sources(catalog: Path = CATALOG) -> dict[str, Source]:
+    """The bundled logs named by datasets/catalog.json (imported when first used)."""
+    if not catalog.is_file():
+        return {}
+    try:
+        samples = json.loads(catalog.read_text()).get("samples", [])
+    except (OSError, json.JSONDecodeError) as e:
+        raise ToolkitError(f"cannot read the catalog: {e}", file=catalog) from None
+    sources = {}
+    for sample in samples:
+        folder = catalog.parent / sample["path"]
+        fmt = sample["format"]
+        files = [folder / f for f in sample.get("files", [])]
+        native = [folder] if fmt == "rawseeds" else files[:1]  # a session is its folder
+
+        regions, truth = (sample.get(k) for k in ("regions", "truth"))
+        name = sample["name"]
+        sources[name] = Source(
+            name,
+            None,
+            "bundled",
+            regions=catalog.parent / regions if regions else None,
+            note=sample.get("summary", ""),
+            truth=catalog.parent / truth if truth else None,
+            native=(fmt, native),
+        )
+    return sources
 
 
 @dataclass
@@ -126,18 +159,31 @@ class Context:
                 self.real_named(name)
         if name not in self._datasets:
             source = self.sources.get(name)
+            if source is not None and source.path is None and source.native is not None:
+                self._import_native(source)
             if source is None or source.path is None:
                 raise NotAvailable(f"no log named {name!r}")
             from toolkit.dataset import load
 
-            ds = load(source.path)
-            if self.quick and source.origin == "real" and ds.n_scans > QUICK_REAL_SCANS:
-                from reports.runs import slice_scans
-
-                ds = slice_scans(ds, np.arange(QUICK_REAL_SCANS))
-                source.note += f", first {QUICK_REAL_SCANS} scans (quick mode)"
-            self._datasets[name] = ds
+            self._datasets[name] = load(source.path)
         return self._datasets[name]
+
+    def _import_native(self, source: Source) -> None:
+        """Import a bundled log into the scratch space; a failure says why, for this log."""
+
+        def make() -> Path:
+            assert source.native is not None
+            fmt, paths = source.native
+            importers = require("importers", "import_log", "ImportOptions")
+            self.step(f"import {source.name}")
+            target = self.work / "datasets" / source.name
+            try:
+                importers.import_log(fmt, paths, target, force=True)
+            except ToolkitError as e:
+                raise NotAvailable(f"importing {source.name} failed: {e.line()}") from None
+            return target
+
+        source.path = self.cached(("import", source.name), make)
 
     def real_log(self, name: str, fmt: str, relpath: str, **options: str) -> str:
         """Import a real log from the real-data folder once; its name for `dataset()`."""
@@ -158,7 +204,10 @@ class Context:
             importers.import_log(
                 fmt, [source], target, importers.ImportOptions(extra=dict(options)), force=True
             )
-            self.sources[name] = Source(name, target, "real", note=relpath)
+            regions = REAL_REGIONS / f"{name}-regions.csv"
+            self.sources[name] = Source(
+                name, target, "real", regions if regions.is_file() else None, note=relpath
+            )
             return name
 
         return self.cached(("real", name), make)
@@ -211,8 +260,22 @@ class Context:
         """The logs mapped by every method: the corridor, the real DP-SLAM loop and the Intel
         lab with drift added (when the real logs are here), then the datasets given.
         `dataset(name)` simulates or imports each on first use (or says not available)."""
-        given = [n for n, s in self.sources.items() if s.origin in ("command line", "bundled")]
-        real = ["dpslam_loop5", INTEL_DRIFT] if self.real_dir is not None else []
+        return [CORRIDOR, *self.real_logs(), *self.given()]
+
+    def real_logs(self) -> list[str]:
+        return ["dpslam_loop5", INTEL_DRIFT] if self.real_dir is not None else []
+
+    def given(self) -> list[str]:
+        """Datasets named on the command line, else the bundled ones."""
+        return [n for n, s in self.sources.items() if s.origin in ("command line", "bundled")]
+
+    def labelled_logs(self) -> list[str]:
+        """Logs with training regions: the corridor, real logs with regions in
+        datasets/real-regions, and the given or bundled logs that come with a regions CSV."""
+        real = [
+            n for n in REAL_LOGS if self.real_dir and (REAL_REGIONS / f"{n}-regions.csv").is_file()
+        ]
+        given = [n for n in self.given() if self.sources[n].regions is not None]
         return [CORRIDOR, *real, *given]
 
     def real_named(self, name: str) -> str:

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from reports.base import NotAvailable, Section, new_figure, save_figure, save_table
-from reports.context import CORRIDOR, Context
+from reports.context import Context
 from reports.runs import LabelRun, path_distance, poses_at, world_points
 
 KEY = "features"
@@ -26,12 +26,6 @@ INTRO = (
 )
 
 MAX_MAP_POINTS = 25_000  # drawn in the 3D view (all are counted)
-
-
-def labelled_logs(ctx: Context) -> list[str]:
-    """The corridor, then every other log that has training regions."""
-    others = [n for n, s in ctx.sources.items() if s.regions is not None and n != CORRIDOR]
-    return [CORRIDOR, *others]
 
 
 def map_poses(ctx: Context, name: str) -> tuple[np.ndarray, str]:
@@ -48,7 +42,7 @@ def map_poses(ctx: Context, name: str) -> tuple[np.ndarray, str]:
 
 
 def generate(ctx: Context, section: Section) -> None:
-    for name in labelled_logs(ctx):
+    for name in ctx.labelled_logs():
         with ctx.part(section, f"features of {name}"):
             run = ctx.labels(name)
             ds = ctx.dataset(name)

@@ -56,7 +56,7 @@ def _figure(fig: Figure, root: Path) -> str:
         data = base64.b64encode((root / png).read_bytes()).decode("ascii")
         img = f'<img alt="{_e(fig.title)}" src="data:image/png;base64,{data}">'
     return (
-        f'<figure id="{_e(fig.name)}"><h3>{_e(fig.title)}</h3>{img}'
+        f'<figure id="fig-{_e(fig.name)}"><h3>{_e(fig.title)}</h3>{img}'
         f"<figcaption>{_e(fig.caption)}</figcaption>{_links(fig.files)}</figure>"
     )
 
@@ -79,7 +79,7 @@ def html_table(table: Table) -> str:
 
 def _table(table: Table) -> str:
     return (
-        f'<div id="{_e(table.name)}"><h3>{_e(table.title)}</h3>'
+        f'<div id="table-{_e(table.name)}"><h3>{_e(table.title)}</h3>'
         f'<p class="caption">{_e(table.caption)}</p>{html_table(table)}{_links(table.files)}</div>'
     )
 

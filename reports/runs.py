@@ -46,6 +46,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
         if source.regions is None:
             raise NotAvailable(f"{name} has no training regions (regions.csv)")
         spans = features.read_regions(source.regions, ds.t)
+        truth = truth_labels(source.truth or source.path, ds.n_scans)
     training = features.training_indices(spans)
     poses = None
     if ds.odometry is not None and len(ds.odometry) == ds.n_scans:
@@ -55,6 +56,19 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
     labels = features.classify(model, ds.ranges, poses)
     seconds = time.perf_counter() - t0
     return LabelRun(name, spans, training, model, labels, seconds, truth)
+
+
+def truth_labels(path: Any, n_scans: int) -> np.ndarray | None:
+    """True labels from a simulated log's truth.parquet (beside or inside its folder), if any."""
+    if path is None:
+        return None
+    candidates = [path] if path.suffix == ".parquet" else [path / "truth.parquet"]
+    for candidate in [*candidates, path.parent / "truth.parquet"]:
+        if candidate.is_file():
+            frame = pd.read_parquet(candidate)
+            if "label" in frame and len(frame) == n_scans:
+                return frame["label"].astype(str).to_numpy()
+    return None
 
 
 def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:

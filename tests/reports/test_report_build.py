@@ -13,11 +13,27 @@ import pytest
 import reports
 from reports import Report
 
+GIVEN_SCANS = 300
+
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory: pytest.TempPathFactory, real: Path) -> Report:
+def given(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A dataset given on the command line: the simulated building, with its regions.csv and
+    truth.parquet inside, as `toolkit simulate` writes them."""
+    from toolkit.dataset import save
+    from toolkit.sim import simulate
+
+    sim = simulate("building", seed=1, scans=GIVEN_SCANS)
+    path = save(sim.dataset, tmp_path_factory.mktemp("given") / "building")
+    sim.regions.to_csv(path / "regions.csv", index=False, float_format="%.6f")
+    sim.truth().to_parquet(path / "truth.parquet")
+    return path
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory: pytest.TempPathFactory, real: Path, given: Path) -> Report:
     out = tmp_path_factory.mktemp("rep") / "report"
-    return reports.build(out, quick=True, real=real, command="test")
+    return reports.build(out, [given], quick=True, real=real, command="test")
 
 
 class Refs(HTMLParser):
@@ -190,12 +206,11 @@ def report_dataset(report: Report) -> object:
 
 @pytest.mark.real
 def test_fig7_real_logs(report: Report) -> None:
-    from reports.context import QUICK_REAL_SCANS
-
     section = report.section("maps")
     loop5, intel = section.data["dpslam_loop5"], section.data["intel+drift"]
     assert all(v is None for v in loop5["ate"].values())  # no ground truth: no ATE claimed
-    assert loop5["scans"] == intel["scans"] == QUICK_REAL_SCANS  # quick mode: the first scans
+    assert loop5["scans"] == 551  # every Laser line of loop5.log
+    assert 900 <= intel["scans"] <= 910  # FLASER lines, less those whose clock goes backwards
     for data in (loop5, intel):
         for poses in data["trajectories"].values():
             assert poses.shape == (data["scans"], 3)
@@ -210,7 +225,7 @@ def test_accuracy_every_method_and_log(report: Report) -> None:
 
     table = report.section("accuracy").data["accuracy"]
     logs = list(dict.fromkeys(table["log"]))
-    assert logs == ["corridor", "dpslam_loop5", "intel+drift"]
+    assert logs == ["corridor", "dpslam_loop5", "intel+drift", "building"]
     for log in logs:
         assert list(table.loc[table["log"] == log, "method"]) == ["odometry", *QUICK_MATCHERS]
     with_truth = table[table["log"] != "dpslam_loop5"]
@@ -221,3 +236,59 @@ def test_accuracy_every_method_and_log(report: Report) -> None:
     maps = report.section("maps").data["corridor"]["ate"]
     corridor = table[table["log"] == "corridor"].set_index("method")["ATE (m)"]
     assert corridor.to_dict() == pytest.approx(maps)  # one run per log and method, shared
+
+
+def test_dataset_given_is_mapped_labelled_and_scored(report: Report) -> None:
+    maps = report.section("maps").data["building"]
+    assert maps["scans"] == GIVEN_SCANS
+    assert all(np.isfinite(v) for v in maps["ate"].values())
+    assert "fig7_maps_building" in {f.name for f in report.section("maps").figures}
+    features = report.section("features").data["building"]
+    assert set(features["features"]) == {"corridor", "hall", "window"}
+    assert "recall" in features["table"]  # truth.parquet beside the data gives the truth
+    for f in features["features"]:
+        p = features["probability"][f]
+        assert p.shape == (GIVEN_SCANS,) and np.all((p >= 0) & (p <= 1))
+    names = {f.name for f in report.section("features").figures}
+    assert {"fig8_probability_building", "fig9_found_building", "fig10_map3d_building"} <= names
+
+
+def test_html_ids_are_unique(report: Report) -> None:
+    import re
+
+    ids = re.findall(r'\bid="([^"]+)"', (report.path / "index.html").read_text())
+    assert len(ids) == len(set(ids))
+
+
+@pytest.mark.real
+def test_features_on_the_real_intel_log(report: Report) -> None:
+    data = report.section("features").data["intel"]
+    assert set(data["features"]) == {"corridor", "room"}
+    for f in data["features"]:
+        p = data["probability"][f]
+        assert np.all((p >= 0) & (p <= 1))
+        assert p[data["training"][f]].mean() > 0.5
+
+
+def test_bundled_catalog_is_read_and_imported(tmp_path: Path) -> None:
+    from reports.context import CATALOG, Context, catalog_sources
+
+    sources = catalog_sources()
+    if not CATALOG.is_file():
+        assert sources == {}
+        return
+    assert sources, "the catalog names no log"
+    for source in sources.values():
+        assert source.origin == "bundled" and source.native is not None
+        assert all(p.exists() for p in source.native[1])
+        assert source.regions is None or source.regions.is_file()
+
+    def size(name: str) -> int:
+        paths = sources[name].native[1]  # type: ignore[index]
+        files = [f for p in paths for f in ([p] if p.is_file() else p.rglob("*"))]
+        return sum(f.stat().st_size for f in files)
+
+    smallest = min(sources, key=size)
+    ctx = Context(tmp_path / "out", tmp_path / "work", quick=True, sources=sources)
+    ds = ctx.dataset(smallest)
+    assert ds.n_scans > 100 and sources[smallest].path is not None
