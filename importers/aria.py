@@ -101,9 +101,11 @@ class Aria(Importer):
             raise ToolkitError("aria takes one .2d log")
         path = paths[0]
         range_max = _float_option(options, "range_max", DEFAULT_RANGE_MAX)
+        if options.rate is not None and not options.rate > 0:
+            raise ToolkitError(f"--rate must be positive, got {options.rate}")
         report = ImportReport()
         header, scans = _parse(path, report)
-        return _build(path, header, scans, report, range_max, self.name)
+        return _build(path, header, scans, report, range_max, self.name, options.rate)
 
     def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
         return [write(ds, out, **options)]  # type: ignore[arg-type]
@@ -345,6 +347,7 @@ def _build(
     report: ImportReport,
     range_max: float,
     fmt: str,
+    rate: float | None = None,
 ) -> Dataset:
     tag = header["laser_tag"][0] if "laser_tag" in header else "scan1"
     ok, values = parse_rows(scans.text, scans.width)
@@ -376,9 +379,10 @@ def _build(
     time_source = "log (logTime:/time:, s)"
     missing = np.isnan(t)
     if missing.all():
-        t = np.arange(len(t), dtype=np.float64)
-        time_source = "scan order (the log has no logTime:/time:)"
-        report.note("no timestamps: t = scan index")
+        rate = rate or 1.0
+        t = np.arange(len(t), dtype=np.float64) / rate
+        time_source = f"scan order at {rate:g} Hz (the log has no logTime:/time:)"
+        report.note(f"no timestamps: t = scan index / {rate:g} (--rate)")
         keep = np.ones(len(t), bool)
     else:
         keep = ~missing & (t >= np.fmax.accumulate(np.where(missing, -np.inf, t)))

@@ -216,6 +216,14 @@ def test_damaged_lines_are_skipped_and_counted(tmp_path: Path) -> None:
     assert report["examples"]["robot: not X Y TH"] == f"line {robot_at[7] + 1}"
 
 
+def test_log_without_times_uses_scan_order_and_rate(tmp_path: Path) -> None:
+    path = tmp_path / "untimed.2d"
+    path.write_text(HAND_SICK1.replace("logTime", "velocities"))
+    assert _read(path).t.tolist() == [0.0, 1.0]
+    timed = Aria().read([path], ImportOptions(rate=4.0))
+    assert timed.t.tolist() == [0.0, 0.25] and "4 Hz" in timed.meta["time_source"]
+
+
 def test_compressed_log(tmp_path: Path) -> None:
     ds = _dataset(scans=40)
     data = write(ds, tmp_path / "w").read_bytes()
