@@ -20,9 +20,11 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from rich.progress import TaskID
 
 from toolkit.dataset import Dataset, ImportReport, make_meta
 from toolkit.errors import ToolkitError
+from toolkit.progress import task
 from toolkit.sim.geometry import World
 from toolkit.sim.laser import LaserModel
 from toolkit.sim.odometry import OdometryModel
@@ -120,7 +122,8 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
     t = np.round(scn.t0 + times, 6)
-    ranges = laser.measure(scn.world, truth, rng)
+    with task(f"simulate {scenario}", total=len(truth)) as (bar, job):
+        ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
     odo = odometry.integrate(truth, rng)
     labels = scn.labels(truth)
     regions = training_regions(t, labels, skip=("none",))

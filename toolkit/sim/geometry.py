@@ -9,7 +9,7 @@ chunked so that the temporaries stay small, and culls segments out of reach of e
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -144,6 +144,7 @@ def cast(
     max_range: float,
     chunk_elements: int = 1 << 18,
     near: float = 8.0,
+    progress: Callable[[int], object] | None = None,
 ) -> Hits:
     """Cast rays from `origins` (P x 2) at `headings` (P,) + beam `angles` (B,).
 
@@ -152,7 +153,7 @@ def cast(
     chunk's origins, so a hit closer than R is exact (any closer hit would lie on one of
     them); the rays left without one go on to the next pass. Indoors most beams end on a
     wall nearby, so the far passes are small. Temporaries stay near `chunk_elements` values
-    (cache sized).
+    (cache sized). `progress(n)` is called after each chunk of n poses.
     """
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 2)
     headings = np.asarray(headings, dtype=np.float64).reshape(-1)
@@ -208,6 +209,8 @@ def cast(
             in_front = g < r
             hits.glass[sl] = np.where(in_front, g, np.inf)
             hits.glass_cos[sl] = np.where(in_front, cosine, 0.0)
+        if progress is not None:
+            progress(len(o))
     return hits
 
 

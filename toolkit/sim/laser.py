@@ -17,6 +17,7 @@ What a reading is, in order:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -86,10 +87,17 @@ class LaserModel:
         xy = poses[:, :2] + self.mount_x * np.stack([c, s], axis=1)
         return xy, poses[:, 2]
 
-    def measure(self, world: World, poses: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def measure(
+        self,
+        world: World,
+        poses: np.ndarray,
+        rng: np.random.Generator,
+        progress: Callable[[int], object] | None = None,
+    ) -> np.ndarray:
         """Simulated readings (S x B float32, NaN = no return) from robot poses (S x 3)."""
         origins, headings = self.origins(poses)
-        hits = cast(world, origins, headings, self.geometry().angles, self.range_max)
+        angles = self.geometry().angles
+        hits = cast(world, origins, headings, angles, self.range_max, progress=progress)
         r = hits.opaque.astype(np.float64)
 
         near_normal = hits.glass_cos >= np.cos(np.deg2rad(self.glass_normal_deg))
