@@ -524,3 +524,17 @@ def test_truncated_and_corrupt_bz2(
     with pytest.raises(FormatError, match=r"-SICK_FRONT.csv.bz2: cannot decompress: bz2"):
         run_import(bad, tmp_path / "ds2")
     assert not (tmp_path / "ds2").exists()
+
+
+def test_spaces_after_commas_and_crlf(session: tuple[Path, Dataset], tmp_path: Path) -> None:
+    d, _ = session
+    plain = run_import(sick_file(d), tmp_path / "plain")
+    spaced = tmp_path / "spaced" / sick_file(d).name
+    spaced.parent.mkdir()
+    spaced.write_bytes(sick_file(d).read_bytes().replace(b",", b", ").replace(b"\n", b"\r\n"))
+    odd = spaced.with_name("front.txt")
+    shutil.copy(spaced, odd)
+    assert importers.get("rawseeds").sniff(odd)  # the first line has the SICK layout
+    ds = run_import(spaced, tmp_path / "ds")
+    np.testing.assert_array_equal(ds.ranges, plain.ranges)
+    np.testing.assert_array_equal(ds.t, plain.t)
