@@ -123,10 +123,10 @@ def test_clean_capture_round_trip(
     assert back.odometry is None
 
 
-def _b0(values: list[int], count_word: int | None = None) -> bytes:
+def _b0(values: list[int], count_word: int | None = None, address: int = 0x80) -> bytes:
     word = len(values) | (1 << 14) if count_word is None else count_word
     data = word.to_bytes(2, "little") + b"".join(v.to_bytes(2, "little") for v in values)
-    return telegram(0xB0, data)
+    return telegram(0xB0, data, address=address)
 
 
 def test_hand_built_telegram_values_flags_and_special_codes(tmp_path: Path) -> None:
@@ -137,7 +137,10 @@ def test_hand_built_telegram_values_flags_and_special_codes(tmp_path: Path) -> N
     cm = [500] * 181
     cm_word = 181  # bits 14-15 = 00: cm
     path = tmp_path / "hand.lms"
-    path.write_bytes(b"\x06" + _b0(values) + b"\x15\xff" + _b0(values) + _b0(cm, cm_word))
+    # the second telegram from address 0x81 (as in the manual's examples)
+    path.write_bytes(
+        b"\x06" + _b0(values) + b"\x15\xff" + _b0(values, address=0x81) + _b0(cm, cm_word)
+    )
     back = _read(path)
     # the cm scan is a different variant: dropped, counted; the mm scans kept
     assert back.n_scans == 2 and back.meta["units"] == "mm"
