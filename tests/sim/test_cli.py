@@ -75,6 +75,7 @@ def test_existing_output_is_refused_and_kept(
     [
         (["--param", "range_noise=0.1"], "unknown simulator parameter"),
         (["-O", "colour=red"], "rawseeds writer:"),
+        (["--format", "auto"], "cannot write format 'auto'; formats with a writer: aria"),
         (["--units", "inch"], "units must be one of"),
         (["--scans", "1"], "scans must be at least 2"),
     ],

@@ -28,7 +28,7 @@ VARIANTS: dict[str, list[dict[str, Any]]] = {
     "rosbag": [{"version": "ros1"}, {"version": "ros2"}, {"version": "mcap"}],
 }
 # precision of what each format prints: time (s), range (m), pose x/y (m), theta (rad)
-PRECISION = {"aria": (1e-3, 1.5e-3, 2e-4, 1e-4)}
+PRECISION = {"aria": (2e-6, 1.5e-3, 2e-4, 1e-4)}  # times are whole ms, which ARIA prints
 DEFAULT_PRECISION = (2e-6, 1.5e-3, 1e-3, 1e-3)
 CARRIES = {"lms200": 0, "table": 1}  # pose streams (odometry, ground truth); default both
 

@@ -58,8 +58,11 @@ def test_sample_imports_to_its_truth(name: str, tmp_path: Path) -> None:
     t, labels = truth.t.to_numpy(), truth.label.to_numpy()
     starts, ends = regions.start.to_numpy(float), regions.end.to_numpy(float)
     for feature, start, end in zip(regions.feature, starts, ends, strict=True):
-        inside = (t >= start - 1e-7) & (t <= end + 1e-7)
+        inside = (t >= start) & (t <= end)
         assert inside.sum() == 10 and (labels[inside] == feature).all()
+        # the imported log's own timestamps select the same scans (inclusive, exact)
+        expected = np.isin(index, np.flatnonzero(inside)).sum()  # lms200: the intact ones
+        assert ((ds.t >= start) & (ds.t <= end)).sum() == expected
 
 
 def test_generator_reproduces_the_committed_bytes(tmp_path: Path) -> None:

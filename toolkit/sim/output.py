@@ -19,6 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from importers.base import Importer
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import write_dataset_files
 from toolkit.errors import ToolkitError
@@ -45,12 +46,11 @@ def write_simulation(
     sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: Any
 ) -> list[Path]:
     """Write `sim` in format `fmt` under the directory `out`, atomically; the files (in `out`)."""
-    import importers
 
     out = Path(out)
     if fmt == "lms200":  # the capture's unit mode is the simulated scanner's
         options.setdefault("units", sim.params.get("units", "cm"))
-    writer = None if fmt == DATASET_FORMAT else importers.get(fmt)  # unknown format: fail early
+    writer = None if fmt == DATASET_FORMAT else _writer(fmt)  # before any work
     with atomic_dir(out, force=force) as tmp:
         if writer is None:
             write_dataset_files(sim.dataset, tmp)
@@ -79,6 +79,31 @@ def write_simulation(
         (tmp / SIMULATION).write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
         files = [p.relative_to(tmp) for p in [*native, *truth, tmp / SIMULATION]]
     return [out / p for p in files]
+
+
+def writer_formats() -> list[str]:
+    """The formats the simulator can write: those whose importer has a writer, and dataset."""
+    import importers
+
+    names = importers.names()
+    return [n for n in names if type(importers.get(n)).write is not Importer.write] + [
+        DATASET_FORMAT
+    ]
+
+
+def _writer(fmt: str) -> Importer:
+    import importers
+
+    known = writer_formats()
+    if fmt not in known:
+        if fmt in importers.names():
+            raise ToolkitError(
+                f"format {fmt!r} has no writer; formats with one: {', '.join(known)}"
+            )
+        raise ToolkitError(
+            f"cannot write format {fmt!r}; formats with a writer: {', '.join(known)}"
+        )
+    return importers.get(fmt)
 
 
 def _counts(sim: Simulation) -> dict[str, int]:
