@@ -9,8 +9,10 @@ damaged frames) and a cut-off last telegram. Figures, medians of 3 runs on the s
   once, then loaded from numba's cache, is not counted);
 - `read numpy` / `read numba`: the whole reader (file read, search, CRC, decode, times) to a
   Dataset in memory;
-- `import`: `toolkit import lms200` to a dataset directory (reader with the default numba
-  CRC + Parquet (zstd) + sha256 of the sources + meta.json).
+- `numba import + cached kernel`: what the numba path costs a new process before its first
+  byte (why numba is the default only for captures of 256 MB or more);
+- `toolkit import`: the command in a new process, end to end (start-up, reader with the
+  default CRC, Parquet (zstd), sha256 of the sources, meta.json).
 
 Every row checks that the scans found are exactly the writer's intact frames. Besides wall
 time, each row gives this process's CPU time: on a machine shared with other work the wall
@@ -20,8 +22,11 @@ figure measures the load as much as the code.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -30,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from importers import ImportOptions, import_log
+from importers import ImportOptions
 from importers.lms200 import LMS200, _candidates, crc_frames_numba, crc_frames_numpy, write
 from toolkit.dataset import Dataset, LaserGeometry
 
@@ -111,11 +116,40 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
             row(f"read {method}", seconds, ds.n_scans)
         target = tmp / "dataset"
 
-        def full_import() -> int:
-            import_log("lms200", [capture], target, force=True)
-            return len(json.loads((target / "meta.json").read_text())["source"]["files"])
+        def fresh(*code: str) -> tuple[float, float]:
+            """Wall and CPU seconds of a new Python process (children's CPU time)."""
+            before = os.times()
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-c", "\n".join(code)], check=True)
+            after = os.times()
+            cpu = after.children_user + after.children_system
+            return time.perf_counter() - t0, cpu - before.children_user - before.children_system
 
-        seconds, _ = _median(full_import)
-        row("import (default crc, to Parquet)", seconds, len(intact))
+        def median_of(runs: list[tuple[float, float]]) -> tuple[float, float]:
+            return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs)
+
+        numba_load = [
+            fresh(
+                "import numpy as np",
+                "from importers._lms200_crc import crc_kernel",
+                "crc_kernel(np.zeros(8, np.uint8), np.zeros(1, np.int64), np.ones(1, np.int64))",
+            )
+            for _ in range(REPEATS)
+        ]
+        wall, cpu = median_of(numba_load)
+        rows.append({"name": "numba import + cached kernel (new process)", "seconds": round(wall, 4), "cpu_seconds": round(cpu, 4)})  # fmt: skip
+        cli = [
+            fresh(
+                "import sys",
+                "from toolkit.cli import main",
+                f"sys.argv = ['toolkit', 'import', 'lms200', {str(capture)!r}, '--out', "
+                f"{str(target)!r}, '--force', '--quiet']",
+                "main()",
+            )
+            for _ in range(REPEATS)
+        ]
+        meta = json.loads((target / "meta.json").read_text())
+        assert meta["scans"] == len(intact)
+        row(f"toolkit import (new process, crc {meta['capture']['crc_method']}, to Parquet)", median_of(cli), len(intact))  # fmt: skip
         shutil.rmtree(target, ignore_errors=True)
     return rows

@@ -2,13 +2,14 @@
 
 Telegrams (``STX 0x02 | ADDR | LEN u16 | CMD | DATA | STATUS | CRC u16``, little-endian, see
 FORMATS.md) are found by a vectorized search over the whole buffer: every ``0x02`` followed by
-address 0x80/0x81, a reply command (high bit set) and a plausible LEN (2..806) is a candidate;
-the CRC of all candidates is computed at once, compiled with numba (default) or in numpy
-byte position by byte position across frames (``-O crc=numpy``; bench_import_lms200
-compares the two: numba about 3x faster). Valid telegrams are accepted
-greedily in stream order, a valid telegram consuming its bytes, so line noise, ACK/NAK bytes
-and damaged frames are skipped and the search resynchronises on the next intact telegram.
-Every skipped byte and rejected frame is counted in the import report.
+address 0x80/0x81, a reply command (high bit set) and a plausible LEN (2..806) is a candidate.
+The CRC of all candidates is computed at once: in numpy, byte position by byte position
+across frames, or compiled with numba (``-O crc=numba``). bench_import_lms200 compares the
+two: numba's kernel is about 3x faster, but importing numba costs 1-2 s, so numba is the
+default only for captures of 256 MB or more, or when numba is loaded already. Valid
+telegrams are accepted greedily in stream order, a valid telegram consuming its bytes, so
+line noise, ACK/NAK bytes and damaged frames are skipped and the search resynchronises on
+the next intact telegram. Every skipped byte and rejected frame is counted in the import report.
 
 Measured-values replies (0xB0) become scans: 13-bit values in the units of the count word
 (cm or mm); the special codes 0x1FF7..0x1FFF (invalid, dazzling, overflow, low S/N, channel
@@ -40,6 +41,7 @@ from __future__ import annotations
 import io
 import json
 import lzma
+import sys
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -75,6 +77,7 @@ DEFAULT_BAUD = 38400
 BITS_PER_BYTE = 10  # 8N1
 CHUNK = 8192  # frames decoded per block: bounded index arrays
 CRC_BLOCK = 8192  # frames per CRC block
+NUMBA_MIN_BYTES = 256 << 20  # from here the numba CRC repays its import
 
 
 # ---------------------------------------------------------------- CRC
@@ -147,8 +150,14 @@ def crc_frames_numba(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -
 CRC_METHODS = {"numpy": crc_frames_numpy, "numba": crc_frames_numba}
 
 
-def default_crc_method() -> str:
-    """numba where it imports (about 3x faster, see bench_import_lms200), else numpy."""
+def default_crc_method(size: int = 0) -> str:
+    """numba for captures of NUMBA_MIN_BYTES or more, or when numba is loaded anyway; else numpy.
+
+    Measured (bench_import_lms200): the numba kernel is about 3x faster than the numpy one,
+    but importing numba costs 1-2 s per process, which only pays off on big captures.
+    """
+    if size < NUMBA_MIN_BYTES and "numba" not in sys.modules:
+        return "numpy"
     try:
         import importers._lms200_crc  # noqa: F401
     except Exception:  # numba missing or broken: the numpy path needs nothing more
@@ -272,7 +281,7 @@ class LMS200(Importer):
     options: ClassVar[dict[str, str]] = {
         "baud": f"line speed for times without a side file or --rate (default {DEFAULT_BAUD})",
         "times": "side file of 'OFFSET T' lines (default: <capture>.times if present)",
-        "crc": "numba (default where it imports) or numpy: how the candidates' CRCs are computed",
+        "crc": "numpy or numba (default: numba from 256 MB): how the candidates' CRCs are computed",
     }
 
     def sniff(self, path: Path) -> bool:
@@ -290,7 +299,7 @@ class LMS200(Importer):
         capture, times_file = _sources(sources, options)
         report = ImportReport()
         buf = _read_capture(capture, report)
-        crc = options.get("crc") or default_crc_method()
+        crc = options.get("crc") or default_crc_method(buf.size)
         if crc not in CRC_METHODS:
             raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
         with task(f"searching {capture.name}", total=1) as (bar, job):
@@ -569,7 +578,7 @@ def write(
     frames[:, 7 : 7 + 2 * count] = values.astype("<u2").view(np.uint8).reshape(scans, -1)
     frames[:, 7 + 2 * count] = 0x10  # status: ok
     flat = frames.reshape(-1)
-    crc_all = CRC_METHODS[default_crc_method()]
+    crc_all = CRC_METHODS[default_crc_method(scans * frame_len)]
     crc = crc_all(flat, np.arange(scans) * frame_len, np.full(scans, frame_len - 2))
     frames[:, -2] = crc & 0xFF
     frames[:, -1] = crc >> 8
