@@ -326,9 +326,10 @@ class LMS200(Importer):
             int(np.sum(fits & (partial == 0) & ~known)),
         )
         if not np.any(ok):
+            why = ", ".join(f"{n} {reason}" for reason, n in report.dropped.items())
             raise FormatError(
-                f"no intact measured-values telegram in {buf.size} bytes "
-                f"({tg.rejected_crc} with bad CRC, {tg.start.size} valid telegrams)",
+                f"no intact measured-values telegram in {buf.size} bytes"
+                + (f" ({why})" if why else ""),
                 file=capture,
             )
         variants = Counter(zip(count[ok].tolist(), unit_code[ok].tolist(), strict=True))

@@ -182,6 +182,14 @@ def test_partial_scans_other_replies_and_bad_count_words_are_reported(tmp_path: 
     }
 
 
+def test_capture_of_partial_scans_only_says_why_it_has_no_scan(tmp_path: Path) -> None:
+    partial = 181 | (1 << 14) | (1 << 13)
+    path = tmp_path / "interlaced.lms"
+    path.write_bytes(b"".join(_b0([900] * 181, partial | (k << 11)) for k in range(4)))
+    with pytest.raises(FormatError, match=r"\(4 partial scan \(interlaced mode\), not assembled\)"):
+        _read(path)
+
+
 def test_valid_telegram_inside_another_is_consumed_by_it(tmp_path: Path) -> None:
     inner = bytes.fromhex(VECTORS[3])  # a complete, valid A0 reply
     raw = bytearray((1000).to_bytes(2, "little") * 181)
