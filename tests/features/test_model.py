@@ -112,7 +112,7 @@ def test_temperature_is_the_design_effect_of_correlated_beams() -> None:
     taus = []
     for scans in (independent, common):
         model = fit(scans.astype(np.float32), LASER, {"wall": np.arange(n)}, cfg)
-        taus.append(fit_temperature(model, scans, {"wall": np.arange(n)})[0])
+        taus.append(fit_temperature(model, scans, [("wall", np.arange(n))])[0])
     assert taus[0] > 0.7  # independent beams: close to 1
     assert taus[1] < 5.0 / b  # one common offset: about one effective beam
 

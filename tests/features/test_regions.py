@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from toolkit.errors import FormatError
-from toolkit.features.regions import read_regions, training_indices
+from toolkit.features.regions import read_regions, training_components, training_indices
 
 T = 100.0 + 0.2 * np.arange(50)  # scans at 100.0, 100.2, ... 109.8
 
@@ -76,3 +76,18 @@ def test_bad_csv_is_one_line_naming_the_row(
     assert needle in message
     prefix = f"{path}:{line}: " if line is not None else f"{path}: "
     assert message.startswith(prefix), message
+
+
+def test_separate_spans_of_a_feature_are_components(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        "feature,start,end\ncorridor,100,100.4\nroom,101.4,101.8\ncorridor,100.6,101.0\n"
+        "corridor,105,105.4\n",
+    )
+    parts = [(f, idx.tolist()) for f, idx in training_components(read_regions(path, T))]
+    # touching spans (scans 0-2 and 3-5) are one stretch; a distant span is a component apart
+    assert parts == [
+        ("corridor", [0, 1, 2, 3, 4, 5]),
+        ("corridor", [25, 26, 27]),
+        ("room", [7, 8, 9]),
+    ]

@@ -34,6 +34,10 @@ def label_command(
     paper: Annotated[
         bool, typer.Option("--paper", help="the paper's literal per-scan model (for comparison)")
     ] = False,
+    truth: Annotated[
+        Path | None,
+        typer.Option(help="true labels (t, label; e.g. the simulator's truth.parquet) to score"),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="replace earlier label outputs")] = False,
 ) -> None:
     """Learn places from a few scans each and find them along the whole log (Eq. 7-9)."""
@@ -46,7 +50,7 @@ def label_command(
     if smoothing not in SMOOTHINGS:
         raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
     config = replace(PAPER if paper else Config(), smoothing=smoothing)
-    metrics = label_run(dataset, out, regions, model, trajectory, config, force)
+    metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")
     if "truth" in metrics:

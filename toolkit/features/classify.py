@@ -232,7 +232,8 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
 
 
 def loglik(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
-    """Untempered log-likelihood (S, K) per class: features, then "none" if the model has it."""
+    """Untempered log-likelihood (S, C) per model row (component), then "none" if the model
+    has it."""
     if model.config.robust > 0 and model.config.no_return:
         ll, bg = robust_loglik(model, ranges)
         return np.concatenate([ll, bg[:, None]], axis=1) if model.config.none_class else ll
@@ -240,6 +241,22 @@ def loglik(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.nd
     if model.config.none_class:
         ll = np.concatenate([ll, background_loglik(model, ranges, chunk)[:, None]], axis=1)
     return ll
+
+
+def per_class(model: FeatureModel, scores: np.ndarray) -> np.ndarray:
+    """Scores per class from scores per row: a feature's rows (its components) are an equal
+    mixture, log-mean-exp; the "none" column passes through."""
+    rows = model.features
+    if len(set(rows)) == len(rows):
+        return scores
+    columns = []
+    for name in model.names:
+        mine = scores[:, [k for k, r in enumerate(rows) if r == name]]
+        top = mine.max(axis=1, keepdims=True)
+        columns.append(top[:, 0] + np.log(np.exp(mine - top).mean(axis=1)))
+    if model.config.none_class:
+        columns.append(scores[:, -1])
+    return np.column_stack(columns)
 
 
 def softmax(scores: np.ndarray) -> np.ndarray:
@@ -303,7 +320,7 @@ def _robust_beam_terms(
 
 
 def fit_temperature(
-    model: FeatureModel, ranges: np.ndarray, training: dict[str, np.ndarray]
+    model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
 ) -> tuple[float, dict[str, Any]]:
     """Scale for the summed log-likelihood, for beams that are not independent.
 
@@ -314,8 +331,7 @@ def fit_temperature(
     (a composite-likelihood magnitude adjustment) keeps posteriors from being overconfident.
     """
     centred_terms = []
-    for f in model.features:
-        idx = training[f]
+    for _, idx in components:
         if len(idx) < 3:
             continue
         scans = ranges[idx].astype(np.float64)
@@ -423,8 +439,8 @@ def classify(
     model.check_laser(_laser_like(model, ranges))
     ll = loglik(model, ranges, chunk)
     ll *= model.temperature
-    prob = softmax(ll)
     cfg = model.config
+    prob = softmax(per_class(model, ll))
     if cfg.smoothing != "none":
         prob = smooth(prob, switch_probability(cfg, len(prob), poses), cfg.smoothing)
     classes = np.array(model.classes)

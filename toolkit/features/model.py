@@ -86,9 +86,12 @@ class Background:
 
 @dataclass
 class FeatureModel:
-    """Per feature and beam: mean and variance of the returns, and the return probability."""
+    """Per feature and beam: mean and variance of the returns, and the return probability.
 
-    features: list[str]
+    Rows are components: a feature taught by separate spans (two corridors) has one row per
+    span, and its likelihood is the mixture of its rows."""
+
+    features: list[str]  # feature name of each row (component); names repeat
     mean: np.ndarray  # (F, B) m; beams never seen returning: 0 and var inf
     var: np.ndarray  # (F, B) m^2 (inf: no Gaussian, a uniform range instead)
     p_return: np.ndarray  # (F, B)
@@ -101,9 +104,14 @@ class FeatureModel:
     fit_report: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def names(self) -> list[str]:
+        """Feature names, each once, in order of first appearance."""
+        return list(dict.fromkeys(self.features))
+
+    @property
     def classes(self) -> list[str]:
         """Class names in the order of the probability columns: features, then "none"."""
-        return [*self.features, "none"] if self.config.none_class else list(self.features)
+        return [*self.names, "none"] if self.config.none_class else self.names
 
     # ------------------------------------------------------------ persistence
 
@@ -318,12 +326,13 @@ def background_bins(block: np.ndarray, edges: np.ndarray) -> np.ndarray:
 def fit(
     ranges: np.ndarray,
     laser: LaserGeometry,
-    training: dict[str, np.ndarray],
+    training: dict[str, np.ndarray] | list[tuple[str, np.ndarray]],
     config: Config | None = None,
     spans: list[Span] | None = None,
 ) -> FeatureModel:
-    """Learn a model: per feature, per-beam statistics of its training scans (indices into
-    `ranges`); the background from the whole log; the temperature by leave-one-out."""
+    """Learn a model: per feature (or per component: pairs of feature name and scan indices),
+    per-beam statistics of its training scans (indices into `ranges`); the background from
+    the whole log; the temperature by leave-one-out."""
     from toolkit.features.classify import fit_temperature
 
     config = config or Config()
@@ -331,14 +340,14 @@ def fit(
         raise ToolkitError("no features to learn")
     if config.smoothing not in SMOOTHINGS:
         raise ToolkitError(f"smoothing {config.smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
-    features = list(training)
-    stats = [beam_statistics(ranges[training[f]], laser, config) for f in features]
+    components = list(training.items()) if isinstance(training, dict) else list(training)
+    stats = [beam_statistics(ranges[idx], laser, config) for _, idx in components]
     model = FeatureModel(
-        features=features,
+        features=[name for name, _ in components],
         mean=np.array([s[0] for s in stats]),
         var=np.array([s[1] for s in stats]),
         p_return=np.array([s[2] for s in stats]),
-        n_scans=np.array([len(training[f]) for f in features]),
+        n_scans=np.array([len(idx) for _, idx in components]),
         laser=laser,
         config=config,
         background=fit_background(ranges, laser)
@@ -347,7 +356,7 @@ def fit(
         spans=[s.to_dict() for s in spans or []],
     )
     if config.temperature == "loo":
-        model.temperature, report = fit_temperature(model, ranges, training)
+        model.temperature, report = fit_temperature(model, ranges, components)
         model.fit_report.update(report)
     elif config.temperature != "none":
         raise ToolkitError(f"temperature {config.temperature!r}: use loo or none")

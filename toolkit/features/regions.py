@@ -158,3 +158,20 @@ def training_indices(spans: list[Span]) -> dict[str, np.ndarray]:
     for span in spans:
         out.setdefault(span.feature, []).append(span.indices)
     return {f: np.unique(np.concatenate(parts)) for f, parts in out.items()}
+
+
+def training_components(spans: list[Span]) -> list[tuple[str, np.ndarray]]:
+    """One component per stretch of scans: spans of a feature that overlap or touch are one
+    component, separate spans (another corridor, another room) are components of their own."""
+    out: list[tuple[str, np.ndarray]] = []
+    for feature in dict.fromkeys(s.feature for s in spans):
+        mine = sorted((s.first, s.last) for s in spans if s.feature == feature)
+        first, last = mine[0]
+        for a, b in mine[1:]:
+            if a <= last + 1:
+                last = max(last, b)
+            else:
+                out.append((feature, np.arange(first, last + 1)))
+                first, last = a, b
+        out.append((feature, np.arange(first, last + 1)))
+    return out

@@ -32,7 +32,7 @@ from toolkit.features.metrics import (
     per_class_recall,
 )
 from toolkit.features.model import Config, FeatureModel, fit
-from toolkit.features.regions import read_regions, training_indices
+from toolkit.features.regions import read_regions, training_components, training_indices
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
 
@@ -65,16 +65,26 @@ def scan_poses(ds: Dataset, trajectory: Path | None = None) -> tuple[np.ndarray 
     return poses, source
 
 
-def _truth_labels(ds: Dataset) -> np.ndarray | None:
-    """True labels when the dataset directory carries the simulator's truth.parquet."""
-    if ds.path is None:
-        return None
-    for candidate in (ds.path / "truth.parquet", ds.path.parent / "truth.parquet"):
-        if candidate.exists():
-            truth = pd.read_parquet(candidate)
-            if "label" in truth and len(truth) == ds.n_scans:
-                return truth["label"].astype(str).to_numpy()
-    return None
+def _truth_labels(ds: Dataset, truth: Path | None = None) -> np.ndarray | None:
+    """True labels per scan: `truth` (t, label), else the simulator's truth.parquet when it
+    sits beside the scans."""
+    if truth is None:
+        if ds.path is None or not (ds.path / "truth.parquet").exists():
+            return None
+        truth = ds.path / "truth.parquet"
+    try:
+        frame = pd.read_parquet(truth)
+    except (OSError, ValueError) as e:
+        raise ToolkitError(f"cannot read truth: {e}", file=truth) from None
+    if "label" not in frame or "t" not in frame:
+        raise ToolkitError("truth needs columns t and label", file=truth)
+    t = frame["t"].to_numpy(np.float64)
+    if len(t) != ds.n_scans or not np.allclose(t, ds.t, rtol=0, atol=1e-3):
+        raise ToolkitError(
+            f"truth has {len(t)} rows whose times do not match the dataset's {ds.n_scans} scans",
+            file=truth,
+        )
+    return frame["label"].astype(str).to_numpy()
 
 
 def label_run(
@@ -85,6 +95,7 @@ def label_run(
     trajectory: Path | None = None,
     config: Config | None = None,
     force: bool = False,
+    truth: Path | None = None,
 ) -> dict[str, Any]:
     """Learn from `regions` (or apply `model_path`), classify, write RUN; returns the metrics."""
     if regions is None and model_path is None:
@@ -104,11 +115,14 @@ def label_run(
 
             model = replace(model, config=replace(model.config, smoothing=config.smoothing))
     else:
-        model = fit(ds.ranges, ds.laser, training, config or Config(), spans)
+        model = fit(ds.ranges, ds.laser, training_components(spans), config or Config(), spans)
     poses, pose_source = scan_poses(ds, trajectory)
     labels = classify(model, ds.ranges, poses)
     seconds = time.perf_counter() - started
     metrics = _metrics(ds, model, labels, training, pose_source, seconds, model_path)
+    truth_labels = _truth_labels(ds, truth)
+    if truth_labels is not None:
+        metrics["truth"] = _scores(truth_labels, labels, training)
 
     out.mkdir(parents=True, exist_ok=True)
     _write_labels(out / "labels.parquet", ds.t, labels)
@@ -167,3 +181,17 @@ def _metrics(
             "recall": per_class_recall(truth[test], labels.label[test]),
         }
     return metrics
+
+
+def _scores(truth: np.ndarray, labels: Labels, training: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Balanced accuracy, ECE and recall per class on every scan but the training ones."""
+    test = np.ones(len(truth), dtype=bool)
+    for idx in training.values():
+        test[idx] = False
+    correct = truth[test] == labels.label[test]
+    return {
+        "scored_scans": int(test.sum()),
+        "balanced_accuracy": balanced_accuracy(truth[test], labels.label[test]),
+        "ece": expected_calibration_error(labels.confidence[test], correct),
+        "recall": per_class_recall(truth[test], labels.label[test]),
+    }

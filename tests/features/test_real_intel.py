@@ -1,0 +1,79 @@
+"""The Intel Research Lab log (real, CARMEN, SLAM-corrected poses): places taught from the
+spans in datasets/real-regions/intel-regions.csv (two corridor stretches, two rooms), found
+along the whole log. The log has no place labels; the check is geometric: scans taken where
+the corrected pose is on the corridor ring must score higher for "corridor" than scans taken
+inside the rooms, and the other way round."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+REGIONS = ROOT / "datasets" / "real-regions" / "intel-regions.csv"
+
+pytestmark = pytest.mark.real
+
+
+def place_by_position(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """corridor / room / other from the corrected pose (the lab's ring corridor, by the map)."""
+    ring = (
+        ((np.abs(x - 12.6) < 1.0) & (y > -19.5) & (y < 0.5))
+        | ((np.abs(x + 5.6) < 1.0) & (y > -19.5) & (y < 0.5))
+        | ((np.abs(y + 18.9) < 0.9) & (x > -7) & (x < 14))
+        | ((np.abs(y - 0.1) < 0.9) & (x > -7) & (x < 14))
+        | ((np.abs(x + 1.4) < 0.7) & (y > -18) & (y < 0))
+    )
+    room = ~ring & ((y > 1.2) | (y < -20) | (x > 14) | (x < -7.2))
+    return np.where(ring, "corridor", np.where(room, "room", "other"))
+
+
+def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    from toolkit.cli import main
+
+    log = real / "carmen_radish_corrected" / "intel-corrected.log.gz"
+    data, run = tmp_path / "intel", tmp_path / "run"
+    for args in (
+        ["import", "carmen", str(log), "--out", str(data), "-O", "poses=groundtruth", "-q"],
+        ["label", str(data), "--regions", str(REGIONS), "--out", str(run)],
+    ):
+        monkeypatch.setattr(sys, "argv", ["toolkit", *args])
+        try:
+            main()
+        except SystemExit as e:
+            assert not e.code, capsys.readouterr().err
+    labels = pd.read_parquet(run / "labels.parquet")
+    metrics = json.loads((run / "labels-metrics.json").read_text())
+    assert metrics["poses"] == "groundtruth" and metrics["classes"] == ["corridor", "room", "none"]
+    model = json.loads((run / "model.json").read_text())
+    spans = model["training_spans"]
+    assert [s["feature"] for s in spans] == ["corridor", "corridor", "room", "room"]
+    assert all(s["scans"] == 10 for s in spans)
+
+    truth = pd.read_parquet(data / "groundtruth.parquet")
+    x = np.interp(labels["t"], truth["t"], truth["x"])
+    y = np.interp(labels["t"], truth["t"], truth["y"])
+    place = place_by_position(x, y)
+    trained = np.zeros(len(labels), dtype=bool)
+    for s in spans:
+        trained |= (labels["t"] >= s["start"] - 1e-6) & (labels["t"] <= s["end"] + 1e-6)
+    assert trained.sum() == 40
+    # the training scans themselves are found
+    for s in spans:
+        inside = (labels["t"] >= s["start"] - 1e-6) & (labels["t"] <= s["end"] + 1e-6)
+        assert (labels.loc[inside, "label"] == s["feature"]).mean() >= 0.8
+    # elsewhere: each feature's probability is higher at its own kind of place
+    test = ~trained
+    corridor, room = test & (place == "corridor"), test & (place == "room")
+    assert corridor.sum() > 300 and room.sum() > 100
+    assert labels.loc[corridor, "p_corridor"].mean() > 2 * labels.loc[room, "p_corridor"].mean()
+    assert labels.loc[room, "p_room"].mean() > 2 * labels.loc[corridor, "p_room"].mean()
+    assert (labels.loc[corridor, "label"] == "corridor").mean() > (
+        labels.loc[room, "label"] == "corridor"
+    ).mean()
+    assert (run / "membership.png").stat().st_size > 10_000
