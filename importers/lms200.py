@@ -182,12 +182,25 @@ class Telegrams:
         self.start, self.length = _greedy(starts[valid], lengths[valid])
         self.cmd = buf[self.start + 4]
         # candidates outside accepted telegrams: damaged frames (or chance 0x02 0x80 in noise)
-        self.rejected_crc = int(np.count_nonzero(~_covered(starts[~valid], self)))
-        self.truncated = int(np.count_nonzero(~_covered(truncated, self)))
-        gaps = _gap_bytes(buf, self.start, self.length)
-        self.ack = int(np.count_nonzero(gaps == ACK))
-        self.nak = int(np.count_nonzero(gaps == NAK))
-        self.skipped = self.size - int(self.length.sum()) - self.ack - self.nak
+        rejected = ~valid & ~_covered(starts, self)
+        cut = ~_covered(truncated, self)
+        self.rejected_crc = int(np.count_nonzero(rejected))
+        self.truncated = int(np.count_nonzero(cut))
+        # bytes outside accepted telegrams: inside a rejected telegram's span, or between
+        # telegrams (ACK, NAK, line noise)
+        gaps = _gap_positions(self.size, self.start, self.length)
+        spans_from = np.sort(np.concatenate([starts[rejected], truncated[cut]]))
+        ends = np.concatenate([starts[rejected] + lengths[rejected], np.full(cut.sum(), self.size)])
+        spans_to = np.sort(ends)
+        inside = np.searchsorted(spans_from, gaps, "right") > np.searchsorted(
+            spans_to, gaps, "right"
+        )
+        between = buf[gaps[~inside]]
+        self.in_damaged = int(np.count_nonzero(inside))
+        self.ack = int(np.count_nonzero(between == ACK))
+        self.nak = int(np.count_nonzero(between == NAK))
+        self.noise = between.size - self.ack - self.nak
+        self.skipped = int(gaps.size)
 
 
 def _candidates(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -229,16 +242,13 @@ def _covered(positions: np.ndarray, tg: Telegrams) -> np.ndarray:
     return inside & (positions < tg.start[j] + tg.length[j])
 
 
-def _gap_bytes(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """The bytes outside the accepted telegrams, in order (small: noise and ACK/NAK)."""
+def _gap_positions(n: int, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Positions of the bytes outside the accepted telegrams, in order (few: the gaps)."""
     lo = np.concatenate([[0], starts + lengths])
-    hi = np.concatenate([starts, [buf.size]])
+    hi = np.concatenate([starts, [n]])
     size = np.maximum(hi - lo, 0)
     total = int(size.sum())
-    if total == 0:
-        return buf[:0]
-    shift = np.repeat(lo - (np.cumsum(size) - size), size)
-    return buf[shift + np.arange(total)]
+    return np.repeat(lo - (np.cumsum(size) - size), size) + np.arange(total, dtype=np.int64)
 
 
 # ---------------------------------------------------------------- measured values
@@ -348,9 +358,10 @@ class LMS200(Importer):
         report.records_kept = int(s.size)
         skipped = tg.skipped
         if skipped:
-            report.note(f"{skipped} bytes outside intact telegrams skipped (noise, damaged frames)")
-        if tg.ack or tg.nak:
-            report.note(f"{tg.ack} ACK and {tg.nak} NAK bytes skipped")
+            report.note(
+                f"{skipped} bytes outside intact telegrams skipped: {tg.in_damaged} in rejected "
+                f"telegrams, {tg.ack} ACK, {tg.nak} NAK, {tg.noise} line noise"
+            )
         laser = geometry(variant[0], units)
         sources_used = [capture] + ([times_file] if times_file else [])
         meta = make_meta(
@@ -366,6 +377,8 @@ class LMS200(Importer):
                 "measured_values": int(s.size),
                 "bytes_in_telegrams": int(tg.length.sum()),
                 "bytes_skipped": skipped,
+                "bytes_in_rejected_telegrams": tg.in_damaged,
+                "noise": tg.noise,
                 "ack": tg.ack,
                 "nak": tg.nak,
                 "crc_rejected": tg.rejected_crc,

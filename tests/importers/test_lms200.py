@@ -151,7 +151,8 @@ def test_hand_built_telegram_values_flags_and_special_codes(tmp_path: Path) -> N
     report = back.meta["import_report"]
     assert report["dropped"] == {"measured values: variant differs from the capture's": 1}
     cap = back.meta["capture"]
-    assert (cap["ack"], cap["nak"], cap["bytes_skipped"], cap["telegrams"]) == (1, 1, 1, 3)
+    assert (cap["ack"], cap["nak"], cap["noise"], cap["telegrams"]) == (1, 1, 1, 3)
+    assert cap["bytes_skipped"] == 3 and cap["bytes_in_rejected_telegrams"] == 0
     assert back.meta["time_source"].startswith("baud 38400")
     frame = len(_b0(values))
     np.testing.assert_allclose(back.t, np.array([1, 1 + frame + 2]) * 10 / 38400)
