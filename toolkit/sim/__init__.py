@@ -125,7 +125,7 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
     with task(f"simulate {scenario}", total=len(truth)) as (bar, job):
         ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
     odo = odometry.integrate(truth, rng)
-    labels = scn.labels(truth)
+    labels = scn.labels(laser.origins(truth)[0])  # what the scanner has beside it
     regions = training_regions(t, labels, skip=("none",))
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},

@@ -1,8 +1,9 @@
 """The simulated places: the paper's test corridor and a Rawseeds-Bicocca-like building.
 
 A scenario is a world (walls, glass, columns), a robot path through it (waypoints, driven at
-`speed` with turns on the spot at `turn_rate`), and feature zones: where the robot stands
-while a place feature is beside it, which is how each scan gets its true label.
+`speed` with turns on the spot at `turn_rate`), and feature zones: where the laser is while
+a place feature is in its view beside it (from a little before the feature until its far end
+passes the scan plane), which is how each scan gets its true label.
 
 corridor (the paper's Fig. 1), 2.4 m wide, metres, robot driving +x then +y:
     leg A, y in [-1.2, 1.2], x from 0 to 81.2: straight, parallel walls.
@@ -10,7 +11,7 @@ corridor (the paper's Fig. 1), 2.4 m wide, metres, robot driving +x then +y:
       "window_a"), a 12 m long window in the middle (x 34..46, "window_b");
       right wall (y = -1.2): four open doors, 0.9 m, into 4 x 3 m rooms (x = 16, 26, 56, 66,
       "door").
-    corner at (80, 0) ("corner": robot within 2 m of it).
+    corner at (80, 0) ("corner": the laser within a 4 x 4 m box round it).
     leg B, x from 78.8 (left wall) to the right wall, which curves progressively outwards
       (x = 81.2 + 2 (y/79)^2), y up to 80; round columns r = 0.25 m on the left wall every
       8 m (y = 10 .. 74, "column").
@@ -40,7 +41,7 @@ NONE = "none"
 
 @dataclass
 class Zone:
-    """Robot positions (axis-aligned box) at which a feature is beside the robot."""
+    """Laser positions (axis-aligned box) at which a feature is in view beside the robot."""
 
     label: str
     x0: float
@@ -67,12 +68,12 @@ class Scenario:
     laser: dict[str, float] = field(default_factory=dict)  # LaserModel overrides (mounting)
     t0: float = 1_700_000_000.0  # s, UNIX time of the first scan
 
-    def labels(self, poses: np.ndarray) -> np.ndarray:
-        """The true place label of each robot pose."""
-        out = np.full(len(poses), self.default_label, dtype=object)
-        free = np.ones(len(poses), dtype=bool)
+    def labels(self, positions: np.ndarray) -> np.ndarray:
+        """The true place label at each laser position (S x 2 or more columns)."""
+        out = np.full(len(positions), self.default_label, dtype=object)
+        free = np.ones(len(positions), dtype=bool)
         for zone in self.zones:
-            hit = free & zone.contains(poses[:, :2])
+            hit = free & zone.contains(positions[:, :2])
             out[hit] = zone.label
             free &= ~hit
         return out.astype(str)
@@ -143,11 +144,13 @@ def corridor() -> Scenario:
     for y in columns_b:
         b.circle(x_corner_in + 0.2, float(y), 0.25)
 
+    # zones hold the laser while the feature is in its view, beside it: from a little before
+    # the feature until its far end passes the scan plane (beams at -90..90° see nothing behind)
     zones = [Zone("corner", 78.0, -2.0, 82.0, 2.0)]
-    zones += [Zone("window_a", 3.0, -w, 10.2, w)]
-    zones += [Zone("window_b", 34.0, -w, 46.0, w)]
-    zones += [Zone("door", d - 0.5, -w, d + 0.5, w) for d in doors_a]
-    zones += [Zone("column", x_corner_in, y - 0.5, 84.0, y + 0.5) for y in columns_b]
+    zones += [Zone("window_a", 2.5, -w, 10.0, w)]
+    zones += [Zone("window_b", 33.5, -w, 45.8, w)]
+    zones += [Zone("door", d - 0.9, -w, d + 0.3, w) for d in doors_a]
+    zones += [Zone("column", x_corner_in, y - 0.9, 84.0, y + 0.1) for y in columns_b]
     return Scenario(
         name="corridor",
         world=b.build(),
@@ -193,10 +196,10 @@ def building() -> Scenario:
     b.polyline([(1.0, 1.0), (39.0, 1.0), (39.0, 23.0), (1.0, 23.0), (1.0, 1.0)])  # inner block
 
     zones = [Zone("corner", cx - 1.5, cy - 1.5, cx + 1.5, cy + 1.5) for cx, cy in _ring()]
-    zones += [Zone("hall", hall_x0, -1.0, hall_x1, 1.0)]
-    zones += [Zone("stairs", 39.0, 8.0, 41.0, 11.0)]
-    zones += [Zone("window", 8.0, 23.0, 32.0, 25.0)]
-    zones += [Zone("door", -1.0, d - 0.5, 1.0, d + 0.5) for d in doors_w]
+    zones += [Zone("hall", hall_x0 - 0.5, -1.0, hall_x1 - 0.2, 1.0)]  # driving +x
+    zones += [Zone("stairs", 39.0, 7.5, 41.0, 10.8)]  # driving +y
+    zones += [Zone("window", 8.2, 23.0, 32.0, 25.0)]  # driving -x
+    zones += [Zone("door", -1.0, d - 0.3, 1.0, d + 0.9) for d in doors_w]  # driving -y
     return Scenario(
         name="building",
         world=b.build(),
