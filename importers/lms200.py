@@ -13,10 +13,12 @@ the next intact telegram. Every skipped byte and rejected frame is counted in th
 
 Measured-values replies (0xB0) become scans: 13-bit values in the units of the count word
 (cm or mm); the special codes 0x1FF7..0x1FFF (invalid, dazzling, overflow, low S/N, channel
-error, above maximum) become NaN. Partial scans (interlaced mode) are not assembled: they are
-counted and dropped. Scans whose variant (value count, units) differs from the capture's most
-common one are dropped too. Geometry follows the variant: 181/361 values -> 180° from -90°,
-101/201/401 values -> 100° from -50° (0° = the scanner's right, counter-clockwise).
+error, above maximum) become NaN. A capture of partial scans only (interlaced mode) has them
+assembled, P consecutive partials with indices 0..P-1 into one scan at 0.25° (see
+`assemble`); partial scans among full ones are counted and dropped. Scans whose variant
+(value count, units) differs from the capture's most common one are dropped too. Geometry
+follows the variant: 181/361 values -> 180° from -90°, 101/201/401 values -> 100° from -50°
+(0° = the scanner's right, counter-clockwise).
 
 Time: a capture has no clock. In order of preference:
 
@@ -70,6 +72,7 @@ RANGE_MAX = {"cm": 81.91, "mm": 8.191}
 #: value count -> (first angle, step) in degrees, laser frame (0° ahead, CCW)
 VARIANTS = {181: (-90.0, 1.0), 361: (-90.0, 0.5), 101: (-50.0, 1.0), 201: (-50.0, 0.5), 401: (-50.0, 0.25)}  # fmt: skip
 REPLY_NAMES = {0xA0: "mode change", 0xBB: "variant", 0x92: "command rejected", 0x90: "power-on"}
+PARTIAL_STEP = 0.25  # degrees between the partial scans of interlaced mode
 CAPTURE_SUFFIXES = (".lms", ".bin", ".raw")
 TIMES_SUFFIX = ".times"
 TRUTH_SUFFIX = ".truth.json"
@@ -274,6 +277,39 @@ def decode_ranges(buf: np.ndarray, starts: np.ndarray, count: int, scale: float)
     return out
 
 
+def assemble(
+    buf: np.ndarray, starts: np.ndarray, part: np.ndarray, count: int, units: str
+) -> tuple[np.ndarray, np.ndarray, LaserGeometry, int]:
+    """Interlaced mode: P partial scans (index k = offset k x 0.25°) make one scan.
+
+    P = the variant's step / 0.25° (4 at 1°, 2 at 0.5°). A group is P partial telegrams
+    with indices 0..P-1, each following the previous one within two telegram lengths (no
+    frame lost between them). Beam j*P + k of the scan is value j of partial k: angles from
+    the variant's first angle in steps of 0.25°, so N*P beams (724 for 181 values: up to
+    90.75°). Returns the groups' first offsets, their ranges, the geometry and how many
+    partial telegrams were in no complete group. The 0.25° offsets are this module's
+    reading of the count word's bits 11-12 (FORMATS.md names them 'partial-scan index').
+    """
+    first, step = VARIANTS[count]
+    per = round(step / PARTIAL_STEP)
+    laser = LaserGeometry(
+        count * per, float(np.deg2rad(first)), float(np.deg2rad(PARTIAL_STEP)), RANGE_MAX[units]
+    )
+    heads = np.arange(max(starts.size - per + 1, 0))
+    if per < 2 or heads.size == 0:
+        return starts[:0], np.zeros((0, laser.beams), np.float32), laser, int(starts.size)
+    near = 2 * (2 * count + 10)
+    complete = part[heads] == 0
+    for j in range(1, per):
+        complete &= (part[heads + j] == j) & (starts[heads + j] - starts[heads + j - 1] < near)
+    groups = heads[complete]
+    members = (groups[:, None] + np.arange(per)).reshape(-1)
+    scale = 0.01 if units == "cm" else 0.001
+    values = decode_ranges(buf, starts[members], count, scale)
+    ranges = values.reshape(groups.size, per, count).transpose(0, 2, 1).reshape(groups.size, -1)
+    return starts[groups], np.ascontiguousarray(ranges), laser, int(starts.size - members.size)
+
+
 def geometry(count: int, units: str, **mount: float) -> LaserGeometry:
     first, step = VARIANTS[count]
     return LaserGeometry(
@@ -325,16 +361,16 @@ class LMS200(Importer):
         s = tg.start[tg.cmd == MEASURED]
         length = tg.length[tg.cmd == MEASURED]
         word = buf[s + 5].astype(np.int64) | (buf[s + 6].astype(np.int64) << 8)
-        count, partial, unit_code = word & 0x3FF, (word >> 13) & 1, word >> 14
+        count, unit_code = word & 0x3FF, word >> 14
+        partial, part = ((word >> 13) & 1) == 1, (word >> 11) & 3
         fits = length - 6 >= 2 * count + 4
         known = np.isin(count, list(VARIANTS)) & np.isin(unit_code, list(UNITS))
-        ok = fits & known & (partial == 0)
+        usable = fits & known
         report.drop("measured values: count word longer than telegram", int(np.sum(~fits)))
-        report.drop("partial scan (interlaced mode), not assembled", int(np.sum(fits & partial)))
-        report.drop(
-            "measured values: unknown value count or units",
-            int(np.sum(fits & (partial == 0) & ~known)),
-        )
+        report.drop("measured values: unknown value count or units", int(np.sum(fits & ~known)))
+        interlaced = not np.any(usable & ~partial) and bool(np.any(usable & partial))
+        ok = usable & partial if interlaced else usable & ~partial
+        report.drop("partial scan among full scans", int(np.sum(usable & partial & ~ok)))
         if not np.any(ok):
             why = ", ".join(f"{n} {reason}" for reason, n in report.dropped.items())
             raise FormatError(
@@ -347,8 +383,16 @@ class LMS200(Importer):
         same = ok & (count == variant[0]) & (unit_code == variant[1])
         report.drop("measured values: variant differs from the capture's", int(np.sum(ok & ~same)))
         units, scale = UNITS[variant[1]]
-        s = s[same]
-        ranges = decode_ranges(buf, s, variant[0], scale)
+        if interlaced:
+            s, ranges, laser, lost = assemble(buf, s[same], part[same], variant[0], units)
+            report.drop("partial scan outside a complete group", lost)
+            report.note(f"interlaced capture: {variant[0]} values x {laser.beams // variant[0]} partial scans per scan")  # fmt: skip
+            if s.size == 0:
+                raise FormatError("no complete group of partial scans", file=capture)
+        else:
+            s = s[same]
+            ranges = decode_ranges(buf, s, variant[0], scale)
+            laser = geometry(variant[0], units)
         t, time_source = _times(s, times_file, options, capture)
         order_ok = np.concatenate([[True], np.diff(t) >= 0])
         if not np.all(order_ok):  # a side file out of step with the capture
@@ -362,7 +406,6 @@ class LMS200(Importer):
                 f"{skipped} bytes outside intact telegrams skipped: {tg.in_damaged} in rejected "
                 f"telegrams, {tg.ack} ACK, {tg.nak} NAK, {tg.noise} line noise"
             )
-        laser = geometry(variant[0], units)
         sources_used = [capture] + ([times_file] if times_file else [])
         meta = make_meta(
             self.name,

@@ -178,16 +178,42 @@ def test_partial_scans_other_replies_and_bad_count_words_are_reported(tmp_path: 
     assert back.meta["import_report"]["dropped"] == {
         "reply 0x92 (command rejected)": 1,
         "measured values: count word longer than telegram": 1,
-        "partial scan (interlaced mode), not assembled": 1,
+        "partial scan among full scans": 1,
         "measured values: unknown value count or units": 1,
     }
 
 
-def test_capture_of_partial_scans_only_says_why_it_has_no_scan(tmp_path: Path) -> None:
-    partial = 181 | (1 << 14) | (1 << 13)
+def test_interlaced_capture_is_assembled_from_complete_groups(tmp_path: Path) -> None:
+    def part(
+        k: int, scan: int
+    ) -> bytes:  # value j of partial k of a scan: 1000 + 100 scan + 4 j + k
+        word = 181 | (1 << 14) | (1 << 13) | (k << 11)
+        return _b0([1000 + 100 * scan + 4 * j + k for j in range(181)], word)
+
+    damaged = bytearray(part(2, 1))
+    damaged[50] ^= 0x10
     path = tmp_path / "interlaced.lms"
-    path.write_bytes(b"".join(_b0([900] * 181, partial | (k << 11)) for k in range(4)))
-    with pytest.raises(FormatError, match=r"\(4 partial scan \(interlaced mode\), not assembled\)"):
+    path.write_bytes(
+        part(2, 9) + part(3, 9)  # the end of a group: the capture started mid-scan
+        + b"".join(part(k, 0) for k in range(4))
+        + part(0, 1) + part(1, 1) + bytes(damaged) + part(3, 1)  # a partial lost to damage
+        + part(0, 2) + part(1, 2) + b"\x06" + part(2, 2) + part(3, 2)
+    )  # fmt: skip
+    back = _read(path)
+    assert back.ranges.shape == (2, 724)
+    np.testing.assert_allclose(np.rad2deg(back.angles[[0, 1, 4, 723]]), [-90, -89.75, -89, 90.75])
+    beam = np.arange(724)
+    for row, scan in zip(back.ranges, (0, 2), strict=True):
+        np.testing.assert_allclose(row, (1000 + 100 * scan + beam) / 1000, rtol=1e-6)
+    report = back.meta["import_report"]
+    assert report["dropped"]["partial scan outside a complete group"] == 2 + 3
+    assert report["dropped"]["telegram CRC mismatch"] == 1
+
+
+def test_capture_of_unusable_telegrams_says_why_it_has_no_scan(tmp_path: Path) -> None:
+    path = tmp_path / "odd.lms"
+    path.write_bytes(_b0([900] * 180) + _b0([900] * 181, 181 | (3 << 14)))
+    with pytest.raises(FormatError, match=r"\(2 measured values: unknown value count or units\)"):
         _read(path)
 
 
