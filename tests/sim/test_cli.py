@@ -102,7 +102,9 @@ def test_interrupted_write_leaves_nothing(monkeypatch: pytest.MonkeyPatch, tmp_p
 
     monkeypatch.setattr(toolkit.sim.output, "write_truth", broken)
     out = tmp_path / "sim"
-    code = run_cli(monkeypatch, "simulate", "corridor", "--out", str(out), "-f", "aria")
+    code = run_cli(
+        monkeypatch, "simulate", "corridor", "--out", str(out), "-f", "aria", "--scans", "200"
+    )
     assert code == 1
     assert list(tmp_path.iterdir()) == []  # the native log was written, then all removed
 
