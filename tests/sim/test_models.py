@@ -172,13 +172,26 @@ def test_corridor_has_the_papers_sections_and_features() -> None:
 
 
 def test_labels_are_geometrically_honest() -> None:
-    """A door scan sees into the room on the right; a window_b scan gets no return on the left."""
-    sim = simulate("corridor", seed=0, scans=1000)
+    """Every door scan sees into a room on the right, every column scan has the column close on
+    its left, window_b scans see through the glass; plain corridor scans mostly do not."""
+    sim = simulate("corridor", seed=0)
     r = sim.dataset.ranges
-    right, left = r[:, 0], r[:, 160]  # -90° and +70°: through the window at 20° incidence
-    door, window, plain = (sim.labels == k for k in ("door", "window_b", "none"))
-    assert np.nanmedian(right[door]) > 2.5 > np.nanmedian(right[plain])
-    assert np.isnan(left[window]).mean() > 0.3 > np.isnan(left[plain]).mean()
+    deg = np.rad2deg(sim.dataset.angles)
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    door, column, window, plain = (sim.labels == k for k in ("door", "column", "window_b", "none"))
+    leg_a, leg_b = plain & (gt.x.to_numpy() < 78), plain & (gt.y.to_numpy() > 3)
+
+    right = (deg >= -90) & (deg <= -40)  # lateral reach beyond the right wall (1.2 m away)
+    beyond = np.nanmax(np.abs(r[:, right] * np.sin(np.deg2rad(deg[right]))), axis=1) > 1.6
+    assert beyond[door].all() and beyond[leg_a].mean() < 0.15
+
+    left = (deg >= 45) & (deg <= 90)  # something nearer than the left wall (1.2 m away)
+    near = np.nanmin(r[:, left] * np.sin(np.deg2rad(deg[left])), axis=1) < 0.9
+    assert near[column].all() and near[leg_b].mean() < 0.1
+
+    through = np.isnan(r[:, 160])  # +70°: through the window at 20° from its normal
+    assert through[window].mean() > 0.8 and through[plain].mean() < 0.1
 
 
 def test_same_seed_same_log_other_seed_other_noise() -> None:
