@@ -215,3 +215,5 @@ def test_unknown_parameter_is_a_clear_error() -> None:
         simulate("castle")
     with pytest.raises(ToolkitError, match="units"):
         simulate("corridor", units="inch")
+    with pytest.raises(ToolkitError, match="scans must be a number"):
+        simulate("corridor", scans="many")

@@ -101,7 +101,11 @@ def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, Odom
         raise ToolkitError(f"unknown simulator parameter(s) {sorted(unknown)}; known: {known}")
     for name in PATH_PARAMS:
         if params.get(name) is not None:
-            setattr(scn, name, type(getattr(scn, name))(params[name]))
+            kind = type(getattr(scn, name))
+            try:
+                setattr(scn, name, kind(params[name]))
+            except (TypeError, ValueError):
+                raise ToolkitError(f"{name} must be a number, not {params[name]!r}") from None
     if scn.scans < 2:
         raise ToolkitError(f"scans must be at least 2, not {scn.scans}")
     if scn.speed <= 0 or scn.turn_rate <= 0:
