@@ -1,0 +1,793 @@
+"""Scan matching for laser logs in the paper's spirit: O(B) per scan pair, no tree, no search.
+
+For each pair of consecutive scans (prev, cur):
+
+1. Seed: the relative pose of the current laser in the previous laser's frame, from odometry.
+2. Correspondence by beam order (polar/projective association): every current return is
+   moved into the previous frame and projected onto the previous scan's beams by its
+   bearing, angle -> fractional beam index; the two neighbouring previous returns give the
+   surface line it should lie on (no nearest-neighbour search: one division per point).
+3. The paper's Gaussian step (Eq. 3-6) on those correspondences: the shift is the weighted
+   mean of the displacements measured along each line's normal (Eq. 3 with matrix weights
+   w_i n_i n_i^T, i.e. weighted point-to-line normal equations, with rotation), their
+   weighted variance (Eq. 4), and re-weighting that lowers the weight of returns that
+   changed (Eq. 5-6), capped; a fixed number of rounds, so every pair costs the same.
+4. Motion model: the correction to odometry is bounded (`max_correction`, `max_turn`).
+5. Degeneracy: the 2 x 2 translation information (the normal matrix, rotation marginalised)
+   has a small eigenvalue where the scan cannot fix a direction (a featureless corridor);
+   along that eigenvector the estimate keeps the odometry instead of inventing motion.
+6. Covariance of each estimate: sigma^2 times the inverse information on the observed
+   directions, the odometry's variance on the others.
+
+Pairs are independent given odometry, so a whole log is matched at once (`match_pairs`,
+numba-parallel over pairs); `StreamMatcher` feeds one scan at a time through the same
+float32 kernel with constant working memory and gives the same poses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numba as nb
+import numpy as np
+
+from toolkit.dataset import LaserGeometry
+
+Variant = Literal["text", "paper"]
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Scan matcher parameters; lengths in m, angles in rad."""
+
+    iterations: int = 6  # Gaussian rounds per pair (fixed: equal cost, vectorizes)
+    max_correction: float = 0.5  # motion model: largest translation error of odometry per step
+    max_turn: float = 1.0  # motion model: largest rotation error of odometry per step
+    gate: float = 0.5  # residuals beyond this are never evidence
+    jump: float = 0.1  # neighbouring returns further apart than this (plus what the range
+    # and the steepest incidence allow) are not one surface
+    sigma_min: float = 0.01  # floor of the residual spread (the sensor's range noise)
+    degenerate_ratio: float = 0.02  # translation info eigenvalue ratio below which odometry rules
+    min_information: float = 8.0  # ... or below this (in returns seen head-on)
+    min_points: int = 20  # fewer usable correspondences: keep the odometry
+    odometry_sigma: tuple[float, float] = (0.05, 0.02)  # m, rad: odometry's per-step spread
+    max_incidence: float = 1.31  # rad (75°): lines seen more obliquely are depth edges
+    variant: Variant = "text"  # Eq. 6 as the text says; "paper" as printed
+    rescue_step: float = 0.1  # heading ladder step when odometry is far off (0: no rescue)
+    rescue_below: float = 0.3  # ... tried when the agreeing weight is below this share of returns
+    keyframe_distance: float = 0.3  # match against a keyframe until odometry moved this far
+    keyframe_angle: float = 0.2  # ... or turned this much (0, 0: consecutive scans)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class PairMatches:
+    """Per pair k (scan k-1 -> scan k): relative laser pose, covariance and diagnostics."""
+
+    pose: np.ndarray  # P x 3 (x, y, theta) of the current laser in the previous laser frame
+    covariance: np.ndarray  # P x 3 x 3
+    sigma: np.ndarray  # P: residual spread (m) at the end
+    used: np.ndarray  # P: correspondences that carried weight
+    degenerate: np.ndarray  # P: 0 none, 1 one translation direction from odometry, 2 all
+    agreement: np.ndarray  # P: share of the current scan's returns that fit the estimate
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    @classmethod
+    def empty(cls, n: int) -> PairMatches:
+        return cls(
+            np.zeros((n, 3)),
+            np.zeros((n, 3, 3)),
+            np.zeros(n),
+            np.zeros(n, np.int32),
+            np.zeros(n, np.int8),
+            np.zeros(n),
+        )
+
+
+# ---------------------------------------------------------------- SE(2) helpers
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ∘ b for (..., 3) poses (x, y, theta)."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    return np.stack([x, y, wrap(a[..., 2] + b[..., 2])], axis=-1)
+
+
+def inverse(a: np.ndarray) -> np.ndarray:
+    """a^-1 for (..., 3) poses."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = -c * a[..., 0] - s * a[..., 1]
+    y = s * a[..., 0] - c * a[..., 1]
+    return np.stack([x, y, -a[..., 2]], axis=-1)
+
+
+def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a^-1 ∘ b: b seen from a."""
+    return compose(inverse(a), b)
+
+
+def wrap(theta: np.ndarray) -> np.ndarray:
+    return np.asarray((theta + np.pi) % (2 * np.pi) - np.pi)
+
+
+def mount_pose(laser: LaserGeometry) -> np.ndarray:
+    return np.array([laser.x, laser.y, laser.yaw], dtype=np.float64)
+
+
+def laser_motion(robot_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Relative robot motions (P x 3) as motions of the laser: M^-1 ∘ step ∘ M."""
+    m = np.broadcast_to(mount_pose(laser), robot_steps.shape)
+    return compose(compose(inverse(m), robot_steps), m)
+
+
+def robot_motion(laser_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Relative laser motions (P x 3) as motions of the robot: M ∘ step ∘ M^-1."""
+    m = np.broadcast_to(mount_pose(laser), laser_steps.shape)
+    return compose(compose(m, laser_steps), inverse(m))
+
+
+# ---------------------------------------------------------------- the kernel
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _bearing(y: float, x: float) -> float:
+    """atan2 to ~1e-5 rad (a polynomial): only picks the beam, the residual stays exact."""
+    ax = abs(x)
+    ay = abs(y)
+    big = max(ax, ay)
+    if big == 0.0:
+        return 0.0
+    z = min(ax, ay) / big
+    z2 = z * z
+    a = z * (
+        0.99986605 + z2 * (-0.33029950 + z2 * (0.18014100 + z2 * (-0.08513300 + z2 * 0.02083510)))
+    )
+    if ay > ax:
+        a = 1.5707963267948966 - a
+    if x < 0.0:
+        a = 3.141592653589793 - a
+    return -a if y < 0.0 else a
+
+
+# state slots of one refinement, kept in a small float64 array
+_TX, _TY, _TH, _VAR, _USED, _SW, _DEG, _UX, _UY = range(9)
+_H = 9  # h00 h01 h02 h11 h12 h22 at 9..14
+_SCORE = 15  # returns that agree at a fixed scale (comparable between starts)
+_STATE = 16
+
+
+@nb.njit(cache=True, nogil=True)
+def _prepare(
+    prev: np.ndarray,
+    cur: np.ndarray,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    params: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+) -> int:
+    """Both scans' returns and the previous scan's surface lines; returns the valid count."""
+    jump = params[4]
+    min_incidence = params[11]
+    spread = params[15] / max(min_incidence, 1e-3)  # beam step / cos(max incidence)
+    nbeams = prev.shape[0]
+    valid = 0
+    for i in range(nbeams):
+        r = prev[i]
+        px[i] = r * cos_a[i]
+        py[i] = r * sin_a[i]
+        r = cur[i]
+        cx[i] = r * cos_a[i]
+        cy[i] = r * sin_a[i]
+        if r == r:
+            valid += 1
+    for i in range(nbeams - 1):
+        dx = px[i + 1] - px[i]
+        dy = py[i + 1] - py[i]
+        d2 = dx * dx + dy * dy
+        # one surface: neighbours no further apart than a surface at the steepest accepted
+        # incidence puts them (grows with range), plus `jump`
+        reach = jump + 0.5 * (prev[i] + prev[i + 1]) * spread
+        ok = d2 < reach * reach and d2 > 1e-12  # NaN compares False: no line
+        if ok:
+            inv = np.float32(1.0) / np.float32(math.sqrt(d2))
+            nx[i] = -dy * inv
+            ny[i] = dx * inv
+            # a line seen at grazing incidence is a depth edge's chord, not a surface
+            mx = px[i] + px[i + 1]
+            my = py[i] + py[i + 1]
+            ok = abs(nx[i] * mx + ny[i] * my) >= min_incidence * math.sqrt(mx * mx + my * my)
+        if not ok:
+            nx[i] = np.nan
+            ny[i] = np.nan
+    nx[nbeams - 1] = np.nan
+    return valid
+
+
+@nb.njit(cache=True, nogil=True)
+def _refine(
+    start: np.ndarray,
+    seed: np.ndarray,
+    angle_min: float,
+    angle_inc: float,
+    params: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+    state: np.ndarray,
+) -> None:
+    """Gaussian rounds (Eq. 3-6 on point-to-line correspondences) from pose `start`, bounded
+    around the odometry `seed`; the result goes to `state`."""
+    iterations = int(params[0])
+    max_corr = params[1]
+    max_turn = params[2]
+    gate = params[3]
+    var_min = params[5] * params[5]
+    ratio = params[6]
+    min_points = params[7]
+    paper = params[10] > 0.5
+    min_info = params[12]
+    nbeams = px.shape[0]
+    inv_inc = 1.0 / angle_inc
+
+    tx, ty, th = start[0], start[1], start[2]
+    var = gate * gate
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    used = 0.0
+    sw = 0.0
+    score = 0.0
+    agree = 1.0 / (2.0 * 9.0 * var_min)
+    degenerate = 0
+    ux, uy = 1.0, 0.0  # the observed translation direction when one is degenerate
+    for it in range(iterations + 1):
+        c = np.float32(math.cos(th))
+        s = np.float32(math.sin(th))
+        ftx = np.float32(tx)
+        fty = np.float32(ty)
+        cap = 1.0 / (2.0 * var)
+        h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+        g0 = g1 = g2 = 0.0
+        sw = 0.0
+        swe = 0.0
+        used = 0.0
+        for j in range(nbeams):
+            ax = c * cx[j] - s * cy[j]  # the return's offset from the current laser, rotated
+            ay = s * cx[j] + c * cy[j]
+            qx = ax + ftx
+            qy = ay + fty
+            if math.isnan(qx):
+                continue
+            f = (_bearing(qy, qx) - angle_min) * inv_inc
+            if not (f >= 0.0 and f < nbeams - 1):
+                continue
+            i = int(f)
+            n0 = nx[i]
+            if math.isnan(n0):
+                continue
+            n1 = ny[i]
+            e = n0 * (qx - px[i]) + n1 * (qy - py[i])
+            if abs(e) > gate:
+                continue
+            e2 = float(e) * float(e)
+            if it == 0:
+                w = 1.0
+            elif paper:  # Eq. 6 as printed: weight times squared residual, capped
+                w = min(e2 / var, 1.0)
+            else:  # the text: changed returns lose weight
+                w = math.exp(-e2 * cap)
+            if w < 1e-6:
+                continue
+            used += 1.0
+            jr = float(n1 * ax - n0 * ay)
+            h00 += w * n0 * n0
+            h01 += w * n0 * n1
+            h02 += w * n0 * jr
+            h11 += w * n1 * n1
+            h12 += w * n1 * jr
+            h22 += w * jr * jr
+            g0 += w * n0 * e
+            g1 += w * n1 * e
+            g2 += w * jr * e
+            sw += w
+            swe += w * e2
+            if it == iterations:
+                score += math.exp(-e2 * agree)
+        if sw <= 0.0 or used < min_points:
+            tx, ty, th = seed[0], seed[1], seed[2]
+            degenerate = 2
+            score = 0.0
+            break
+        var = max(swe / sw, var_min)  # Eq. 4
+        if it == iterations:
+            break  # the last round only measures the spread and information at the estimate
+        # translation information with the rotation marginalised (Schur complement)
+        if h22 > 1e-12:
+            a = h00 - h02 * h02 / h22
+            b = h01 - h02 * h12 / h22
+            d = h11 - h12 * h12 / h22
+        else:
+            a, b, d = h00, h01, h11
+        half_tr = 0.5 * (a + d)
+        disc = math.sqrt(max(0.25 * (a - d) * (a - d) + b * b, 0.0))
+        lam_max = half_tr + disc
+        lam_min = half_tr - disc
+        if lam_max < min_info:
+            degenerate = 2
+        elif lam_min < ratio * lam_max or lam_min < min_info:
+            degenerate = 1
+            if abs(b) > 1e-12:
+                ux, uy = lam_max - d, b
+            elif a >= d:
+                ux, uy = 1.0, 0.0
+            else:
+                ux, uy = 0.0, 1.0
+            norm = math.sqrt(ux * ux + uy * uy)
+            ux /= norm
+            uy /= norm
+        else:
+            degenerate = 0
+        # Gauss-Newton step on the observed directions only
+        if degenerate == 0:
+            det = (
+                h00 * (h11 * h22 - h12 * h12)
+                - h01 * (h01 * h22 - h12 * h02)
+                + h02 * (h01 * h12 - h11 * h02)
+            )
+            if abs(det) < 1e-18:
+                break
+            i00 = (h11 * h22 - h12 * h12) / det
+            i01 = (h02 * h12 - h01 * h22) / det
+            i02 = (h01 * h12 - h02 * h11) / det
+            i11 = (h00 * h22 - h02 * h02) / det
+            i12 = (h02 * h01 - h00 * h12) / det
+            i22 = (h00 * h11 - h01 * h01) / det
+            dx = -(i00 * g0 + i01 * g1 + i02 * g2)
+            dy = -(i01 * g0 + i11 * g1 + i12 * g2)
+            dt = -(i02 * g0 + i12 * g1 + i22 * g2)
+        elif degenerate == 1:  # translation only along u, plus rotation
+            huu = ux * (h00 * ux + h01 * uy) + uy * (h01 * ux + h11 * uy)
+            hur = ux * h02 + uy * h12
+            gu = ux * g0 + uy * g1
+            det = huu * h22 - hur * hur
+            if abs(det) < 1e-18:
+                break
+            su = -(h22 * gu - hur * g2) / det
+            dt = -(huu * g2 - hur * gu) / det
+            dx = su * ux
+            dy = su * uy
+        else:  # rotation only
+            dx = dy = 0.0
+            dt = -g2 / h22 if h22 > 1e-12 else 0.0
+        tx += dx
+        ty += dy
+        th += dt
+        # motion model: odometry is wrong by a bounded amount
+        ex = tx - seed[0]
+        ey = ty - seed[1]
+        if degenerate == 1:  # along the unobserved direction, the odometry
+            along = ex * ux + ey * uy
+            ex, ey = along * ux, along * uy
+        elif degenerate == 2:
+            ex = ey = 0.0
+        err = math.sqrt(ex * ex + ey * ey)
+        if err > max_corr:
+            ex *= max_corr / err
+            ey *= max_corr / err
+        tx = seed[0] + ex
+        ty = seed[1] + ey
+        th = seed[2] + min(max(th - seed[2], -max_turn), max_turn)
+    state[_TX] = tx
+    state[_TY] = ty
+    state[_TH] = th
+    state[_VAR] = var
+    state[_USED] = used
+    state[_SW] = sw
+    state[_SCORE] = score
+    state[_DEG] = degenerate
+    state[_UX] = ux
+    state[_UY] = uy
+    state[_H + 0] = h00
+    state[_H + 1] = h01
+    state[_H + 2] = h02
+    state[_H + 3] = h11
+    state[_H + 4] = h12
+    state[_H + 5] = h22
+
+
+@nb.njit(cache=True, nogil=True)
+def _covariance(state: np.ndarray, params: np.ndarray, out_cov: np.ndarray) -> int:
+    """var * H^-1 on what the scan observed, the odometry's variance elsewhere."""
+    odo_var_t = params[8] * params[8]
+    odo_var_r = params[9] * params[9]
+    var = state[_VAR]
+    degenerate = int(state[_DEG])
+    ux, uy = state[_UX], state[_UY]
+    h00, h01, h02, h11, h12, h22 = state[_H : _H + 6]
+    for r in range(3):
+        for k in range(3):
+            out_cov[r, k] = 0.0
+    if degenerate == 0:
+        det = (
+            h00 * (h11 * h22 - h12 * h12)
+            - h01 * (h01 * h22 - h12 * h02)
+            + h02 * (h01 * h12 - h11 * h02)
+        )
+        if det > 1e-18:
+            out_cov[0, 0] = var * (h11 * h22 - h12 * h12) / det
+            out_cov[0, 1] = out_cov[1, 0] = var * (h02 * h12 - h01 * h22) / det
+            out_cov[0, 2] = out_cov[2, 0] = var * (h01 * h12 - h02 * h11) / det
+            out_cov[1, 1] = var * (h00 * h22 - h02 * h02) / det
+            out_cov[1, 2] = out_cov[2, 1] = var * (h02 * h01 - h00 * h12) / det
+            out_cov[2, 2] = var * (h00 * h11 - h01 * h01) / det
+            return 0
+        degenerate = 2
+    if degenerate == 1:
+        huu = ux * (h00 * ux + h01 * uy) + uy * (h01 * ux + h11 * uy)
+        hur = ux * h02 + uy * h12
+        det = huu * h22 - hur * hur
+        if det > 1e-18:
+            cuu = var * h22 / det
+            crr = var * huu / det
+            cur = -var * hur / det
+            vx, vy = -uy, ux
+            out_cov[0, 0] = cuu * ux * ux + odo_var_t * vx * vx
+            out_cov[0, 1] = out_cov[1, 0] = cuu * ux * uy + odo_var_t * vx * vy
+            out_cov[1, 1] = cuu * uy * uy + odo_var_t * vy * vy
+            out_cov[0, 2] = out_cov[2, 0] = cur * ux
+            out_cov[1, 2] = out_cov[2, 1] = cur * uy
+            out_cov[2, 2] = crr
+            return 1
+    out_cov[0, 0] = out_cov[1, 1] = odo_var_t
+    out_cov[2, 2] = odo_var_r
+    return 2
+
+
+@nb.njit(cache=True, nogil=True)
+def _match_pair(
+    prev: np.ndarray,
+    cur: np.ndarray,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    angle_min: float,
+    angle_inc: float,
+    seed: np.ndarray,
+    params: np.ndarray,
+    out_pose: np.ndarray,
+    out_cov: np.ndarray,
+    out_stats: np.ndarray,
+    work: np.ndarray,
+) -> None:
+    """Match one pair. `work` is a 6 x B float32 scratch array (no allocation per pair).
+
+    Refines from the odometry first. If too few returns then agree (odometry off by more
+    than the correspondences reach: a wheel slip), restarts from a ladder of headings
+    within the motion model and keeps the start whose result most returns agree with.
+    """
+    px, py, nx, ny, cx, cy = work[0], work[1], work[2], work[3], work[4], work[5]
+    valid = _prepare(prev, cur, cos_a, sin_a, params, px, py, nx, ny, cx, cy)
+    state = np.empty(_STATE)
+    best = np.empty(_STATE)
+    start = np.empty(3)
+    start[:] = seed[:3]
+    _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, best)
+    rescue_step = params[13]
+    if rescue_step > 0.0 and best[_SCORE] < params[14] * valid:
+        max_turn = params[2]
+        steps = int(max_turn / rescue_step)
+        rescued = False
+        for k in range(1, steps + 1):
+            for sign in (-1.0, 1.0):
+                start[2] = seed[2] + sign * k * rescue_step
+                _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, state)
+                if state[_SCORE] > 1.5 * best[_SCORE]:
+                    best[:] = state
+                    rescued = True
+        if rescued:  # polish: more rounds from the chosen start
+            start[0], start[1], start[2] = best[_TX], best[_TY], best[_TH]
+            _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, state)
+            if state[_SCORE] >= best[_SCORE]:
+                best[:] = state
+    degenerate = _covariance(best, params, out_cov)
+    out_pose[0] = best[_TX]
+    out_pose[1] = best[_TY]
+    out_pose[2] = math.atan2(math.sin(best[_TH]), math.cos(best[_TH]))
+    out_stats[0] = math.sqrt(best[_VAR])
+    out_stats[1] = best[_USED]
+    out_stats[2] = degenerate
+    out_stats[3] = best[_SCORE] / max(valid, 1)
+
+
+@nb.njit(cache=True, parallel=True)
+def _match_all(
+    ranges: np.ndarray,
+    ref: np.ndarray,
+    first: int,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    angle_min: float,
+    angle_inc: float,
+    seeds: np.ndarray,
+    params: np.ndarray,
+    out_pose: np.ndarray,
+    out_cov: np.ndarray,
+    out_stats: np.ndarray,
+) -> None:
+    """Pairs (ref[k], first+k+1) of `ranges` for every k, in parallel chunks of pairs."""
+    npairs = seeds.shape[0]
+    nbeams = ranges.shape[1]
+    nchunks = max(1, min(npairs, 64))
+    for chunk in nb.prange(nchunks):
+        work = np.empty((6, nbeams), dtype=np.float32)
+        lo = chunk * npairs // nchunks
+        hi = (chunk + 1) * npairs // nchunks
+        for k in range(lo, hi):
+            _match_pair(
+                ranges[ref[k]],
+                ranges[first + k + 1],
+                cos_a,
+                sin_a,
+                angle_min,
+                angle_inc,
+                seeds[k],
+                params,
+                out_pose[k],
+                out_cov[k],
+                out_stats[k],
+                work,
+            )
+
+
+def _params(config: MatchConfig, laser: LaserGeometry) -> np.ndarray:
+    c = config
+    return np.array(
+        [
+            c.iterations,
+            c.max_correction,
+            c.max_turn,
+            c.gate,
+            c.jump,
+            c.sigma_min,
+            c.degenerate_ratio,
+            c.min_points,
+            c.odometry_sigma[0],
+            c.odometry_sigma[1],
+            1.0 if c.variant == "paper" else 0.0,
+            math.cos(c.max_incidence),
+            c.min_information,
+            c.rescue_step,
+            c.rescue_below,
+            abs(laser.angle_increment),
+        ],
+        dtype=np.float64,
+    )
+
+
+def _tables(laser: LaserGeometry) -> tuple[np.ndarray, np.ndarray]:
+    a = laser.angles
+    return np.cos(a).astype(np.float32), np.sin(a).astype(np.float32)
+
+
+def keyframes(odometry: np.ndarray, distance: float, angle: float) -> np.ndarray:
+    """Reference scan of every scan (S,), chosen from odometry alone: each scan is matched
+    against the last keyframe; a scan becomes the next keyframe once the odometry has moved
+    `distance` or turned `angle` since the current one. ref[0] = 0; 0 and 0 give
+    consecutive pairs (ref[k] = k - 1)."""
+    return _keyframes(np.ascontiguousarray(odometry, dtype=np.float64), distance, angle)
+
+
+@nb.njit(cache=True)
+def _keyframes(odo: np.ndarray, distance: float, angle: float) -> np.ndarray:
+    n = odo.shape[0]
+    ref = np.zeros(n, dtype=np.int64)
+    key = 0
+    for k in range(1, n):
+        ref[k] = key
+        dx = odo[k, 0] - odo[key, 0]
+        dy = odo[k, 1] - odo[key, 1]
+        turn = abs(math.atan2(math.sin(odo[k, 2] - odo[key, 2]), math.cos(odo[k, 2] - odo[key, 2])))
+        if dx * dx + dy * dy >= distance * distance or turn >= angle:
+            key = k
+    return ref
+
+
+def match_pairs(
+    ranges: np.ndarray,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    config: MatchConfig | None = None,
+    ref: np.ndarray | None = None,
+    chunk: int = 65_536,
+) -> PairMatches:
+    """Match every scan k >= 1 of `ranges` (S x B) against scan ref[k] (default k - 1).
+
+    `seeds[k-1]` is the odometry's pose of laser k in the frame of laser ref[k] (see
+    `laser_motion`). Pairs are independent given the seeds: all are matched at once, in
+    parallel, in chunks of `chunk` pairs so the working memory stays bounded.
+    """
+    config = config or MatchConfig()
+    ranges = np.ascontiguousarray(ranges, dtype=np.float32)
+    seeds = np.ascontiguousarray(seeds, dtype=np.float64)
+    n = max(len(ranges) - 1, 0)
+    refs = _refs(ref, len(ranges))
+    if seeds.shape != (n, 3):
+        raise ValueError(f"seeds {seeds.shape} do not match {n} scan pairs")
+    if ranges.shape[1:] != (laser.beams,):
+        raise ValueError(f"ranges have {ranges.shape[1:]} beams, the laser {laser.beams}")
+    out = PairMatches.empty(n)
+    stats = np.zeros((n, 4))
+    cos_a, sin_a = _tables(laser)
+    params = _params(config, laser)
+    for lo in range(0, n, chunk):
+        hi = min(lo + chunk, n)
+        _match_all(
+            ranges,
+            refs[lo + 1 : hi + 1],
+            lo,
+            cos_a,
+            sin_a,
+            float(laser.angle_min),
+            float(laser.angle_increment),
+            seeds[lo:hi],
+            params,
+            out.pose[lo:hi],
+            out.covariance[lo:hi],
+            stats[lo:hi],
+        )
+    out.sigma[:] = stats[:, 0]
+    out.used[:] = stats[:, 1]
+    out.degenerate[:] = stats[:, 2]
+    out.agreement[:] = stats[:, 3]
+    return out
+
+
+def _refs(ref: np.ndarray | None, n: int) -> np.ndarray:
+    if ref is None:
+        return np.maximum(np.arange(n, dtype=np.int64) - 1, 0)
+    refs = np.ascontiguousarray(ref, dtype=np.int64)
+    if refs.shape != (n,) or (n > 1 and not ((refs[1:] >= 0) & (refs[1:] < np.arange(1, n))).all()):
+        raise ValueError("ref must give every scan k >= 1 an earlier scan")
+    return refs
+
+
+class StreamMatcher:
+    """The matcher one scan at a time, for a robot: float32 scans, constant working memory.
+
+    Give it each scan with the odometry's pose at that scan; it returns the corrected robot
+    pose. It keeps the keyframe scan (B float32), the last scan's pose and a 6 x B float32
+    work array: 28 B bytes per scan pair besides the caller's scan (5 KB at 181 beams).
+    Keyframes, seeds, the kernel and the composition are those of the batch form
+    (`match_pairs` with `keyframes`, composed by `toolkit.trajectory`), so the poses are the
+    same.
+    """
+
+    def __init__(self, laser: LaserGeometry, config: MatchConfig | None = None) -> None:
+        self.laser = laser
+        self.config = config or MatchConfig()
+        self._params = _params(self.config, laser)
+        self._cos, self._sin = _tables(laser)
+        self._key_scan = np.full(laser.beams, np.nan, dtype=np.float32)
+        self._key_odometry = np.zeros(3)
+        self._key_pose = np.zeros(3)
+        self._started = False
+        self._work = np.empty((6, laser.beams), dtype=np.float32)
+        self.pose = np.zeros(3)  # relative pose of the last pair (laser frame)
+        self.covariance = np.zeros((3, 3))
+        self.stats = np.zeros(4)  # sigma, correspondences used, degenerate, agreement
+
+    @property
+    def working_bytes(self) -> int:
+        """Bytes the matcher keeps between scans (keyframe scan, work arrays, tables)."""
+        arrays = (self._key_scan, self._work, self._cos, self._sin, self._params)
+        return sum(a.nbytes for a in arrays) + 8 * (3 + 3 + 3 + 3 + 9 + 3)
+
+    def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+        """Take the next scan and the odometry's robot pose at it; return the robot pose."""
+        scan = np.asarray(ranges, dtype=np.float32)
+        if scan.shape != (self.laser.beams,):
+            raise ValueError(f"a scan of {self.laser.beams} beams expected, got {scan.shape}")
+        odo = np.asarray(odometry, dtype=np.float64).reshape(3)
+        if not self._started:
+            self._started = True
+            self._key_scan[:] = scan
+            self._key_odometry[:] = odo
+            self._key_pose[:] = odo
+            return odo.copy()
+        robot_seed = between(self._key_odometry[None], odo[None])
+        seed = np.ascontiguousarray(laser_motion(robot_seed, self.laser)[0])
+        _match_pair(
+            self._key_scan,
+            np.ascontiguousarray(scan),
+            self._cos,
+            self._sin,
+            float(self.laser.angle_min),
+            float(self.laser.angle_increment),
+            seed,
+            self._params,
+            self.pose,
+            self.covariance,
+            self.stats,
+            self._work,
+        )
+        step = robot_motion(self.pose[None], self.laser)[0]
+        x, y, th = self._key_pose
+        c, s = math.cos(th), math.sin(th)
+        pose = np.array(
+            [
+                x + c * step[0] - s * step[1],
+                y + s * step[0] + c * step[1],
+                math.atan2(math.sin(th + step[2]), math.cos(th + step[2])),
+            ]
+        )
+        dx, dy = odo[:2] - self._key_odometry[:2]
+        turn = abs(
+            math.atan2(
+                math.sin(odo[2] - self._key_odometry[2]), math.cos(odo[2] - self._key_odometry[2])
+            )
+        )
+        cfg = self.config
+        if dx * dx + dy * dy >= cfg.keyframe_distance**2 or turn >= cfg.keyframe_angle:
+            self._key_scan[:] = scan
+            self._key_odometry[:] = odo
+            self._key_pose[:] = pose
+        return pose
+
+
+def scan_points(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Returns of one scan in the laser frame, B x 2 (NaN where there is none)."""
+    a = laser.angles
+    r = np.asarray(ranges, dtype=np.float64)
+    return np.column_stack([r * np.cos(a), r * np.sin(a)])
+
+
+def match_pairs_icp(
+    ranges: np.ndarray,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    method: Literal["point_to_point", "point_to_line"] = "point_to_line",
+    max_distance: float = 0.5,
+    iterations: int = 30,
+    ref: np.ndarray | None = None,
+) -> PairMatches:
+    """The ICP baseline on the same pairs as `match_pairs`, seeded the same way (one pair at a
+    time: ICP builds a KD-tree of each reference scan)."""
+    from toolkit.align.icp import ordered_normals, register_point_to_line, register_point_to_point
+
+    n = max(len(ranges) - 1, 0)
+    refs = _refs(ref, len(ranges))
+    out = PairMatches.empty(n)
+    key, prev, normals = -1, np.zeros((0, 2)), np.zeros((0, 2))
+    for k in range(n):
+        if refs[k + 1] != key:
+            key = int(refs[k + 1])
+            prev = scan_points(ranges[key], laser)
+            normals = ordered_normals(prev)
+        cur = scan_points(ranges[k + 1], laser)
+        src = cur[np.isfinite(cur).all(axis=1)]
+        if method == "point_to_line":
+            T, fit, rmse = register_point_to_line(
+                src, prev, normals, seeds[k], max_distance, iterations
+            )
+            pose = np.array([T[0, 2], T[1, 2], np.arctan2(T[1, 0], T[0, 0])])
+        else:
+            dst = prev[np.isfinite(prev).all(axis=1)]
+            T4, fit, rmse = register_point_to_point(src, dst, seeds[k], max_distance, iterations)
+            pose = np.array([T4[0, 3], T4[1, 3], np.arctan2(T4[1, 0], T4[0, 0])])
+        out.pose[k] = pose
+        out.sigma[k] = rmse
+        out.used[k] = round(fit * len(src))
+    return out

@@ -1,0 +1,57 @@
+"""`toolkit map DATASET --out RUN [--method gaussian|icp|icp-point|odometry] [--voxel M]`"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from toolkit.cli import app
+
+
+@app.command("map")
+def map_command(
+    dataset: Annotated[Path, typer.Argument(help="dataset directory")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="run directory to write")],
+    method: Annotated[
+        str,
+        typer.Option(
+            help="gaussian (the paper's scan matcher), icp (2D point-to-line), "
+            "icp-point (Open3D point-to-point) or odometry"
+        ),
+    ] = "gaussian",
+    voxel: Annotated[
+        float, typer.Option(help="voxel size (m) to downsample cloud.ply; 0 keeps every return")
+    ] = 0.0,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing run")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
+) -> None:
+    """Align the scans, build the trajectory and the maps, and measure them against ground truth.
+
+    Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
+    metrics.json; atomically.
+    """
+    from toolkit.errors import ToolkitError
+    from toolkit.mapping import map_dataset
+    from toolkit.trajectory import METHODS
+
+    if method not in METHODS:
+        raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    if voxel < 0:
+        raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
+    run = map_dataset(dataset, out, method, voxel, force)
+    if quiet:
+        return
+    metrics = json.loads((run / "metrics.json").read_text())
+    line = f"{run}: {metrics['scans']} scans by {method}"
+    if metrics.get("pairs_per_second"):
+        line += f", {metrics['pairs_per_second']:.0f} pairs/s"
+    if metrics.get("groundtruth"):
+        ate, rpe, fails = metrics["ate"], metrics["rpe"], metrics["failures"]
+        line += (
+            f"; ATE {ate['rmse']:.3f} m, RPE {rpe['translation']:.4f} m "
+            f"{rpe['rotation_deg']:.3f}°, {fails['count']} failures"
+        )
+    typer.echo(line)

@@ -1,0 +1,129 @@
+"""Trajectory accuracy against ground truth: ATE, RPE and failures.
+
+- `ATE`: absolute trajectory error, the RMS position error after the best SE(2) alignment
+  of the estimate onto the truth (rotation and translation, no scale: Umeyama/Kabsch).
+- `RPE`: relative pose error per scan step: the error of each estimated motion between
+  consecutive scans, in translation (m) and rotation (rad); RMS over the steps.
+- `Failures`: steps whose motion is off by more than 0.2 m or 5°.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from toolkit.align.scan import between, compose, wrap
+
+FAIL_TRANSLATION = 0.2  # m
+FAIL_ROTATION = float(np.deg2rad(5.0))  # rad
+
+
+def align_se2(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """The SE(2) transform (x, y, theta) that best moves `est` positions onto `truth`'s."""
+    a = est[:, :2] - est[:, :2].mean(axis=0)
+    b = truth[:, :2] - truth[:, :2].mean(axis=0)
+    cross = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    dot = float(np.sum(a * b))
+    theta = np.arctan2(cross, dot)
+    c, s = np.cos(theta), np.sin(theta)
+    centre = est[:, :2].mean(axis=0)
+    rotated = np.array([c * centre[0] - s * centre[1], s * centre[0] + c * centre[1]])
+    shift = truth[:, :2].mean(axis=0) - rotated
+    return np.array([shift[0], shift[1], theta])
+
+
+def _check(est: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    est = np.asarray(est, dtype=np.float64).reshape(-1, 3)
+    truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    if est.shape != truth.shape:
+        raise ValueError(f"estimate {est.shape} and truth {truth.shape} differ")
+    return est, truth
+
+
+@dataclass(frozen=True)
+class ATE:
+    """Absolute trajectory error after SE(2) alignment (m)."""
+
+    rmse: float
+    mean: float
+    median: float
+    max: float
+    poses: int
+
+    @classmethod
+    def compute(cls, est: np.ndarray, truth: np.ndarray) -> ATE:
+        est, truth = _check(est, truth)
+        if len(est) == 0:
+            return cls(0.0, 0.0, 0.0, 0.0, 0)
+        moved = compose(np.broadcast_to(align_se2(est, truth), est.shape), est)
+        err = np.hypot(*(moved[:, :2] - truth[:, :2]).T)
+        return cls(
+            float(np.sqrt(np.mean(err**2))),
+            float(err.mean()),
+            float(np.median(err)),
+            float(err.max()),
+            len(err),
+        )
+
+
+@dataclass(frozen=True)
+class RPE:
+    """Relative pose error per scan step: RMS translation (m) and rotation (rad) errors."""
+
+    translation: float
+    rotation: float
+    translation_median: float
+    rotation_median: float
+    steps: int
+
+    @staticmethod
+    def step_errors(est: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per step: translation (m) and absolute rotation (rad) error of the motion."""
+        est, truth = _check(est, truth)
+        e = between(between(truth[:-1], truth[1:]), between(est[:-1], est[1:]))
+        return np.hypot(e[:, 0], e[:, 1]), np.abs(wrap(e[:, 2]))
+
+    @classmethod
+    def compute(cls, est: np.ndarray, truth: np.ndarray) -> RPE:
+        et, er = cls.step_errors(est, truth)
+        if len(et) == 0:
+            return cls(0.0, 0.0, 0.0, 0.0, 0)
+        return cls(
+            float(np.sqrt(np.mean(et**2))),
+            float(np.sqrt(np.mean(er**2))),
+            float(np.median(et)),
+            float(np.median(er)),
+            len(et),
+        )
+
+
+@dataclass(frozen=True)
+class Failures:
+    """Steps whose estimated motion is off by more than 0.2 m or 5° (the thresholds)."""
+
+    count: int
+    steps: int
+    translation_limit: float = FAIL_TRANSLATION
+    rotation_limit: float = FAIL_ROTATION
+
+    @classmethod
+    def compute(cls, est: np.ndarray, truth: np.ndarray) -> Failures:
+        et, er = RPE.step_errors(est, truth)
+        bad = (et > FAIL_TRANSLATION) | (er > FAIL_ROTATION)
+        return cls(int(bad.sum()), len(et))
+
+    @property
+    def fraction(self) -> float:
+        return self.count / self.steps if self.steps else 0.0
+
+
+def evaluate(est: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
+    """ATE, RPE and failures of `est` against `truth` (both S x 3), as a JSON-ready dict."""
+    rpe = RPE.compute(est, truth)
+    return {
+        "ate": asdict(ATE.compute(est, truth)),
+        "rpe": {**asdict(rpe), "rotation_deg": float(np.rad2deg(rpe.rotation))},
+        "failures": asdict(Failures.compute(est, truth)),
+    }
