@@ -5,7 +5,7 @@ FORMATS.md) are found by a vectorized search over the whole buffer: every ``0x02
 address 0x80/0x81, a reply command (high bit set) and a plausible LEN (2..806) is a candidate.
 The CRC of all candidates is computed at once: in numpy, byte position by byte position
 across frames, or compiled with numba (``-O crc=numba``). bench_import_lms200 compares the
-two: numba's kernel is about 3x faster, but importing numba costs 1-2 s, so numba is the
+two: numba's kernel is about 1.7x faster, but importing numba costs 1-2 s, so numba is the
 default only for captures of 256 MB or more, or when numba is loaded already. Valid
 telegrams are accepted greedily in stream order, a valid telegram consuming its bytes, so
 line noise, ACK/NAK bytes and damaged frames are skipped and the search resynchronises on
@@ -165,7 +165,7 @@ CRC_METHODS = {"numpy": crc_frames_numpy, "numba": crc_frames_numba}
 def default_crc_method(size: int = 0) -> str:
     """numba for captures of NUMBA_MIN_BYTES or more, or when numba is loaded anyway; else numpy.
 
-    Measured (bench_import_lms200): the numba kernel is about 3x faster than the numpy one,
+    Measured (bench_import_lms200): the numba kernel is about 1.7x faster than the numpy one,
     but importing numba costs 1-2 s per process, which only pays off on big captures.
     """
     if size < NUMBA_MIN_BYTES and "numba" not in sys.modules:
