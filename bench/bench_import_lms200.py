@@ -10,7 +10,7 @@ damaged frames) and a cut-off last telegram. Figures, medians of 3 runs on the s
 - `read numpy` / `read numba`: the whole reader (file read, search, CRC, decode, times) to a
   Dataset in memory;
 - `numba import + cached kernel`: what the numba path costs a new process before its first
-  byte (why numba is the default only for captures of 256 MB or more);
+  byte (why numba is the default only for captures of 1 GB or more);
 - `toolkit import`: the command in a new process, end to end (start-up, reader with the
   default CRC, Parquet (zstd), sha256 of the sources, meta.json).
 

@@ -6,7 +6,7 @@ address 0x80/0x81, a reply command (high bit set) and a plausible LEN (2..806) i
 The CRC of all candidates is computed at once: in numpy, byte position by byte position
 across frames, or compiled with numba (``-O crc=numba``). bench_import_lms200 compares the
 two: numba's kernel is about 1.7x faster, but importing numba costs 1-2 s, so numba is the
-default only for captures of 256 MB or more, or when numba is loaded already. Valid
+default only for captures of 1 GB or more, or when numba is loaded already. Valid
 telegrams are accepted greedily in stream order, a valid telegram consuming its bytes, so
 line noise, ACK/NAK bytes and damaged frames are skipped and the search resynchronises on
 the next intact telegram. Every skipped byte and rejected frame is counted in the import report.
@@ -80,7 +80,7 @@ DEFAULT_BAUD = 38400
 BITS_PER_BYTE = 10  # 8N1
 CHUNK = 8192  # frames decoded per block: bounded index arrays
 CRC_BLOCK = 8192  # frames per CRC block
-NUMBA_MIN_BYTES = 256 << 20  # from here the numba CRC repays its import
+NUMBA_MIN_BYTES = 1 << 30  # from here the numba CRC repays its import (bench_import_lms200)
 
 
 # ---------------------------------------------------------------- CRC
@@ -336,7 +336,7 @@ class LMS200(Importer):
     options: ClassVar[dict[str, str]] = {
         "baud": f"line speed for times without a side file or --rate (default {DEFAULT_BAUD})",
         "times": "side file of 'OFFSET T' lines (default: <capture>.times if present)",
-        "crc": "numpy or numba (default: numba from 256 MB): how the candidates' CRCs are computed",
+        "crc": "numpy or numba (default: numba from 1 GB): how the candidates' CRCs are computed",
     }
 
     def sniff(self, path: Path) -> bool:
