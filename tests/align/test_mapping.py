@@ -1,0 +1,126 @@
+"""`toolkit map`: the run directory (trajectory, TUM, cloud, map, metrics, config), written
+atomically, and one-line errors; checked on a simulated log whose truth is known."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import toolkit
+from toolkit import mapping
+from toolkit.sim import simulate
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "toolkit", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("data") / "corridor"
+    toolkit.save(simulate("corridor", seed=4, scans=300).dataset, out)
+    return out
+
+
+def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    result = run("map", dataset, "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert "ATE" in result.stdout
+    names = {p.name for p in out.iterdir()}
+    assert {
+        "config.json",
+        "trajectory.parquet",
+        "trajectory.tum",
+        "groundtruth.tum",
+        "cloud.ply",
+        "map.png",
+        "metrics.json",
+    } <= names
+    ds = toolkit.load(dataset)
+    traj = pd.read_parquet(out / "trajectory.parquet")
+    assert list(traj.columns) == ["t", "x", "y", "theta"]
+    assert np.allclose(traj.to_numpy(), toolkit.trajectory(ds, method="gaussian").to_numpy())
+
+    # TUM: t x y z qx qy qz qw, yaw-only unit quaternions giving back theta
+    tum = np.loadtxt(out / "trajectory.tum")
+    assert tum.shape == (300, 8)
+    assert np.allclose(tum[:, 0], ds.t, atol=1e-6) and np.allclose(tum[:, 1:3], traj[["x", "y"]])
+    assert np.allclose(np.linalg.norm(tum[:, 4:], axis=1), 1)
+    yaw = 2 * np.arctan2(tum[:, 6], tum[:, 7])
+    assert np.allclose(np.angle(np.exp(1j * (yaw - traj["theta"]))), 0, atol=1e-6)
+
+    # the 3D map: every return once, at the laser's height, coloured from early to late
+    import open3d as o3d
+
+    cloud = o3d.io.read_point_cloud(str(out / "cloud.ply"))
+    pts = np.asarray(cloud.points)
+    assert len(pts) == int(np.isfinite(ds.ranges).sum())
+    assert np.allclose(pts[:, 2], ds.laser.z)
+    colours = np.asarray(cloud.colors)
+    assert not np.allclose(colours[:100].mean(0), colours[-100:].mean(0), atol=0.1)
+    first = mapping.world_points(ds.ranges[:1], traj[["x", "y", "theta"]].to_numpy()[:1], ds.laser)
+    assert np.allclose(pts[: len(first[0]), :2], first[0], atol=1e-4)
+
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["groundtruth"] and metrics["pairs"] == 299
+    assert metrics["ate"]["rmse"] < metrics["odometry"]["ate"]["rmse"]
+    assert metrics["seconds_aligning"] > 0 and metrics["pairs_per_second"] > 0
+    assert {"translation", "rotation", "rotation_deg"} <= set(metrics["rpe"])
+    assert metrics["failures"]["count"] == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["method"] == "gaussian" and config["matcher"]["iterations"] >= 1
+    assert (out / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_voxel_and_odometry_method(dataset: Path, tmp_path: Path) -> None:
+    ds = toolkit.load(dataset)
+    out = mapping.write_run(ds, tmp_path / "odo", method="odometry", voxel=0.2)
+    import open3d as o3d
+
+    pts = np.asarray(o3d.io.read_point_cloud(str(out / "cloud.ply")).points)
+    assert 0 < len(pts) < np.isfinite(ds.ranges).sum() / 5
+    cells = np.unique(np.floor(pts[:, :2] / 0.2), axis=0)
+    assert len(cells) > 0.8 * len(pts)  # about one point per voxel
+    traj = pd.read_parquet(out / "trajectory.parquet")
+    assert np.allclose(traj[["x", "y", "theta"]], ds.odometry[["x", "y", "theta"]])
+    assert json.loads((out / "metrics.json").read_text())["pairs"] == 0
+
+
+def test_errors_are_one_line_and_leave_nothing(dataset: Path, tmp_path: Path) -> None:
+    for args, needle in [
+        (("map", tmp_path / "missing", "--out", tmp_path / "r1"), "not a dataset directory"),
+        (("map", dataset, "--out", tmp_path / "r2", "--method", "magic"), "unknown method"),
+        (("map", dataset, "--out", tmp_path / "r3", "--voxel", "-1"), "--voxel"),
+    ]:
+        result = run(*args)
+        assert result.returncode == 1, result
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and needle in lines[0] and "Traceback" not in result.stderr
+    assert not any(tmp_path.glob("r*"))
+    (tmp_path / "taken").mkdir()
+    result = run("map", dataset, "--out", tmp_path / "taken")
+    assert result.returncode == 1 and "--force" in result.stderr
+
+
+def test_an_interrupted_map_writes_nothing(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(mapping, "write_map_png", broken)
+    with pytest.raises(KeyboardInterrupt):
+        mapping.map_dataset(dataset, tmp_path / "run")
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,118 @@
+"""Trajectories and metrics: composition, interpolation, and the accuracy targets on the
+simulator's corridor and building and on a real CARMEN log with added odometry drift."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import toolkit
+from toolkit.align import scan as sc
+from toolkit.metrics import ATE, RPE, Failures, align_se2, evaluate
+from toolkit.sim import simulate
+from toolkit.trajectory import build, compose_refs, compose_steps, poses_at, truth_poses, with_drift
+
+
+def random_walk(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    steps = np.column_stack([rng.uniform(0, 0.5, n), rng.normal(0, 0.05, n), rng.normal(0, 0.2, n)])
+    return compose_steps(np.array([1.0, 2.0, 0.3]), steps)
+
+
+def test_compose_steps_matches_pose_by_pose_composition() -> None:
+    rng = np.random.default_rng(0)
+    steps = rng.normal(0, 0.3, (50, 3))
+    start = np.array([1.0, -2.0, 0.5])
+    poses = compose_steps(start, steps)
+    slow = [start]
+    for s in steps:
+        slow.append(sc.compose(slow[-1], s))
+    assert np.allclose(poses, np.array(slow), atol=1e-9)
+    ref = sc.keyframes(poses, 0.6, 0.5)
+    rel = sc.between(poses[ref[1:]], poses[1:])
+    assert np.allclose(compose_refs(start, ref, rel), poses, atol=1e-9)
+
+
+def test_poses_at_interpolates_across_the_heading_wrap() -> None:
+    frame = pd.DataFrame({"t": [0.0, 1.0], "x": [0.0, 2.0], "y": [0.0, 0.0], "theta": [3.1, -3.1]})
+    p = poses_at(frame, np.array([0.5, 2.0]))
+    assert p[0, 0] == pytest.approx(1.0)
+    assert abs(sc.wrap(p[0, 2] - np.pi)) < 1e-9  # through pi, not through 0
+    assert p[1, 0] == pytest.approx(2.0)
+
+
+def test_metrics_on_known_errors() -> None:
+    truth = random_walk(200, 1)
+    # a rigidly moved copy: ATE 0 after SE(2) alignment, RPE 0
+    moved = sc.compose(np.broadcast_to([3.0, -1.0, 0.7], truth.shape), truth)
+    assert np.allclose(align_se2(moved, truth), sc.inverse(np.array([3.0, -1.0, 0.7])))
+    assert ATE.compute(moved, truth).rmse < 1e-9
+    assert RPE.compute(moved, truth).translation < 1e-9
+    # one step 0.3 m off and one 6° off: two failures, and the RPE counts them
+    steps = sc.between(truth[:-1], truth[1:])
+    steps[10, 0] += 0.3
+    steps[50, 2] += np.deg2rad(6)
+    bad = compose_steps(truth[0], steps)
+    f = Failures.compute(bad, truth)
+    assert (f.count, f.steps) == (2, 200)
+    rpe = RPE.compute(bad, truth)
+    assert rpe.translation == pytest.approx(np.sqrt(0.3**2 / 200), rel=1e-6)
+    assert rpe.rotation == pytest.approx(np.sqrt(np.deg2rad(6) ** 2 / 200), rel=1e-6)
+    assert evaluate(bad, truth)["ate"]["rmse"] > 0.1
+
+
+@pytest.mark.parametrize("scenario", ["corridor", "building"])
+def test_simulated_logs_meet_the_accuracy_targets(scenario: str) -> None:
+    ds = simulate(scenario, seed=1).dataset
+    truth = truth_poses(ds)
+    assert truth is not None
+    odo = evaluate(build(ds, "odometry").poses, truth)
+    result = build(ds, "gaussian")
+    got = evaluate(result.poses, truth)
+    assert got["ate"]["rmse"] <= odo["ate"]["rmse"] / 5
+    assert got["failures"]["count"] == 0
+    assert got["rpe"]["rotation"] < odo["rpe"]["rotation"]
+    assert got["rpe"]["translation"] < 0.02
+    frame = toolkit.trajectory(ds, method="gaussian")
+    assert list(frame.columns) == ["t", "x", "y", "theta"] and len(frame) == ds.n_scans
+    assert np.allclose(frame[["x", "y", "theta"]].to_numpy(), result.poses)
+
+
+@pytest.mark.real
+def test_real_intel_log_with_drift_beats_odometry_and_icp(real: Path, tmp_path: Path) -> None:
+    import importers
+    from importers.base import ImportOptions
+
+    out = importers.import_log(
+        "carmen",
+        [real / "carmen_radish_corrected" / "intel-corrected.log.gz"],
+        tmp_path / "intel",
+        ImportOptions(extra={"poses": "groundtruth"}),
+    )
+    ds = with_drift(toolkit.load(out), seed=0)
+    truth = truth_poses(ds)
+    assert truth is not None
+    odo = evaluate(build(ds, "odometry").poses, truth)
+    gauss = evaluate(build(ds, "gaussian").poses, truth)
+    icp = evaluate(build(ds, "icp").poses, truth)
+    assert odo["ate"]["rmse"] > 5.0  # the drift is real
+    assert gauss["ate"]["rmse"] <= odo["ate"]["rmse"] / 5
+    assert gauss["rpe"]["translation"] <= 1.25 * icp["rpe"]["translation"]
+    assert gauss["rpe"]["rotation"] <= 1.25 * icp["rpe"]["rotation"]
+    assert gauss["failures"]["count"] <= icp["failures"]["count"]
+
+
+def test_methods_and_errors() -> None:
+    ds = simulate("corridor", seed=2, scans=50).dataset
+    assert np.allclose(build(ds, "odometry").poses, ds.odometry[["x", "y", "theta"]].to_numpy())
+    with pytest.raises(toolkit.ToolkitError, match="unknown method"):
+        build(ds, "magic")
+    bare = toolkit.Dataset(t=ds.t, ranges=ds.ranges, laser=ds.laser)
+    with pytest.raises(toolkit.ToolkitError, match="needs odometry"):
+        build(bare, "odometry")
+    with pytest.raises(toolkit.ToolkitError, match="ground truth"):
+        with_drift(bare)
+    assert len(build(bare, "gaussian").frame) == 50  # no odometry: seeded with no motion
