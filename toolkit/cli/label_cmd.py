@@ -31,6 +31,13 @@ def label_command(
     smoothing: Annotated[
         str, typer.Option(help="along the trajectory: none, forward (Eq. 7) or forward-backward")
     ] = "none",
+    robust: Annotated[
+        float | None,
+        typer.Option(
+            help="per beam, the weight of the world's model against the feature's "
+            "(default 0.3; higher finds places seen from elsewhere more often, less calibrated)"
+        ),
+    ] = None,
     paper: Annotated[
         bool, typer.Option("--paper", help="the paper's literal per-scan model (for comparison)")
     ] = False,
@@ -50,6 +57,10 @@ def label_command(
     if smoothing not in SMOOTHINGS:
         raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
     config = replace(PAPER if paper else Config(), smoothing=smoothing)
+    if robust is not None:
+        if not 0.0 <= robust < 1.0:
+            raise ToolkitError(f"--robust {robust}: a weight in [0, 1)")
+        config = replace(config, robust=robust)
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")

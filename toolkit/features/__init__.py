@@ -1,9 +1,9 @@
 """Feature learning (paper Eq. 7-9): places taught from about ten scans each, found along the
 whole log with calibrated probabilities.
 
-    from toolkit.features import Config, fit, classify, read_regions, training_indices
+    from toolkit.features import Config, fit, classify, read_regions, training_components
     spans = read_regions("regions.csv", ds.t)
-    model = fit(ds.ranges, ds.laser, training_indices(spans), Config(), spans)
+    model = fit(ds.ranges, ds.laser, training_components(spans), Config(), spans)
     labels = classify(model, ds.ranges, poses)      # .prob (S x K), .label, .classes
 """
 
@@ -12,7 +12,13 @@ from __future__ import annotations
 from toolkit.features.classify import Labels, classify, loglik
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
 from toolkit.features.model import PAPER, Config, FeatureModel, fit
-from toolkit.features.regions import Span, read_regions, spans_from_frame, training_indices
+from toolkit.features.regions import (
+    Span,
+    read_regions,
+    spans_from_frame,
+    training_components,
+    training_indices,
+)
 
 __all__ = [
     "PAPER",
@@ -27,5 +33,6 @@ __all__ = [
     "loglik",
     "read_regions",
     "spans_from_frame",
+    "training_components",
     "training_indices",
 ]

@@ -332,7 +332,8 @@ def fit(
 ) -> FeatureModel:
     """Learn a model: per feature (or per component: pairs of feature name and scan indices),
     per-beam statistics of its training scans (indices into `ranges`); the background from
-    the whole log; the temperature by leave-one-out."""
+    the whole log; the temperature by leave-one-out. With `spans` (those `training` came
+    from), a feature's separate spans become separate components."""
     from toolkit.features.classify import fit_temperature
 
     config = config or Config()
@@ -341,6 +342,14 @@ def fit(
     if config.smoothing not in SMOOTHINGS:
         raise ToolkitError(f"smoothing {config.smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
     components = list(training.items()) if isinstance(training, dict) else list(training)
+    if spans and isinstance(training, dict):
+        from toolkit.features.regions import training_components, training_indices
+
+        merged = training_indices(spans)
+        if merged.keys() == training.keys() and all(
+            np.array_equal(merged[f], training[f]) for f in merged
+        ):
+            components = training_components(spans)  # separate spans: separate components
     stats = [beam_statistics(ranges[idx], laser, config) for _, idx in components]
     model = FeatureModel(
         features=[name for name, _ in components],
