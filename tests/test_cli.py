@@ -68,3 +68,34 @@ def test_malformed_format_option(tmp_path: Path, bad: str) -> None:
     assert_one_line_error(
         run("import", "auto", src, "--out", tmp_path / "d", "-O", bad), "KEY=VALUE"
     )
+
+
+def test_interrupt_exits_130_and_writes_nothing(tmp_path: Path) -> None:
+    """Ctrl-C during a command: status 130, a line saying so, no output left behind."""
+    import signal
+    import time
+
+    out = tmp_path / "sim"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "toolkit",
+            "simulate",
+            "building",
+            "--out",
+            str(out),
+            "--format",
+            "dataset",
+            "--scans",
+            "200000",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(6)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []

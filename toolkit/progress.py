@@ -12,6 +12,7 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    TaskID,
     TaskProgressColumn,
     TextColumn,
     TimeRemainingColumn,
@@ -46,7 +47,7 @@ def track(items: Iterable[T], description: str, total: float | None = None) -> I
 
 
 @contextmanager
-def task(description: str, total: float) -> Iterator[tuple[Progress, int]]:
+def task(description: str, total: float) -> Iterator[tuple[Progress, TaskID]]:
     """A bar advanced by hand: `with task("import", n) as (p, k): p.advance(k, m)`."""
     with bar() as progress:
         yield progress, progress.add_task(description, total=total)

@@ -24,6 +24,7 @@ app = typer.Typer(
 from toolkit.cli import import_cmd as _import_cmd  # noqa: E402,F401
 from toolkit.cli import info_cmd as _info_cmd  # noqa: E402,F401
 from toolkit.cli import label_cmd as _label_cmd  # noqa: E402,F401
+from toolkit.cli import map_cmd as _map_cmd  # noqa: E402,F401
 from toolkit.cli import report_cmd as _report_cmd  # noqa: E402,F401
 from toolkit.cli import simulate_cmd as _simulate_cmd  # noqa: E402,F401
 
@@ -38,7 +39,13 @@ def main() -> None:
     from toolkit.errors import ToolkitError
 
     try:
-        app(standalone_mode=False)
+        # Without standalone mode click returns exit codes (typer.Exit, Ctrl-C) instead of
+        # raising SystemExit, so that errors below can be printed as one line.
+        rc = app(standalone_mode=False)
+        if rc == 130:
+            typer.echo("interrupted; no output written", err=True)
+        if isinstance(rc, int) and rc != 0:
+            sys.exit(rc)
     except ToolkitError as e:
         typer.echo(f"error: {e.line()}", err=True)
         sys.exit(1)
