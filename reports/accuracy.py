@@ -8,7 +8,7 @@ from typing import Any
 import pandas as pd
 
 from reports.base import Section, save_table
-from reports.context import Context
+from reports.context import CORRIDOR, Context
 
 KEY = "accuracy"
 TITLE = "Accuracy against ground truth (ATE, RPE)"
@@ -25,11 +25,25 @@ def generate(ctx: Context, section: Section) -> None:
     for name in ctx.map_logs():
         with ctx.part(section, f"accuracy on {name}"):
             ds = ctx.dataset(name)
-            for method in ("odometry", *ctx.matchers):
+            methods = ("odometry", *ctx.matchers) if ds.odometry is not None else ctx.matchers
+            for method in methods:
                 run = ctx.run(name, method)
                 rows.append(_row(name, ds.n_scans, method, run.metrics))
             if ds.groundtruth is None:
                 section.notes.append(f"{name} has no ground truth: ATE and RPE are not computable.")
+    logs = _logs(ctx)
+    if not logs.empty:
+        section.data["logs"] = logs
+        section.tables.append(
+            save_table(
+                logs,
+                ctx.out,
+                "logs",
+                "The logs of this report",
+                "Every log mapped or labelled: where it comes from, its scans, whether it has "
+                "ground truth and training regions.",
+            )
+        )
     if not rows:
         return
     table = pd.DataFrame(rows)
@@ -52,6 +66,29 @@ def generate(ctx: Context, section: Section) -> None:
             },
         )
     )
+
+
+def _logs(ctx: Context) -> pd.DataFrame:
+    rows = []
+    for name in dict.fromkeys([*ctx.map_logs(), *ctx.labelled_logs()]):
+        source = ctx.sources.get(name)
+        ds = ctx.loaded(name)
+        if source is None or ds is None:
+            continue  # never loaded: its sections say why
+        rows.append(
+            {
+                "log": name,
+                "origin": source.origin,
+                "scans": ds.n_scans,
+                "beams": ds.n_beams,
+                "ground truth": "yes" if ds.groundtruth is not None else "no",
+                "regions": source.regions.name
+                if source.regions is not None
+                else ("the simulator's" if name == CORRIDOR else ""),
+                "about": source.note,
+            }
+        )
+    return pd.DataFrame(rows)
 
 
 def _row(name: str, scans: int, method: str, metrics: dict[str, Any]) -> dict[str, Any]:

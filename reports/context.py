@@ -98,7 +98,6 @@ class Run:
     trajectory: pd.DataFrame
     seconds: float
     metrics: dict[str, Any] = field(default_factory=dict)
-    folder: str | None = None  # relative to the report, when the run's files are kept
 
 
 @dataclass
@@ -112,6 +111,7 @@ class Context:
     sources: dict[str, Source] = field(default_factory=dict)
     real_dir: Path | None = None
     step: Callable[[str], None] = lambda _: None  # progress: called with what starts
+    load_at_start: tuple[float, float, float] = field(default_factory=os.getloadavg)
     _datasets: dict[str, Dataset] = field(default_factory=dict)
     _cache: dict[Any, Any] = field(default_factory=dict)
 
@@ -143,10 +143,16 @@ class Context:
             extra = {"scans": QUICK_CORRIDOR_SCANS} if self.quick else {}
             sim = sim_mod.simulate(CORRIDOR, seed=self.seed, **extra)
             self._datasets[CORRIDOR] = sim.dataset
-            self.sources.setdefault(CORRIDOR, Source(CORRIDOR, None, "simulated"))
+            self.sources.setdefault(
+                CORRIDOR, Source(CORRIDOR, None, "simulated", note="the paper's corridor")
+            )
             return sim
 
         return self.cached(("sim", CORRIDOR), make)
+
+    def loaded(self, name: str) -> Dataset | None:
+        """The log if it has been loaded already (no import, no simulation)."""
+        return self._datasets.get(name)
 
     def dataset(self, name: str) -> Dataset:
         """A log by name, loaded once."""

@@ -12,16 +12,17 @@ from typing import Any
 
 import numpy as np
 
-from reports.base import Section, new_figure, require, save_figure
-from reports.context import Context
+from reports.base import NotAvailable, Section, new_figure, require, save_figure
+from reports.context import CORRIDOR, INTEL_DRIFT, Context
+from reports.runs import safe_name
 
 VIEW = 6.0  # m: the panels show the returns within this range of the laser
 
 KEY = "pairs"
 TITLE = "Fig. 3: scan pairs aligned by each method"
 INTRO = (
-    "A pair of consecutive corridor scans where the walls are close and one where they are "
-    "distant, the current scan moved onto the previous one by odometry, by the Gaussian "
+    "A pair of consecutive scans where the walls are close and one where they are distant "
+    "(the corridor; the Intel lab with drift added), the current scan moved onto the previous one by odometry, by the Gaussian "
     "alignment and by ICP, beside the truth."
 )
 
@@ -72,16 +73,25 @@ def _moved(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
 
 
 def generate(ctx: Context, section: Section) -> None:
+    from reports.table1_sections import sections_of
+
+    for name in (CORRIDOR, *[n for n in ctx.real_logs() if n == INTEL_DRIFT]):
+        with ctx.part(section, f"scan pairs of {name}"):
+            ds = ctx.dataset(name)
+            if ds.groundtruth is None:
+                raise NotAvailable(f"{name} has no ground truth")
+            pairs = pick_pairs(ds.ranges, sections_of(ctx, name))
+            section.data[name] = _pairs(ctx, section, name, ds, pairs)
+
+
+def _pairs(ctx: Context, section: Section, name: str, ds: Any, pairs: dict[str, int]) -> Any:
     sc = require("toolkit.align.scan", "scan_points")
-    sim = ctx.corridor()
-    ds = sim.dataset
-    pairs = pick_pairs(ds.ranges, np.asarray(sim.sections))
     methods = ("odometry", *ctx.matchers, "truth")
     fig = new_figure(3.6 * len(methods), 3.6 * len(pairs))
     axes = fig.subplots(len(pairs), len(methods), squeeze=False)
     data: dict[str, Any] = {}
     for row, (what, k) in enumerate(pairs.items()):
-        ctx.step(f"{what} pair")
+        ctx.step(f"{name}: {what} pair")
         result = align_pair(ds, k, ctx.matchers)
         result["median_range_m"] = float(np.nanmedian(ds.ranges[k - 1 : k + 1]))
         data[what] = result
@@ -104,18 +114,18 @@ def generate(ctx: Context, section: Section) -> None:
             ax.set_aspect("equal")
             ax.tick_params(labelsize=7)
         section.notes.append(
-            f"{what} walls (pair {k - 1}-{k}, median range {result['median_range_m']:.1f} m): "
+            f"{name}, {what} walls (pair {k - 1}-{k}, median range {result['median_range_m']:.1f} m): "
             + ", ".join(f"{m} {result['error_cm'][m]:.2f} cm" for m in ("odometry", *ctx.matchers))
             + " from the true motion."
         )
     axes[0, 0].legend(fontsize=7, markerscale=3)
-    section.data["pairs"] = data
+    suffix = "" if name == CORRIDOR else "_" + safe_name(name)
     section.figures.append(
         save_figure(
             fig,
             ctx.out,
-            "fig3_pairs",
-            "Fig. 3: scan pairs aligned by each method",
+            f"fig3_pairs{suffix}",
+            f"Fig. 3 ({name}): scan pairs aligned by each method",
             "Previous scan (black) and current scan (red) moved into the previous laser frame by "
             "each method's estimate of the motion, within 6 m of the laser; titles give the "
             "translation error against the true motion. 'Close' and 'distant' are read as the "
@@ -123,3 +133,4 @@ def generate(ctx: Context, section: Section) -> None:
             data,
         )
     )
+    return data

@@ -12,7 +12,7 @@ from typing import Any
 
 from reports.base import Section, new_figure, save_figure
 from reports.context import CORRIDOR, Context
-from reports.runs import world_points
+from reports.runs import safe_name, world_points
 
 KEY = "maps"
 TITLE = "Fig. 6-7: odometry against corrected maps"
@@ -33,7 +33,9 @@ def generate(ctx: Context, section: Section) -> None:
 
 def _maps(ctx: Context, section: Section, name: str) -> dict[str, Any]:
     ds = ctx.dataset(name)
-    methods = ["odometry", *ctx.matchers]
+    methods = ["odometry", *ctx.matchers] if ds.odometry is not None else list(ctx.matchers)
+    if ds.odometry is None:
+        section.notes.append(f"{name} has no odometry: its scans are matched from standstill.")
     runs = {m: ctx.run(name, m) for m in methods}
     truth = ds.groundtruth is not None
     every = max(1, ds.n_scans * ds.n_beams // (2 * MAX_POINTS))
@@ -66,7 +68,8 @@ def _maps(ctx: Context, section: Section, name: str) -> dict[str, Any]:
     source = ctx.sources.get(name)
     note = f" ({source.note})" if source is not None and source.note else ""
     caption = (
-        f"{name}{note}: the map from odometry alone (left) and from the trajectories corrected "
+        f"{name}{note}: the map from odometry alone (left, when the log has odometry) and from "
+        "the trajectories corrected "
         "by "
         + ", ".join(ctx.matchers)
         + "; red the trajectory"
@@ -77,17 +80,13 @@ def _maps(ctx: Context, section: Section, name: str) -> dict[str, Any]:
         save_figure(
             fig,
             ctx.out,
-            f"fig{fig_no}_maps_{_safe(name)}",
+            f"fig{fig_no}_maps_{safe_name(name)}",
             f"Fig. {fig_no} ({name}): odometry against corrected maps",
             caption,
             data,
         )
     )
-    if gt is not None:
+    if gt is not None and "odometry" in methods:
         odo, best = data["ate"]["odometry"], min(data["ate"][m] for m in ctx.matchers)
         section.notes.append(f"{name}: ATE from odometry {odo:.3f} m, best corrected {best:.3f} m.")
     return data
-
-
-def _safe(name: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)

@@ -14,7 +14,7 @@ import pandas as pd
 
 from reports.base import NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import Context
-from reports.runs import LabelRun, path_distance, poses_at, world_points
+from reports.runs import LabelRun, path_distance, poses_at, safe_name, world_points
 
 KEY = "features"
 TITLE = "Fig. 8-10: learnt features"
@@ -91,7 +91,7 @@ def _features(
         save_table(
             table,
             ctx.out,
-            f"features_{name}",
+            f"features_{safe_name(name)}",
             f"Features of {name}",
             "Per feature: training scans, scans labelled with it"
             + (
@@ -137,7 +137,7 @@ def _fig8(ctx: Context, name: str, data: dict[str, Any], run: LabelRun, how: str
     return save_figure(
         fig,
         ctx.out,
-        f"fig8_probability_{name}",
+        f"fig8_probability_{safe_name(name)}",
         f"Fig. 8 ({name}): probability of each feature along the map",
         "Per feature, its probability at every scan against the distance travelled; red "
         "triangles mark the training scans"
@@ -177,7 +177,7 @@ def _fig9(
     return save_figure(
         fig,
         ctx.out,
-        f"fig9_found_{name}",
+        f"fig9_found_{safe_name(name)}",
         f"Fig. 9 ({name}): where each feature is found",
         f"Robot positions from {how}: red where the scan is labelled with the feature, blue "
         "where it is not" + ("; grey: the map." if background is not None else "."),
@@ -209,7 +209,7 @@ def _fig10(
     return save_figure(
         fig,
         ctx.out,
-        f"fig10_map3d_{name}",
+        f"fig10_map3d_{safe_name(name)}",
         f"Fig. 10 ({name}): the 3D map",
         f"Every return at its world position and the laser's mounting height, poses from {how}, "
         "coloured by the label of the scan that saw it.",

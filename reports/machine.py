@@ -74,7 +74,16 @@ def machine_info() -> dict[str, Any]:
 
 def generate(ctx: Context, section: Section) -> None:
     info = machine_info()
+    info["load average at the start of the run"] = " ".join(f"{x:.2f}" for x in ctx.load_at_start)
     section.data["machine"] = info
+    cpus = os.cpu_count() or 1
+    busiest = max(ctx.load_at_start[0], os.getloadavg()[0])
+    if busiest > cpus:
+        section.notes.append(
+            f"The machine was shared during this run (1-minute load up to {busiest:.1f} on "
+            f"{cpus} CPUs): the times are inflated and noisy, ICP's (multi-threaded Open3D) "
+            "most of all. Rerun on an idle machine for figures to quote."
+        )
     frame = pd.DataFrame({"item": list(info), "value": [str(v) for v in info.values()]})
     section.tables.append(
         save_table(

@@ -77,6 +77,8 @@ def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
 
     traj = require("toolkit.trajectory", "build", "truth_poses")
     metrics = require("toolkit.metrics", "evaluate")
+    if method == "odometry" and ds.odometry is None:
+        raise NotAvailable(f"{name} has no odometry")
     warm_up(ds, method)
     result = traj.build(ds, method)
     truth = traj.truth_poses(ds)
@@ -153,6 +155,11 @@ def world_points(ds: Dataset, poses: np.ndarray, every: int = 1) -> tuple[np.nda
     xy, scan = figures.world_points(ds.ranges, poses, ds.laser, every=every)
     z = np.full((len(xy), 1), float(ds.laser.z))
     return np.hstack([np.asarray(xy), z]), np.asarray(scan)
+
+
+def safe_name(name: str) -> str:
+    """A log's name as part of a file name."""
+    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
 
 
 def path_distance(xy: np.ndarray) -> np.ndarray:

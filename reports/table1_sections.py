@@ -15,27 +15,39 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports.base import Section, new_figure, require, save_figure, save_table
-from reports.context import Context
-from reports.runs import slice_scans, warm_up
+from reports.base import NotAvailable, Section, new_figure, require, save_figure, save_table
+from reports.context import CORRIDOR, INTEL_DRIFT, Context
+from reports.runs import safe_name, slice_scans, warm_up
+
+SECTIONS = 8  # the paper's
 
 KEY = "table1"
-TITLE = "Table 1: alignment per corridor section"
+TITLE = "Table 1: alignment per section"
 INTRO = (
-    "The simulated corridor, section by section: mean and standard deviation of the "
+    "The simulated corridor section by section (and the Intel lab with drift added, in 8 "
+    "equal parts): mean and standard deviation of the "
     "translation error of each scan pair's estimated motion against the true motion, and the "
     "time spent aligning the section's pairs, for the Gaussian alignment, ICP point-to-line "
     "and ICP point-to-point (Open3D); odometry's own error for reference."
 )
 
 
-def section_rows(ctx: Context) -> pd.DataFrame:
+def sections_of(ctx: Context, name: str) -> np.ndarray:
+    """Section per scan: the simulator's for the corridor, else 8 equal consecutive parts."""
+    if name == CORRIDOR:
+        return np.asarray(ctx.corridor().sections)
+    n = ctx.dataset(name).n_scans
+    return (np.arange(n) * SECTIONS) // max(n, 1)
+
+
+def section_rows(ctx: Context, name: str = CORRIDOR) -> pd.DataFrame:
     """Long table: section, method, pairs, error mean/std (m), rotation error, seconds."""
     traj = require("toolkit.trajectory", "build", "truth_poses")
     metrics = require("toolkit.metrics", "RPE")
-    sim = ctx.corridor()
-    ds = sim.dataset
-    sections = np.asarray(sim.sections)
+    ds = ctx.dataset(name)
+    if ds.groundtruth is None:
+        raise NotAvailable(f"{name} has no ground truth")
+    sections = sections_of(ctx, name)
     rows: list[dict[str, Any]] = []
     for method in ctx.matchers:
         warm_up(ds, method)
@@ -44,7 +56,7 @@ def section_rows(ctx: Context) -> pd.DataFrame:
         part = slice_scans(ds, index)
         truth = traj.truth_poses(part)
         for method in ("odometry", *ctx.matchers):
-            ctx.step(f"section {k}, {method}")
+            ctx.step(f"{name} section {k + 1}, {method}")
             t0 = time.perf_counter()
             result = traj.build(part, method)
             wall = time.perf_counter() - t0
@@ -77,31 +89,43 @@ def wide(rows: pd.DataFrame, methods: tuple[str, ...]) -> pd.DataFrame:
 
 
 def generate(ctx: Context, section: Section) -> None:
-    rows = section_rows(ctx)
+    for name in (CORRIDOR, *[n for n in ctx.real_logs() if n == INTEL_DRIFT]):
+        with ctx.part(section, f"Table 1 on {name}"):
+            section.data[name] = _table1(ctx, section, name)
+
+
+def _table1(ctx: Context, section: Section, name: str) -> dict[str, Any]:
+    rows = section_rows(ctx, name)
     table = wide(rows, ctx.matchers)
-    section.data["rows"] = rows
-    section.data["table1"] = table
     fmt = {c: "{:.2f}" for c in table.columns if "(cm)" in c}
     fmt.update({c: "{:.1f}" for c in table.columns if "(ms)" in c})
-    sim = ctx.corridor()
-    per = f"{len(sim.sections)} scans in all (quick mode)" if ctx.quick else ""
+    n = ctx.dataset(name).n_scans
+    if name == CORRIDOR:
+        what = "the simulated corridor" + (f", {n} scans in all (quick mode)" if ctx.quick else "")
+    else:
+        source = ctx.sources.get(name)
+        what = f"{name} ({source.note if source else ''}), {n} scans cut in 8 equal parts"
+    suffix = "" if name == CORRIDOR else "_" + safe_name(name)
     section.tables.append(
         save_table(
             table,
             ctx.out,
-            "table1_sections",
-            "Table 1: alignment error and time per corridor section",
-            "Per section of the simulated corridor"
-            + (f", {per}" if per else "")
-            + ": mean and standard deviation of the per-pair translation error against the "
-            "truth (cm), and the time spent aligning the section's pairs (ms), measured now.",
+            f"table1_sections{suffix}",
+            f"Table 1 ({name}): alignment error and time per section",
+            f"Per section of {what}: mean and standard deviation of the per-pair translation "
+            "error against the truth (cm), and the time spent aligning the section's pairs "
+            "(ms), measured now.",
             fmt,
         )
     )
-    section.figures.append(_figure(ctx, rows, ctx.matchers))
+    figure = _figure(ctx, rows, ctx.matchers, name, suffix)
+    section.figures.append(figure)
+    return {"rows": rows, "table1": table, "figure": figure.data}
 
 
-def _figure(ctx: Context, rows: pd.DataFrame, matchers: tuple[str, ...]) -> Any:
+def _figure(
+    ctx: Context, rows: pd.DataFrame, matchers: tuple[str, ...], name: str, suffix: str
+) -> Any:
     fig = new_figure(7.5, 3.8)
     ax = fig.add_subplot()
     methods = ["odometry", *matchers]
@@ -113,15 +137,15 @@ def _figure(ctx: Context, rows: pd.DataFrame, matchers: tuple[str, ...]) -> Any:
         y, e = 100 * part["error_m"].to_numpy(), 100 * part["std_m"].to_numpy()
         ax.bar(x, y, width, yerr=e, capsize=2, label=method)
         data[method] = {"section": part["section"].tolist(), "error_cm": y, "std_cm": e}
-    ax.set_xlabel("corridor section")
+    ax.set_xlabel(f"section of {name}")
     ax.set_ylabel("per-pair translation error (cm)")
     ax.legend(fontsize=8)
     ax.grid(True, axis="y", alpha=0.3)
     return save_figure(
         fig,
         ctx.out,
-        "table1_sections",
-        "Table 1 as a chart",
+        f"table1_sections{suffix}",
+        f"Table 1 ({name}) as a chart",
         "Mean per-pair translation error per section, with one standard deviation.",
         data,
     )

@@ -130,7 +130,7 @@ def test_table1_has_eight_sections_and_each_method(report: Report) -> None:
     from reports.context import QUICK_MATCHERS
 
     section = report.section("table1")
-    rows = section.data["rows"]
+    rows = section.data["corridor"]["rows"]
     assert sorted(set(rows["section"])) == list(range(1, 9))
     assert set(rows["method"]) == {"odometry", *QUICK_MATCHERS}
     assert len(rows) == 8 * (1 + len(QUICK_MATCHERS))
@@ -139,10 +139,25 @@ def test_table1_has_eight_sections_and_each_method(report: Report) -> None:
     assert (rows["error_m"] >= 0).all() and (rows["std_m"] >= 0).all()
     timed = rows[rows["method"] != "odometry"]
     assert (timed["seconds"] > 0).all()
-    table = section.data["table1"]
+    table = section.data["corridor"]["table1"]
     assert list(table["section"]) == list(range(1, 9))
     gauss = rows[rows["method"] == "gaussian"].reset_index(drop=True)
     assert np.allclose(table["gaussian error (cm)"], 100 * gauss["error_m"])
+    chart = section.figure("table1_sections").data
+    assert np.allclose(chart["gaussian"]["error_cm"], 100 * gauss["error_m"])
+    assert np.allclose(chart["gaussian"]["std_cm"], 100 * gauss["std_m"])
+
+
+@pytest.mark.real
+def test_table1_and_fig3_on_the_intel_log_with_drift(report: Report) -> None:
+    rows = report.section("table1").data["intel+drift"]["rows"]
+    assert sorted(set(rows["section"])) == list(range(1, 9))
+    gauss = rows[rows["method"] == "gaussian"]
+    assert gauss["pairs"].sum() == report.section("maps").data["intel+drift"]["scans"] - 8
+    assert np.isfinite(rows["error_m"]).all()
+    pairs = report.section("pairs").data["intel+drift"]
+    assert pairs["close"]["median_range_m"] < pairs["distant"]["median_range_m"]
+    assert "fig3_pairs_intel_drift" in {f.name for f in report.section("pairs").figures}
 
 
 def test_table1_errors_are_the_metric_of_the_runs(report: Report) -> None:
@@ -156,14 +171,14 @@ def test_table1_errors_are_the_metric_of_the_runs(report: Report) -> None:
     sim = simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS)
     part = slice_scans(sim.dataset, np.flatnonzero(sim.sections == 3))
     err, _ = RPE.step_errors(build(part, "gaussian").poses, truth_poses(part))
-    rows = report.section("table1").data["rows"]
+    rows = report.section("table1").data["corridor"]["rows"]
     row = rows[(rows["section"] == 4) & (rows["method"] == "gaussian")].iloc[0]
     assert row["error_m"] == pytest.approx(err.mean())
     assert row["std_m"] == pytest.approx(err.std(ddof=1))
 
 
 def test_fig3_pairs_close_and_distant(report: Report) -> None:
-    data = report.section("pairs").data["pairs"]
+    data = report.section("pairs").data["corridor"]
     assert set(data) == {"close", "distant"}
     assert data["close"]["median_range_m"] < data["distant"]["median_range_m"]
     for pair in data.values():
@@ -238,13 +253,15 @@ def test_accuracy_every_method_and_log(report: Report) -> None:
     assert corridor.to_dict() == pytest.approx(maps)  # one run per log and method, shared
 
 
-def test_dataset_given_is_mapped_labelled_and_scored(report: Report) -> None:
+def test_dataset_given_is_mapped_labelled_and_scored(report: Report, given: Path) -> None:
+    import pandas as pd
+
     maps = report.section("maps").data["building"]
     assert maps["scans"] == GIVEN_SCANS
     assert all(np.isfinite(v) for v in maps["ate"].values())
     assert "fig7_maps_building" in {f.name for f in report.section("maps").figures}
     features = report.section("features").data["building"]
-    assert set(features["features"]) == {"corridor", "hall", "window"}
+    assert set(features["features"]) == set(pd.read_csv(given / "regions.csv")["feature"])
     assert "recall" in features["table"]  # truth.parquet beside the data gives the truth
     for f in features["features"]:
         p = features["probability"][f]
@@ -292,3 +309,49 @@ def test_bundled_catalog_is_read_and_imported(tmp_path: Path) -> None:
     ctx = Context(tmp_path / "out", tmp_path / "work", quick=True, sources=sources)
     ds = ctx.dataset(smallest)
     assert ds.n_scans > 100 and sources[smallest].path is not None
+
+
+def test_logs_table_names_every_log(report: Report) -> None:
+    logs = report.section("accuracy").data["logs"].set_index("log")
+    assert set(logs.index) == {"corridor", "dpslam_loop5", "intel+drift", "building", "intel"}
+    assert logs.loc["corridor", "scans"] == 400  # quick mode
+    assert logs.loc["dpslam_loop5", "ground truth"] == "no"
+    assert logs.loc["intel+drift", "ground truth"] == "yes"
+    assert logs.loc["building", "origin"] == "command line"
+    assert logs.loc["building", "regions"] == "regions.csv"
+
+
+def test_fig10_map3d_every_return_at_the_laser_height(report: Report) -> None:
+    from reports.context import QUICK_CORRIDOR_SCANS
+    from toolkit.sim import simulate
+
+    ds = simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS).dataset
+    data = report.section("features").figure("fig10_map3d_corridor").data
+    assert data["points"] == int(np.isfinite(ds.ranges).sum())  # every return, none invented
+    assert np.allclose(data["z"], [ds.laser.z])
+    assert sum(data["label_counts"].values()) == data["points"]
+
+
+def test_log_without_odometry_is_matched_from_standstill(tmp_path: Path) -> None:
+    """A raw laser capture has no odometry: no odometry map or row, the matchers still run."""
+    from dataclasses import replace
+
+    from reports import accuracy, fig6_maps
+    from reports.base import Section
+    from reports.context import Context, Source
+    from toolkit.dataset import save
+    from toolkit.sim import simulate
+
+    ds = replace(simulate("corridor", seed=2, scans=120).dataset, odometry=None)
+    path = save(ds, tmp_path / "capture")
+    ctx = Context(tmp_path / "out", tmp_path / "work", quick=True)
+    ctx.sources["capture"] = Source("capture", path, "command line")
+    section = Section("maps", "maps")
+    data = fig6_maps._maps(ctx, section, "capture")
+    assert data["methods"] == ["gaussian", "icp"]
+    assert all(np.isfinite(v) for v in data["ate"].values())
+    assert any("no odometry" in n for n in section.notes)
+    table = Section("accuracy", "accuracy")
+    ctx.map_logs = lambda: ["capture"]  # type: ignore[method-assign]
+    accuracy.generate(ctx, table)
+    assert list(table.data["accuracy"]["method"]) == ["gaussian", "icp"]
