@@ -14,13 +14,14 @@ from toolkit.cli import app
 
 @app.command("report")
 def report_command(
+    out: Annotated[Path, typer.Option("--out", "-o", help="report folder to write")],
     datasets: Annotated[
         list[Path] | None,
-        typer.Argument(help="dataset directories to map, label and score (default: none)"),
+        typer.Argument(
+            help="dataset directories to map, label and score "
+            "(default: the bundled logs of datasets/catalog.json)"
+        ),
     ] = None,
-    out: Annotated[Path, typer.Option("--out", "-o", help="report folder to write")] = Path(
-        "report"
-    ),
     regions: Annotated[
         Path | None,
         typer.Option(
@@ -38,14 +39,14 @@ def report_command(
     quick: Annotated[
         bool, typer.Option("--quick", help="fewer trials and cloud sizes (tests, CI)")
     ] = False,
-    seed: Annotated[int, typer.Option(help="seed of the simulator and random clouds")] = 0,
+    seed: Annotated[
+        int, typer.Option(help="seed of the simulator (the corridor, the drift added to Intel)")
+    ] = 0,
     force: Annotated[bool, typer.Option("--force", help="replace an existing report")] = False,
 ) -> None:
     """Write the paper's figures and tables, measured now: index.html, PNG/SVG, CSV/MD/LaTeX.
 
-    Simulates the corridor, imports the real logs it uses, maps every log with each method
-    and labels the logs that have training regions; what a missing piece prevents is marked
-    "not available" in the report.
+    Simulates the corridor, imports the real logs it uses, maps every log with each method and labels the logs that have training regions; what a missing piece prevents is marked "not available" in the report.
     """
     import reports
 
