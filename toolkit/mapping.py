@@ -163,7 +163,11 @@ def write_map_png(
         np.add.at(grid, (ij[inside, 0], ij[inside, 1]), 1.0)
     fig, ax = plt.subplots(figsize=(8, 8 * shape[1] / max(shape[0], 1) + 0.5), dpi=120)
     extent = (lo[0], lo[0] + shape[0] * cell, lo[1], lo[1] + shape[1] * cell)
-    ax.imshow(np.log1p(grid.T), origin="lower", extent=extent, cmap="Greys", interpolation="none")
+    shade = np.log1p(grid.T)
+    top = float(np.percentile(shade[shade > 0], 95)) if (shade > 0).any() else 1.0
+    ax.imshow(
+        shade, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=top, interpolation="none"
+    )
     if truth is not None:
         ax.plot(truth[:, 0], truth[:, 1], "--", color="tab:green", lw=0.8, label="ground truth")
     ax.plot(robot[:, 0], robot[:, 1], color="tab:red", lw=0.8, label="trajectory")
