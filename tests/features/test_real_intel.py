@@ -67,13 +67,18 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     for s in spans:
         inside = (labels["t"] >= s["start"] - 1e-6) & (labels["t"] <= s["end"] + 1e-6)
         assert (labels.loc[inside, "label"] == s["feature"]).mean() >= 0.8
-    # elsewhere: each feature's probability is higher at its own kind of place
+    # elsewhere: each feature is found more often, and is more probable, at its kind of place
     test = ~trained
     corridor, room = test & (place == "corridor"), test & (place == "room")
     assert corridor.sum() > 300 and room.sum() > 100
-    assert labels.loc[corridor, "p_corridor"].mean() > 2 * labels.loc[room, "p_corridor"].mean()
-    assert labels.loc[room, "p_room"].mean() > 2 * labels.loc[corridor, "p_room"].mean()
-    assert (labels.loc[corridor, "label"] == "corridor").mean() > (
-        labels.loc[room, "label"] == "corridor"
-    ).mean()
+
+    def found(feature: str, where: np.ndarray) -> float:
+        return float((labels.loc[where, "label"] == feature).mean())
+
+    assert found("corridor", corridor) > 0.3
+    assert found("corridor", corridor) > 3 * found("corridor", room)
+    assert found("room", room) > 0.5
+    assert found("room", room) > 2 * found("room", corridor)
+    assert labels.loc[corridor, "p_corridor"].mean() > labels.loc[room, "p_corridor"].mean()
+    assert labels.loc[room, "p_room"].mean() > labels.loc[corridor, "p_room"].mean()
     assert (run / "membership.png").stat().st_size > 10_000

@@ -29,13 +29,16 @@ def label_command(
         ),
     ] = None,
     smoothing: Annotated[
-        str, typer.Option(help="along the trajectory: none, forward (Eq. 7) or forward-backward")
-    ] = "none",
+        str | None,
+        typer.Option(
+            help="along the trajectory: forward (Eq. 7, the default), forward-backward or none"
+        ),
+    ] = None,
     robust: Annotated[
         float | None,
         typer.Option(
             help="per beam, the weight of the world's model against the feature's "
-            "(default 0.3; higher finds places seen from elsewhere more often, less calibrated)"
+            "(default 0.9; lower trusts every beam of the taught scans more)"
         ),
     ] = None,
     paper: Annotated[
@@ -54,13 +57,17 @@ def label_command(
     from toolkit.features.model import PAPER, SMOOTHINGS, Config
     from toolkit.features.run import label_run
 
-    if smoothing not in SMOOTHINGS:
-        raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
-    config = replace(PAPER if paper else Config(), smoothing=smoothing)
+    config: Config | None = PAPER if paper else Config()
+    if smoothing is not None:
+        if smoothing not in SMOOTHINGS:
+            raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
+        config = replace(PAPER if paper else Config(), smoothing=smoothing)
     if robust is not None:
         if not 0.0 <= robust < 1.0:
             raise ToolkitError(f"--robust {robust}: a weight in [0, 1)")
-        config = replace(config, robust=robust)
+        config = replace(config or Config(), robust=robust)
+    if model is not None and smoothing is None:
+        config = None  # a saved model keeps its own settings
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")

@@ -38,10 +38,10 @@ ABLATION: list[tuple[str, Config]] = [
     ),
     ("+ robust beams (mixture with the background)", dataclasses.replace(FULL, shifts=0, temperature="none", smoothing="none")),
     ("+ beam-shifted training copies", dataclasses.replace(FULL, temperature="none", smoothing="none")),
-    ("+ temperature (leave-one-out design effect): default", FULL),
-    ("+ smoothing: HMM forward filter (Eq. 7, causal)", dataclasses.replace(FULL, smoothing="forward")),
-    ("+ smoothing: HMM forward-backward", dataclasses.replace(FULL, smoothing="forward-backward")),
-    ("alternative: robust weight 0.9, no shifts", dataclasses.replace(FULL, robust=0.9, shifts=0)),
+    ("+ temperature (leave-one-out design effect)", dataclasses.replace(FULL, smoothing="none")),
+    ("+ HMM forward filter along the path (Eq. 7): default", FULL),
+    ("alternative: forward-backward smoothing", dataclasses.replace(FULL, smoothing="forward-backward")),
+    ("alternative: robust weight 0.3, no smoothing", dataclasses.replace(FULL, robust=0.3, smoothing="none")),
 ]  # fmt: skip
 
 

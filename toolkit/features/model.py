@@ -36,7 +36,7 @@ from toolkit.features.regions import Span
 
 MODEL_VERSION = 1
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
-BACKGROUND_BINS = 64
+BACKGROUND_BINS = 128
 
 
 @dataclass(frozen=True)
@@ -49,10 +49,10 @@ class Config:
     range_rel_sigma: float = 0.01  # floor grows with range: sigma^2 += (rel * mean)^2
     shifts: int = 1  # train on copies shifted by +-1..shifts beams
     none_class: bool = True
-    robust: float = 0.3  # per beam, the share of readings the world explains, not the feature
+    robust: float = 0.9  # per beam, the share of readings the world explains, not the feature
     temperature: str = "loo"  # "loo": fitted by leave-one-out; "none": 1 (literal)
-    smoothing: str = "none"  # "forward" (Eq. 7, causal), "forward-backward": measured, see README
-    place_length: float = 4.0  # m travelled per expected change of place (HMM switching)
+    smoothing: str = "forward"  # Eq. 7, causal; "forward-backward" also uses later scans; "none"
+    place_length: float = 1.0  # m travelled per expected change of place (HMM switching)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
 
     def to_dict(self) -> dict[str, Any]:
