@@ -103,8 +103,15 @@ def _pairs(ctx: Context, section: Section, name: str, ds: Any, pairs: dict[str, 
         for col, method in enumerate(methods):
             ax = axes[row, col]
             pose = result["truth"] if method == "truth" else result["estimate"][method]
-            ax.plot(*prev.T, ".", ms=2, color="0.2", label=f"scan {k - 1}")
-            ax.plot(*_moved(cur, pose).T, ".", ms=2, color="tab:red", label=f"scan {k} moved")
+            ax.plot(*prev.T, ".", ms=2, color="0.2", label=f"scan {k - 1}", rasterized=True)
+            ax.plot(
+                *_moved(cur, pose).T,
+                ".",
+                ms=2,
+                color="tab:red",
+                label=f"scan {k} moved",
+                rasterized=True,
+            )
             title = (
                 method if method == "truth" else f"{method}: {result['error_cm'][method]:.1f} cm"
             )

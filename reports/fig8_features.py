@@ -166,8 +166,10 @@ def _fig9(
         found = data["found"][f]
         if background is not None:
             ax.plot(*background.T, ",", color="0.75", rasterized=True)
-        ax.plot(*poses[~found, :2].T, ".", ms=2, color="tab:blue", label="not found")
-        ax.plot(*poses[found, :2].T, ".", ms=3, color="tab:red", label="found")
+        ax.plot(
+            *poses[~found, :2].T, ".", ms=2, color="tab:blue", label="not found", rasterized=True
+        )
+        ax.plot(*poses[found, :2].T, ".", ms=3, color="tab:red", label="found", rasterized=True)
         ax.set_title(f, fontsize=9)
         ax.set_aspect("equal", adjustable="datalim")
         ax.tick_params(labelsize=7)
