@@ -75,3 +75,20 @@ def test_existing_output_needs_force(tmp_path: Path) -> None:
     toolkit.save(_dataset(scans=7), tmp_path / "d", force=True)
     assert toolkit.load(tmp_path / "d").n_scans == 7
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_outputs_get_ordinary_permissions(tmp_path: Path) -> None:
+    import os
+    import stat
+
+    from toolkit.atomic import atomic_file
+
+    mask = os.umask(0o022)
+    try:
+        toolkit.save(_dataset(), tmp_path / "d")
+        with atomic_file(tmp_path / "f.txt") as tmp:
+            tmp.write_text("x")
+    finally:
+        os.umask(mask)
+    assert stat.S_IMODE((tmp_path / "d").stat().st_mode) == 0o755
+    assert stat.S_IMODE((tmp_path / "f.txt").stat().st_mode) == 0o644

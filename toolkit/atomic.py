@@ -12,6 +12,17 @@ from pathlib import Path
 from toolkit.errors import OutputExistsError
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _publish_mode(path: Path, mode: int) -> None:
+    """mkstemp/mkdtemp create private files; outputs get the modes a plain open() would."""
+    os.chmod(path, mode & ~_umask())
+
+
 def check_output(out: Path, force: bool) -> None:
     """Refuse an existing output unless forced, before any work is done."""
     if out.exists() and not force:
@@ -29,6 +40,7 @@ def atomic_dir(out: str | Path, force: bool = False) -> Iterator[Path]:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
+        _publish_mode(tmp, 0o777)
         yield tmp
         if out.exists():
             trash = out.with_name(f".{out.name}.old-{os.getpid()}")
@@ -54,6 +66,7 @@ def atomic_file(out: str | Path) -> Iterator[Path]:
     os.close(fd)
     tmp = Path(name)
     try:
+        _publish_mode(tmp, 0o666)
         yield tmp
         os.replace(tmp, out)
     except BaseException:
