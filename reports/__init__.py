@@ -24,7 +24,14 @@ from pathlib import Path
 from types import ModuleType
 
 from reports.base import NotAvailable, Section
-from reports.context import RESERVED, Context, Source, catalog_sources, default_real
+from reports.context import (
+    QUICK_BUNDLED_SCANS,
+    RESERVED,
+    Context,
+    Source,
+    catalog_sources,
+    default_real,
+)
 from toolkit.errors import ToolkitError
 
 GENERATORS = (
@@ -116,7 +123,7 @@ def build(
     check_output(out, force)
     sources = sources_from_paths(list(datasets), regions)
     if not datasets and bundled:
-        sources = catalog_sources()
+        sources = catalog_sources(max_scans=QUICK_BUNDLED_SCANS if quick else None)
     real_dir = default_real() if real is True else (Path(real) if real else None)
     if real_dir is not None and not real_dir.is_dir():
         raise ToolkitError("no such folder of real logs", file=real_dir)

@@ -27,6 +27,7 @@ CORRIDOR = "corridor"
 MATCHERS = ("gaussian", "icp", "icp-point")  # scan matchers: ours, ICP point-to-line, Open3D
 QUICK_MATCHERS = ("gaussian", "icp")
 QUICK_CORRIDOR_SCANS = 400  # quick mode: the same corridor in 8 sections of 50 scans
+QUICK_BUNDLED_SCANS = 1000  # quick mode: only the bundled logs this short
 CATALOG = ROOT / "datasets" / "catalog.json"  # the bundled simulated logs
 REAL_REGIONS = ROOT / "datasets" / "real-regions"  # training regions for the real logs
 
@@ -60,8 +61,9 @@ class Source:
     native: tuple[str, list[Path]] | None = None  # (format, sources) to import from
 
 
-def catalog_sources(catalog: Path = CATALOG) -> dict[str, Source]:
-    """The bundled logs named by datasets/catalog.json (imported when first used)."""
+def catalog_sources(catalog: Path = CATALOG, max_scans: int | None = None) -> dict[str, Source]:
+    """The bundled logs named by datasets/catalog.json (imported when first used); with
+    `max_scans`, only those the catalog says are no longer."""
     if not catalog.is_file():
         return {}
     try:
@@ -70,6 +72,8 @@ def catalog_sources(catalog: Path = CATALOG) -> dict[str, Source]:
         raise ToolkitError(f"cannot read the catalog: {e}", file=catalog) from None
     sources = {}
     for sample in samples:
+        if max_scans is not None and int(sample.get("scans") or 0) > max_scans:
+            continue
         folder = catalog.parent / sample["path"]
         fmt = sample["format"]
         files = [folder / f for f in sample.get("files", [])]

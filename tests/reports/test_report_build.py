@@ -306,6 +306,8 @@ def test_bundled_catalog_is_read_and_imported(tmp_path: Path) -> None:
         return sum(f.stat().st_size for f in files)
 
     smallest = min(sources, key=size)
+    short = catalog_sources(max_scans=1000)  # what quick mode takes
+    assert set(short) < set(sources)
     ctx = Context(tmp_path / "out", tmp_path / "work", quick=True, sources=sources)
     ds = ctx.dataset(smallest)
     assert ds.n_scans > 100 and sources[smallest].path is not None
