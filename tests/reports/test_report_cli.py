@@ -59,3 +59,39 @@ def test_missing_regions_file(
     )
     assert code == 1
     assert "no such regions file" in capsys.readouterr().err
+
+
+def test_a_failing_section_is_shown_and_exits_1(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    import reports
+    from reports import machine
+
+    def broken(ctx: object, section: object) -> None:
+        raise ValueError("boom")
+
+    monkeypatch.setattr(machine, "generate", broken)
+    monkeypatch.setattr(reports, "GENERATORS", ("machine",))
+    out = tmp_path / "report"
+    code = run_cli(monkeypatch, "report", "--out", str(out), "--no-real")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert err[-1] == f"error: {out}: sections failed: machine (the report says why)"
+    html = (out / "index.html").read_text()
+    assert "Failed: ValueError: boom" in html
+
+
+def test_an_interrupted_report_leaves_nothing(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    import reports
+    from reports import machine
+
+    def interrupted(ctx: object, section: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(machine, "generate", interrupted)
+    monkeypatch.setattr(reports, "GENERATORS", ("machine",))
+    code = run_cli(monkeypatch, "report", "--out", str(tmp_path / "report"), "--no-real")
+    assert code == 130
+    assert list(tmp_path.iterdir()) == []
