@@ -46,7 +46,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
         if source.regions is None:
             raise NotAvailable(f"{name} has no training regions (regions.csv)")
         spans = features.read_regions(source.regions, ds.t)
-        truth = truth_labels(source.truth or source.path, ds.n_scans)
+        truth = truth_labels(source.truth or source.path, ds.t)
     training = features.training_indices(spans)
     poses = None
     if ds.odometry is not None and len(ds.odometry) == ds.n_scans:
@@ -58,16 +58,26 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
     return LabelRun(name, spans, training, model, labels, seconds, truth)
 
 
-def truth_labels(path: Any, n_scans: int) -> np.ndarray | None:
-    """True labels from a simulated log's truth.parquet (beside or inside its folder), if any."""
+def truth_labels(path: Any, t: np.ndarray) -> np.ndarray | None:
+    """True labels of the scans at times `t` from a simulated log's truth.parquet (given, or
+    inside or beside its folder), matched by time: a capture that lost frames keeps the rest."""
     if path is None:
         return None
     candidates = [path] if path.suffix == ".parquet" else [path / "truth.parquet"]
     for candidate in [*candidates, path.parent / "truth.parquet"]:
-        if candidate.is_file():
-            frame = pd.read_parquet(candidate)
-            if "label" in frame and len(frame) == n_scans:
-                return frame["label"].astype(str).to_numpy()
+        if not candidate.is_file():
+            continue
+        frame = pd.read_parquet(candidate)
+        if "label" not in frame:
+            continue
+        labels = frame["label"].astype(str).to_numpy()
+        if "t" not in frame or len(frame) < 2:
+            return labels if len(labels) == len(t) else None
+        ft = frame["t"].to_numpy(np.float64)
+        k = np.clip(np.searchsorted(ft, t), 1, max(len(ft) - 1, 1))
+        nearest = np.where(np.abs(ft[k - 1] - t) <= np.abs(ft[k] - t), k - 1, k)
+        if len(ft) and np.all(np.abs(ft[nearest] - t) <= 1e-3):
+            return labels[nearest]
     return None
 
 

@@ -63,3 +63,17 @@ def test_require_tells_missing_module_from_missing_name() -> None:
     with pytest.raises(NotAvailable, match="lacks no_such_name"):
         require("toolkit.dataset", "no_such_name")
     assert require("toolkit.dataset", "load").load is not None
+
+
+def test_truth_labels_are_matched_by_time(tmp_path: Path) -> None:
+    """A capture that lost frames keeps the true labels of the frames it has."""
+    from reports.runs import truth_labels
+
+    t = 100.0 + 0.2 * np.arange(10)
+    labels = np.array(list("aaabbbccca"))
+    pd.DataFrame({"t": t, "label": labels}).to_parquet(tmp_path / "truth.parquet")
+    kept = np.array([0, 1, 4, 5, 9])
+    assert list(truth_labels(tmp_path, t[kept] + 1e-5)) == list(labels[kept])
+    assert truth_labels(tmp_path, np.array([100.1])) is None  # no frame at that time
+    assert list(truth_labels(tmp_path / "dataset", t)) == list(labels)  # beside the dataset
+    assert truth_labels(None, t) is None
