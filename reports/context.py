@@ -12,7 +12,7 @@ import json
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,18 @@ class Source:
     note: str = ""
     truth: Path | None = None  # the simulator's truth.parquet (true label per scan)
     native: tuple[str, list[Path]] | None = None  # (format, sources) to import from
+
+
+def with_truth_poses(ds: Dataset, source: Source) -> Dataset:
+    """A simulated log whose native format carries no ground truth (ARIA keeps robotGlobal as
+    a pose stream, a laser capture has no poses) gets it from the simulator's truth.parquet."""
+    if ds.groundtruth is not None or source.truth is None or not source.truth.is_file():
+        return ds
+    truth = pd.read_parquet(source.truth)
+    if not {"t", "x", "y", "theta"} <= set(truth.columns):
+        return ds
+    source.note += " [ground truth: the simulator's truth.parquet]"
+    return replace(ds, groundtruth=truth[["t", "x", "y", "theta"]])
 
 
 def catalog_sources(catalog: Path = CATALOG, max_scans: int | None = None) -> dict[str, Source]:
@@ -175,7 +187,7 @@ class Context:
                 raise NotAvailable(f"no log named {name!r}")
             from toolkit.dataset import load
 
-            self._datasets[name] = load(source.path)
+            self._datasets[name] = with_truth_poses(load(source.path), source)
         return self._datasets[name]
 
     def _import_native(self, source: Source) -> None:

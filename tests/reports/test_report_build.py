@@ -311,6 +311,11 @@ def test_bundled_catalog_is_read_and_imported(tmp_path: Path) -> None:
     ctx = Context(tmp_path / "out", tmp_path / "work", quick=True, sources=sources)
     ds = ctx.dataset(smallest)
     assert ds.n_scans > 100 and sources[smallest].path is not None
+    if sources[smallest].truth is not None:  # the simulator's truth is the ground truth
+        import pandas as pd
+
+        truth = pd.read_parquet(sources[smallest].truth)
+        assert ds.groundtruth is not None and len(ds.groundtruth) == len(truth)
 
 
 def test_logs_table_names_every_log(report: Report) -> None:
