@@ -3,6 +3,7 @@ on every log that has ground truth, with the time spent aligning, measured in th
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -16,7 +17,7 @@ INTRO = (
     "Absolute trajectory error (RMS position error after the best rigid alignment) and "
     "relative pose error per scan step, for odometry alone and every scan matcher, on every "
     "log; a failure is a step off by more than 0.2 m or 5°. Logs without ground truth show "
-    "only the time."
+    "only the time. Every run's trajectory (TUM format, for evo) and metrics.json are in runs/."
 )
 
 
@@ -29,6 +30,7 @@ def generate(ctx: Context, section: Section) -> None:
             for method in methods:
                 run = ctx.run(name, method)
                 rows.append(_row(name, ds.n_scans, method, run.metrics))
+                section.links += [(f"{name} {method} {Path(f).name}", f) for f in run.files]
             if ds.groundtruth is None:
                 section.notes.append(f"{name} has no ground truth: ATE and RPE are not computable.")
     logs = _logs(ctx)

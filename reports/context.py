@@ -114,6 +114,7 @@ class Run:
     trajectory: pd.DataFrame
     seconds: float
     metrics: dict[str, Any] = field(default_factory=dict)
+    files: list[str] = field(default_factory=list)  # relative to the report
 
 
 @dataclass

@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -86,18 +88,35 @@ def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
     from reports.context import Run
 
     traj = require("toolkit.trajectory", "build", "truth_poses")
-    metrics = require("toolkit.metrics", "evaluate")
+    mapping = require("toolkit.mapping", "run_metrics", "write_tum")
     if method == "odometry" and ds.odometry is None:
         raise NotAvailable(f"{name} has no odometry")
     warm_up(ds, method)
     result = traj.build(ds, method)
+    scores: dict[str, Any] = mapping.run_metrics(ds, result)  # what `toolkit map` writes
+    # the run's trajectory (TUM, for evo) and metrics.json go into the report
+    folder = Path(RUNS) / safe_name(name) / method
+    (ctx.out / folder).mkdir(parents=True, exist_ok=True)
+    mapping.write_tum(ctx.out / folder / "trajectory.tum", ds.t, result.poses)
+    (ctx.out / folder / "metrics.json").write_text(
+        json.dumps(scores, indent=2, default=_plain) + "\n"
+    )
+    files = [str(folder / "trajectory.tum"), str(folder / "metrics.json")]
     truth = traj.truth_poses(ds)
-    scores: dict[str, Any] = {}
-    if truth is not None:
-        scores = metrics.evaluate(result.poses, truth)
-    scores["seconds_aligning"] = result.seconds
-    scores["pairs_per_second"] = result.pairs_per_second
-    return Run(name, method, result.frame, result.seconds, scores)
+    if truth is not None and not (ctx.out / folder.parent / "groundtruth.tum").exists():
+        mapping.write_tum(ctx.out / folder.parent / "groundtruth.tum", ds.t, truth)
+        files.append(str(folder.parent / "groundtruth.tum"))
+    return Run(name, method, result.frame, result.seconds, scores, files)
+
+
+RUNS = "runs"
+
+
+def _plain(value: Any) -> Any:
+    """JSON for numpy scalars in metrics."""
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
 _warm: set[tuple[str, int]] = set()
@@ -159,12 +178,13 @@ def with_drift(ds: Dataset, seed: int = 0) -> Dataset:
 
 
 def world_points(ds: Dataset, poses: np.ndarray, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Every return at its world position and the laser's height (N x 3), and its scan index,
-    through the toolkit's own map geometry."""
-    figures = require("toolkit.features.figures", "world_points")
-    xy, scan = figures.world_points(ds.ranges, poses, ds.laser, every=every)
+    """Every return of every `every`-th scan at its world position and the laser's height
+    (N x 3), and the index of its scan, through the map builder (toolkit.mapping)."""
+    mapping = require("toolkit.mapping", "world_points")
+    idx = np.arange(0, ds.n_scans, max(every, 1))
+    xy, scan = mapping.world_points(ds.ranges[idx], np.asarray(poses)[idx], ds.laser)
     z = np.full((len(xy), 1), float(ds.laser.z))
-    return np.hstack([np.asarray(xy), z]), np.asarray(scan)
+    return np.hstack([np.asarray(xy), z]), idx[np.asarray(scan)]
 
 
 def safe_name(name: str) -> str:

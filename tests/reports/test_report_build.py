@@ -248,6 +248,15 @@ def test_accuracy_every_method_and_log(report: Report) -> None:
     assert table.loc[table["log"] == "dpslam_loop5", "ATE (m)"].isna().all()
     matched = table[table["method"] != "odometry"]
     assert (matched["aligning (s)"] > 0).all() and (matched["pairs/s"] > 0).all()
+    for log, method in zip(table["log"], table["method"], strict=True):
+        folder = report.path / "runs" / log.replace("+", "_") / method
+        metrics = json.loads((folder / "metrics.json").read_text())
+        row = table[(table["log"] == log) & (table["method"] == method)].iloc[0]
+        assert metrics.get("ate", {}).get("rmse", np.nan) == pytest.approx(
+            row["ATE (m)"], nan_ok=True
+        )
+        tum = np.loadtxt(folder / "trajectory.tum")
+        assert tum.shape == (row["scans"], 8)
     maps = report.section("maps").data["corridor"]["ate"]
     corridor = table[table["log"] == "corridor"].set_index("method")["ATE (m)"]
     assert corridor.to_dict() == pytest.approx(maps)  # one run per log and method, shared
