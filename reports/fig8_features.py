@@ -7,6 +7,7 @@ scans (about ten per feature) and every scan gets a probability per feature.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,6 +49,7 @@ def generate(ctx: Context, section: Section) -> None:
             ds = ctx.dataset(name)
             poses, how = map_poses(ctx, name)
             section.data[name] = _features(ctx, section, name, run, ds, poses, how)
+            section.links += [(f"{name} {Path(f).name}", f) for f in run.files]
 
 
 def _features(

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -14,6 +14,8 @@ import pandas as pd
 
 from reports.base import NotAvailable, require
 from toolkit.dataset import Dataset
+
+RUNS = "runs"  # the report's folder of run outputs (trajectories, metrics, labels)
 
 if TYPE_CHECKING:
     from reports.context import Context, Run
@@ -30,6 +32,7 @@ class LabelRun:
     labels: Any  # toolkit.features.Labels: .classes, .prob (S x K), .label
     seconds: float
     truth: np.ndarray | None = None  # true label per scan, when known (simulated logs)
+    files: list[str] = field(default_factory=list)  # model.json, labels.parquet (report-relative)
 
     def probability(self, feature: str) -> np.ndarray:
         return np.asarray(self.labels.prob[:, self.labels.classes.index(feature)])
@@ -57,7 +60,13 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
     model = features.fit(ds.ranges, ds.laser, training, features.Config(), spans)
     labels = features.classify(model, ds.ranges, poses)
     seconds = time.perf_counter() - t0
-    return LabelRun(name, spans, training, model, labels, seconds, truth)
+    # what `toolkit label` keeps: the model and the labels of every scan
+    folder = Path(RUNS) / safe_name(name) / "labels"
+    (ctx.out / folder).mkdir(parents=True, exist_ok=True)
+    model.save(ctx.out / folder / "model.json")
+    labels.frame(ds.t).to_parquet(ctx.out / folder / "labels.parquet", index=False)
+    files = [str(folder / "model.json"), str(folder / "labels.parquet")]
+    return LabelRun(name, spans, training, model, labels, seconds, truth, files)
 
 
 def truth_labels(path: Any, t: np.ndarray) -> np.ndarray | None:
@@ -107,9 +116,6 @@ def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
         mapping.write_tum(ctx.out / folder.parent / "groundtruth.tum", ds.t, truth)
         files.append(str(folder.parent / "groundtruth.tum"))
     return Run(name, method, result.frame, result.seconds, scores, files)
-
-
-RUNS = "runs"
 
 
 def _plain(value: Any) -> Any:

@@ -117,6 +117,11 @@ def test_features_probabilities_and_training_positions(report: Report) -> None:
     assert list(table["feature"]) == data["features"]
     assert (table["recall"] >= 0).all() and (table["recall"] <= 1).all()
     assert data["balanced_accuracy"] > 1 / (len(data["features"]) + 1)  # better than chance
+    import pandas as pd
+
+    saved = pd.read_parquet(report.path / "runs/corridor/labels/labels.parquet")
+    assert list(saved["label"]) == list(data["label"])
+    assert np.allclose(saved[f"p_{data['features'][0]}"], fig8["probability"][data["features"][0]])
 
 
 def test_machine_section(report: Report) -> None:
