@@ -219,28 +219,36 @@ def write_run(
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
-    result = build(ds, method, config)
-    robot = result.poses
-    truth = truth_poses(ds)
-    with atomic_dir(out, force=force) as tmp:
-        settings = {
-            "dataset": str(ds.path) if ds.path else None,
-            "method": method,
-            "voxel": voxel,
-            "matcher": result.config,
-            "laser": ds.laser.to_dict(),
-            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        }
-        (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
-        result.frame.to_parquet(tmp / "trajectory.parquet", index=False)
-        write_tum(tmp / "trajectory.tum", ds.t, robot)
-        if truth is not None:
-            write_tum(tmp / "groundtruth.tum", ds.t, truth)
-        write_cloud(tmp / "cloud.ply", ds, robot, voxel)
-        name = ds.path.name if ds.path else "dataset"
-        write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
-        metrics = run_metrics(ds, result)
-        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
+    from toolkit.progress import task
+
+    with task(f"map ({method})", 4) as (progress, bar):
+        result = build(ds, method, config)
+        progress.advance(bar)
+        robot = result.poses
+        truth = truth_poses(ds)
+        with atomic_dir(out, force=force) as tmp:
+            settings = {
+                "dataset": str(ds.path) if ds.path else None,
+                "method": method,
+                "voxel": voxel,
+                "matcher": result.config,
+                "laser": ds.laser.to_dict(),
+                "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            }
+            (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
+            result.frame.to_parquet(tmp / "trajectory.parquet", index=False)
+            write_tum(tmp / "trajectory.tum", ds.t, robot)
+            if truth is not None:
+                write_tum(tmp / "groundtruth.tum", ds.t, truth)
+            write_cloud(tmp / "cloud.ply", ds, robot, voxel)
+            progress.advance(bar)
+            name = ds.path.name if ds.path else "dataset"
+            write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
+            progress.advance(bar)
+            metrics = run_metrics(ds, result)
+            text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
+            (tmp / "metrics.json").write_text(text)
+            progress.advance(bar)
     return out
 
 

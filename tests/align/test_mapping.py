@@ -124,3 +124,14 @@ def test_an_interrupted_map_writes_nothing(
     with pytest.raises(KeyboardInterrupt):
         mapping.map_dataset(dataset, tmp_path / "run")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_log_without_ground_truth_or_odometry_still_maps(dataset: Path, tmp_path: Path) -> None:
+    full = toolkit.load(dataset)
+    bare = toolkit.Dataset(t=full.t, ranges=full.ranges, laser=full.laser)
+    out = mapping.write_run(bare, tmp_path / "bare")
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["groundtruth"] is False and "ate" not in metrics
+    assert metrics["pairs"] == full.n_scans - 1
+    assert not (out / "groundtruth.tum").exists()
+    assert len(pd.read_parquet(out / "trajectory.parquet")) == full.n_scans
