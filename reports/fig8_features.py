@@ -1,8 +1,9 @@
 """Fig. 8-10: learnt features along the map, the found / not-found view, and the 3D map.
 
-For every log with training regions (the simulated corridor always; a dataset given on the
-command line when it has a regions.csv): the feature model is learnt from the training
-scans (about ten per feature) and every scan gets a probability per feature.
+For every log with training regions (the simulated corridor always; the real Intel log with
+datasets/real-regions/intel-regions.csv; each given or bundled log with a regions CSV): the
+feature model is learnt from the training scans (about ten per feature) with the toolkit's
+defaults, and every scan gets a probability per feature.
 """
 
 from __future__ import annotations
