@@ -381,7 +381,7 @@ def _refine(
         ty += dy
         th += dt
         # settled: one more round to measure (the same numbers a longer run would give)
-        converged = it >= 1 and abs(dx) < 2e-4 and abs(dy) < 2e-4 and abs(dt) < 2e-5
+        converged = it >= 1 and abs(dx) < 1e-3 and abs(dy) < 1e-3 and abs(dt) < 1e-4
         # motion model: odometry is wrong by a bounded amount
         ex = tx - seed[0]
         ey = ty - seed[1]
