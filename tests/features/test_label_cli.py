@@ -12,22 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tests.conftest import Cli
 from toolkit.features import FeatureModel
-
-
-def cli(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: object
-) -> tuple[int, str, str]:
-    from toolkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["toolkit", *map(str, args)])
-    try:
-        main()
-        code = 0
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
@@ -46,12 +32,10 @@ def sim_dirs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return dirs[0], dirs[1]
 
 
-def test_label_writes_the_run(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_label_writes_the_run(sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli) -> None:
     data, _ = sim_dirs
     run = tmp_path / "run"
-    code, out, err = cli(
-        monkeypatch, capsys, "label", data, "--regions", data / "regions.csv", "--out", run
-    )
+    code, out, err = cli("label", data, "--regions", data / "regions.csv", "--out", run)
     assert code == 0, err
     assert "balanced accuracy" in out  # truth.parquet beside the scans is used for scores
     labels = pd.read_parquet(run / "labels.parquet")
@@ -71,8 +55,6 @@ def test_label_writes_the_run(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> 
     assert metrics["poses"] == "groundtruth"
     # the paper's model is scored alongside: the toolkit's must do better on the same log
     code, _, err = cli(
-        monkeypatch,
-        capsys,
         "label",
         data,
         "--regions",
@@ -92,17 +74,15 @@ def test_label_writes_the_run(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> 
     assert len(cloud.points) == metrics["cloud_points"] > 100_000
     assert np.allclose(np.asarray(cloud.points)[:, 2], 0.30)  # the laser's mounting height
     # a second run into the same directory needs --force
-    code, _, err = cli(
-        monkeypatch, capsys, "label", data, "--regions", data / "regions.csv", "--out", run
-    )
+    code, _, err = cli("label", data, "--regions", data / "regions.csv", "--out", run)
     assert code == 1 and "--force" in err and len(err.strip().splitlines()) == 1
 
 
-def test_saved_model_applies_to_another_log(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_saved_model_applies_to_another_log(
+    sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
+) -> None:
     first, second = sim_dirs
     code, _, err = cli(
-        monkeypatch,
-        capsys,
         "label",
         first,
         "--regions",
@@ -112,8 +92,6 @@ def test_saved_model_applies_to_another_log(sim_dirs, tmp_path: Path, monkeypatc
     )
     assert code == 0, err
     code, _, err = cli(
-        monkeypatch,
-        capsys,
         "label",
         second,
         "--model",
@@ -131,13 +109,13 @@ def test_saved_model_applies_to_another_log(sim_dirs, tmp_path: Path, monkeypatc
     assert model.features == FeatureModel.load(tmp_path / "a" / "model.json").features
 
 
-def test_trajectory_option_and_errors(sim_dirs, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_trajectory_option_and_errors(
+    sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
+) -> None:
     data, _ = sim_dirs
     odo = pd.read_parquet(data / "odometry.parquet")
     odo.to_parquet(tmp_path / "trajectory.parquet")
     code, _, err = cli(
-        monkeypatch,
-        capsys,
         "label",
         data,
         "--regions",
@@ -162,15 +140,13 @@ def test_trajectory_option_and_errors(sim_dirs, tmp_path: Path, monkeypatch, cap
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
     assert not (tmp_path / "x").exists()
 
-    code, _, err = cli(monkeypatch, capsys, "label", data, "--out", tmp_path / "y")
+    code, _, err = cli("label", data, "--out", tmp_path / "y")
     assert code == 1 and "--regions" in err
 
     model = json.loads((tmp_path / "run" / "model.json").read_text())
     model["laser"]["beams"] = 361
     (tmp_path / "other.json").write_text(json.dumps(model))
     code, _, err = cli(
-        monkeypatch,
-        capsys,
         "label",
         data,
         "--model",

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import gzip
 import math
-import sys
 from functools import cache
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from hypothesis import strategies as st
 import importers
 from importers.aria import Aria, write
 from importers.base import ImportOptions
+from tests.conftest import Cli
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError, ToolkitError
 
@@ -357,29 +357,12 @@ def test_sniff(tmp_path: Path) -> None:
     assert not Aria().sniff(tmp_path / "capture.lms")
 
 
-def _cli(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: str
-) -> tuple[int, str, str]:
-    from toolkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["toolkit", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def test_cli_import_aria_and_auto(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_cli_import_aria_and_auto(tmp_path: Path, cli: Cli) -> None:
     ds = _dataset(scans=30)
     path = write(ds, tmp_path / "w", version=3)
     for fmt in ("aria", "auto"):
         out = tmp_path / fmt
-        code, stdout, err = _cli(monkeypatch, capsys, "import", fmt, str(path), "--out", str(out))
+        code, stdout, err = cli("import", fmt, str(path), "--out", str(out))
         assert code == 0, err
         assert "30 x 181 beams" in stdout and "robotGlobal: 30" in stdout
         back = load(out)
@@ -393,13 +376,12 @@ def test_cli_import_aria_and_auto(
 def test_cli_bad_input_is_one_line_and_no_output(
     content: str,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    cli: Cli,
 ) -> None:
     src = tmp_path / "bad.2d"
     src.write_text(content)
     out = tmp_path / "ds"
-    code, _, err = _cli(monkeypatch, capsys, "import", "aria", str(src), "--out", str(out))
+    code, _, err = cli("import", "aria", str(src), "--out", str(out))
     assert code == 1
     assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.2d"]

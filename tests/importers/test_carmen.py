@@ -9,7 +9,6 @@ import gzip
 import math
 import re
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from hypothesis import strategies as st
 import importers
 from importers.base import ImportOptions
 from importers.carmen import CODE_BAND, Carmen, in_order, longest_in_order
+from tests.conftest import Cli
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError
 
@@ -610,33 +610,22 @@ def test_writer_leaves_nothing_half_written(
 # ---------------------------------------------------------------- CLI
 
 
-def _cli(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: str
-) -> tuple[int, str, str]:
-    from toolkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["toolkit", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_cli_import_carmen_and_auto(
-    real: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    real: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    cli: Cli,
 ) -> None:
     out = tmp_path / "orebro"
-    code, stdout, _ = _cli(monkeypatch, capsys, "import", "carmen", str(real / RADISH / "orebro-corrected.log.gz"),
+    code, stdout, _ = cli("import", "carmen", str(real / RADISH / "orebro-corrected.log.gz"),
                            "--out", str(out), "-O", "poses=groundtruth", "--rate", "4")  # fmt: skip
     assert code == 0 and "237 x 181 beams" in stdout and "clock: scan_order" in stdout
     ds = load(out)
     assert ds.n_scans == 237 and ds.groundtruth is not None and ds.t[-1] == 236 / 4
     assert ds.meta["source"]["format"] == "carmen"
     out2 = tmp_path / "csm"
-    code, stdout, _ = _cli(
+    code, stdout, _ = cli(
         monkeypatch,
         capsys,
         "import",
@@ -652,13 +641,12 @@ def test_cli_import_carmen_and_auto(
 def test_cli_bad_input_is_one_line_and_no_output(
     content: str,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    cli: Cli,
 ) -> None:
     src = tmp_path / "bad.log"
     src.write_text(content)
     out = tmp_path / "ds"
-    code, _, err = _cli(monkeypatch, capsys, "import", "carmen", str(src), "--out", str(out))
+    code, _, err = cli("import", "carmen", str(src), "--out", str(out))
     assert code == 1
     assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.log"]

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import gzip
 import json
-import sys
 from functools import cache
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from importers.lms200 import (
     telegram,
     write,
 )
+from tests.conftest import Cli
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError, ToolkitError
 
@@ -423,32 +423,13 @@ def test_sniff_and_detect(tmp_path: Path) -> None:
     assert not LMS200().sniff(one)  # one telegram, no hint: not enough
 
 
-def _cli(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: str
-) -> tuple[int, str, str]:
-    from toolkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["toolkit", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def test_cli_import_lms200_and_auto(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_cli_import_lms200_and_auto(tmp_path: Path, cli: Cli) -> None:
     ds = _dataset(scans=40, beams=361)
     capture, _, truth = write(ds, tmp_path / "w", noise_bytes=3.0, bit_error_rate=3e-5, seed=2)
     intact = json.loads(truth.read_text())["intact"]
     for fmt in ("lms200", "auto"):
         out = tmp_path / fmt
-        code, stdout, err = _cli(
-            monkeypatch, capsys, "import", fmt, str(capture), "--out", str(out)
-        )
+        code, stdout, err = cli("import", fmt, str(capture), "--out", str(out))
         assert code == 0, err
         assert f"{len(intact)} x 361 beams" in stdout
         back = load(out)
@@ -460,13 +441,12 @@ def test_cli_import_lms200_and_auto(
 def test_cli_bad_input_is_one_line_and_no_output(
     content: bytes,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    cli: Cli,
 ) -> None:
     src = tmp_path / "bad.lms"
     src.write_bytes(content)
     out = tmp_path / "ds"
-    code, _, err = _cli(monkeypatch, capsys, "import", "lms200", str(src), "--out", str(out))
+    code, _, err = cli("import", "lms200", str(src), "--out", str(out))
     assert code == 1
     assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.lms"]
