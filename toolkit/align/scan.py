@@ -11,7 +11,7 @@ For each pair of consecutive scans (prev, cur):
    mean of the displacements measured along each line's normal (Eq. 3 with matrix weights
    w_i n_i n_i^T, i.e. weighted point-to-line normal equations, with rotation), their
    weighted variance (Eq. 4), and re-weighting that lowers the weight of returns that
-   changed (Eq. 5-6), capped; a fixed number of rounds, so every pair costs the same.
+   changed (Eq. 5-6), capped; at most `iterations` rounds, fewer once a pair has settled.
 4. Motion model: the correction to odometry is bounded (`max_correction`, `max_turn`).
 5. Degeneracy: the 2 x 2 translation information (the normal matrix, rotation marginalised)
    has a small eigenvalue where the scan cannot fix a direction (a featureless corridor);
@@ -42,7 +42,7 @@ Variant = Literal["text", "paper"]
 class MatchConfig:
     """Scan matcher parameters; lengths in m, angles in rad."""
 
-    iterations: int = 6  # Gaussian rounds per pair (fixed: equal cost, vectorizes)
+    iterations: int = 10  # most Gaussian rounds per pair (a pair stops once settled)
     max_correction: float = 0.5  # motion model: largest translation error of odometry per step
     max_turn: float = 1.0  # motion model: largest rotation error of odometry per step
     gate: float = 0.5  # residuals beyond this are never evidence
