@@ -613,8 +613,6 @@ def test_writer_leaves_nothing_half_written(
 def test_cli_import_carmen_and_auto(
     real: Path,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
     cli: Cli,
 ) -> None:
     out = tmp_path / "orebro"
@@ -626,8 +624,6 @@ def test_cli_import_carmen_and_auto(
     assert ds.meta["source"]["format"] == "carmen"
     out2 = tmp_path / "csm"
     code, stdout, _ = cli(
-        monkeypatch,
-        capsys,
         "import",
         "auto",
         str(real / "csm_laserazos" / "laserazosSM3.log"),
