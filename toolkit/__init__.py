@@ -9,7 +9,22 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from toolkit import align
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, load, save
 from toolkit.errors import ToolkitError
 
-__all__ = ["Dataset", "ImportReport", "LaserGeometry", "ToolkitError", "load", "save"]
+# The function, not the module: `toolkit.trajectory(ds, method="gaussian")`. Imported here,
+# eagerly, so that a later `import toolkit.trajectory` finds the module loaded and leaves
+# this name alone.
+from toolkit.trajectory import trajectory
+
+__all__ = [
+    "Dataset",
+    "ImportReport",
+    "LaserGeometry",
+    "ToolkitError",
+    "align",
+    "load",
+    "save",
+    "trajectory",
+]
