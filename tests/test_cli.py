@@ -99,3 +99,10 @@ def test_interrupt_exits_130_and_writes_nothing(tmp_path: Path) -> None:
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_usage_errors_are_one_line_not_internal(tmp_path: Path) -> None:
+    result = run("import", "carmen", tmp_path / "x.log")  # no --out
+    assert_one_line_error(result, "--out")
+    assert "internal" not in result.stderr
+    assert_one_line_error(run("info", tmp_path, "--no-such-flag"), "no-such-flag")

@@ -54,12 +54,11 @@ def main() -> None:
     except (typer.Abort, KeyboardInterrupt):
         typer.echo("interrupted; no output written", err=True)
         sys.exit(130)
-    except Exception as e:  # a click usage error, or a bug: still one line
-        import click
-
-        if isinstance(e, click.ClickException):
-            e.show()
-            sys.exit(e.exit_code if e.exit_code != 2 else 1)
+    except Exception as e:  # a usage error, or a bug: still one line
+        show = getattr(e, "format_message", None)
+        if show is not None:  # click's exceptions (typer bundles its own click)
+            typer.echo(f"error: {show()} (see --help)", err=True)
+            sys.exit(1)
         if os.environ.get("TOOLKIT_DEBUG"):
             raise
         typer.echo(
