@@ -1,23 +1,20 @@
 """Table 2 and Fig. 4-5: Gaussian alignment against ICP on random point clouds.
 
-The protocol (cloud, shift, noise, trials, timing) is the benchmark's own
-(`bench/bench_align.py`), run here with the paper's five sizes so that the report's times
-are measured in the run that writes it.
+The protocol (cloud, shift, noise, trials, timing) is toolkit.align.protocol, the one
+`make bench` runs too, at the paper's five sizes; the times are measured in the run that
+writes the report.
 """
 
 from __future__ import annotations
 
-import importlib.util
-from collections.abc import Iterator
-from contextlib import contextmanager
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from reports.base import NotAvailable, Section, new_figure, require, save_figure, save_table
-from reports.context import ROOT, Context
+from reports.base import Section, new_figure, save_figure, save_table
+from reports.context import Context
+from toolkit.align.protocol import SIZES, TRIALS, random_cloud_trials, summarize
 
 KEY = "table2"
 TITLE = "Table 2 and Fig. 4-5: random point clouds"
@@ -27,56 +24,18 @@ INTRO = (
     "translation error over the trials and median time per alignment, measured in this run."
 )
 
-SIZES = (100, 500, 1000, 5000, 10_000)  # the paper's
 LABELS = {"gaussian": "Gaussian (text Eq. 6)", "gaussian-paper": "Gaussian (printed Eq. 6)"}
 
 
 QUICK_TRIALS = 2
 
 
-@contextmanager
-def _protocol(bench: ModuleType, trials: int | None) -> Iterator[None]:
-    """The benchmark's protocol at the paper's sizes (its own list is shorter), and with
-    fewer trials in quick mode (its quick mode also drops sizes)."""
-    saved = {name: getattr(bench, name) for name in ("SIZES", "TRIALS")}
-    setattr(bench, "SIZES", SIZES)  # noqa: B010 - a module's constant, restored below
-    if trials is not None:
-        setattr(bench, "TRIALS", trials)  # noqa: B010
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            setattr(bench, name, value)
-
-
-def protocol_module() -> ModuleType:
-    """The benchmark module holding the protocol. `bench/` is not an installed package, so
-    the `toolkit` command (whose sys.path lacks the repo) loads it from the source tree."""
-    try:
-        return require("bench.bench_align", "run", "SIZES", "TRIALS")
-    except NotAvailable:
-        path = ROOT / "bench" / "bench_align.py"
-        if not path.is_file():
-            raise NotAvailable(
-                "the Table 2 protocol lives in bench/bench_align.py, which is not installed"
-            ) from None
-        spec = importlib.util.spec_from_file_location("bench_align_protocol", path)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        for name in ("run", "SIZES", "TRIALS"):
-            if not hasattr(module, name):
-                raise NotAvailable(f"{path} lacks {name}") from None
-        return module
-
-
 def cloud_rows(ctx: Context) -> pd.DataFrame:
-    """Rows of the benchmark's protocol at the paper's sizes: one per method and size."""
-    bench = protocol_module()
+    """The protocol's summary at the paper's sizes: one row per method and size."""
     ctx.step("random clouds")
-    with _protocol(bench, QUICK_TRIALS if ctx.quick else None):
-        rows: list[dict[str, Any]] = bench.run(ctx.work, False)
-    return pd.DataFrame(rows)
+    trials = random_cloud_trials(SIZES, QUICK_TRIALS if ctx.quick else TRIALS)
+    trials.to_csv(ctx.work / "table2_trials.csv", index=False)
+    return summarize(trials).rename(columns={"method": "name"})
 
 
 def generate(ctx: Context, section: Section) -> None:
@@ -91,13 +50,7 @@ def generate(ctx: Context, section: Section) -> None:
             "speed-up vs ICP": frame["speedup_vs_icp"].astype(float),
         }
     )
-    if "error_std_m" in frame:
-        table.insert(4, "error std (mm)", 1000.0 * frame["error_std_m"].astype(float))
-    else:
-        section.notes.append(
-            "The benchmark protocol reports the mean error over the trials but not its "
-            "standard deviation, so the table has no std column."
-        )
+    table.insert(4, "error std (mm)", 1000.0 * frame["error_std_m"].astype(float))
     table = table.sort_values(["points", "method"], kind="stable").reset_index(drop=True)
     section.data["table2"] = table
     section.tables.append(

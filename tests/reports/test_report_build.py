@@ -88,6 +88,7 @@ def test_table2_sizes_methods_and_finite_figures(report: Report) -> None:
     assert len(table) == 5 * table["method"].nunique()
     assert np.isfinite(table["error (mm)"]).all() and (table["error (mm)"] >= 0).all()
     assert (table["time (ms)"] > 0).all()
+    assert (table["trials"] >= 2).all() and (table["error std (mm)"] >= 0).all()
     # the error is small against the shift (up to 50 mm per axis) for both methods
     assert table.loc[table["method"] == "gaussian", "error (mm)"].max() < 10
     fig4 = report.section("table2").figure("fig4_time_both").data
