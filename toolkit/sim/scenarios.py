@@ -1,9 +1,16 @@
 """The simulated places: the paper's test corridor and a Rawseeds-Bicocca-like building.
 
 A scenario is a world (walls, glass, columns), a robot path through it (waypoints, driven at
-`speed` with turns on the spot at `turn_rate`), and feature zones: where the laser is while
-a place feature is in its view beside it (from a little before the feature until its far end
-passes the scan plane), which is how each scan gets its true label.
+`speed` with turns on the spot at `turn_rate`), and place zones, which give each scan its true
+label. A label names a place the robot is AT, in the paper's sense of a place (window type A,
+window type B, an open door; a corridor or a hall in a building): the laser is in the zone
+while the feature is beside it, from a little before the feature until its far end passes the
+scan plane (the beams see -90..90°, nothing behind), not while it is merely somewhere ahead
+in the field of view. A place is something a user can teach from about ten scans of it.
+
+Landmarks that are not places get no label of their own: the round columns along the
+corridor's leg B are part of the wall the robot drives past (the scans beside them are plain
+corridor, "none"), not somewhere the robot is.
 
 corridor (the paper's Fig. 1), 2.4 m wide, metres, robot driving +x then +y:
     leg A, y in [-1.2, 1.2], x from 0 to 81.2: straight, parallel walls.
@@ -14,7 +21,7 @@ corridor (the paper's Fig. 1), 2.4 m wide, metres, robot driving +x then +y:
     corner at (80, 0) ("corner": the laser within a 4 x 4 m box round it).
     leg B, x from 78.8 (left wall) to the right wall, which curves progressively outwards
       (x = 81.2 + 2 (y/79)^2), y up to 80; round columns r = 0.25 m on the left wall every
-      8 m (y = 10 .. 74, "column").
+      8 m (y = 10 .. 74): landmarks, not places (no label: "none").
     The path: (1, 0) -> (80, 0), turn left, -> (80, 79): 158 m, eight sections of equal
     scan count (2000 scans = 8 x 250, the paper's Table 1) at 0.4 m/s, 5 Hz.
 
@@ -151,7 +158,7 @@ def corridor() -> Scenario:
     zones += [Zone("window_a", 2.5, -w, 10.0, w)]
     zones += [Zone("window_b", 33.5, -w, 45.8, w)]
     zones += [Zone("door", d - 0.9, -w, d + 0.3, w) for d in doors_a]
-    zones += [Zone("column", x_corner_in, y - 0.9, 84.0, y + 0.1) for y in columns_b]
+    # the columns are no zone: a column in the wall is a landmark the robot passes, not a place
     return Scenario(
         name="corridor",
         world=b.build(),
