@@ -31,7 +31,8 @@ def label_command(
     smoothing: Annotated[
         str | None,
         typer.Option(
-            help="along the trajectory: forward (Eq. 7, the default), forward-backward or none"
+            help="along the trajectory (Eq. 7): forward-backward (the default: the whole log), "
+            "forward (streaming: only the scans so far) or none"
         ),
     ] = None,
     robust: Annotated[

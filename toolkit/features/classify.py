@@ -416,6 +416,28 @@ def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.n
     return np.clip(np.nan_to_num(eps, nan=config.switch_per_scan), 1e-6, 1.0)
 
 
+def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
+    """Per scan, the distance travelled since the previous scan (m; turning 1 rad ~ 1 m)."""
+    if poses is None or len(poses) != n:
+        return None
+    step = np.zeros(n)
+    if n > 1:
+        d = np.diff(poses[:, :2], axis=0)
+        turn = np.abs(np.angle(np.exp(1j * np.diff(poses[:, 2]))))
+        step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
+        step[0] = step[1]
+    return np.nan_to_num(step, nan=0.0)
+
+
+def evidence_weights(config: Config, n: int, poses: np.ndarray | None) -> np.ndarray:
+    """Per scan, the share of a scan's evidence the HMM gets from it: the path travelled since
+    the previous scan over `evidence_length` (at most 1); 1 without poses."""
+    step = path_steps(n, poses)
+    if step is None or not config.evidence_length:
+        return np.ones(n)
+    return np.clip(step / config.evidence_length, 0.0, 1.0)
+
+
 def smooth(emit: np.ndarray, eps: np.ndarray, how: str) -> np.ndarray:
     """HMM over places: forward filter (the map so far) or forward-backward."""
     if how == "none":
@@ -440,7 +462,10 @@ def classify(
     ll = loglik(model, ranges, chunk)
     ll *= model.temperature
     cfg = model.config
-    prob = softmax(per_class(model, ll))
+    scores = per_class(model, ll)
+    if cfg.smoothing != "none" and cfg.evidence_length:
+        scores *= evidence_weights(cfg, len(scores), poses)[:, None]
+    prob = softmax(scores)
     if cfg.smoothing != "none":
         prob = smooth(prob, switch_probability(cfg, len(prob), poses), cfg.smoothing)
     classes = np.array(model.classes)

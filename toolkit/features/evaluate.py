@@ -2,7 +2,7 @@
 per-scan model, then each improvement added in turn, every row measured the same way
 (train on the simulator's 10-scan regions, score all other scans against the true labels).
 
-    python -m toolkit.features.evaluate [--seed N] [--out table.md]
+    python -m toolkit.features.evaluate [--seed N [N ...]] [--recall] [--out table.md]
 """
 
 from __future__ import annotations
@@ -26,23 +26,24 @@ from toolkit.features.metrics import (
 from toolkit.features.model import PAPER, Config, fit
 from toolkit.features.regions import spans_from_frame, training_indices
 
-# The ablation: each row adds one decision to the one before; the last row is Config().
+# The ablation: each row adds one decision to the one before; the default row is Config().
 FULL = Config()
+STREAM = dataclasses.replace(FULL, smoothing="forward", evidence_length=None)
 ABLATION: list[tuple[str, Config]] = [
     ("paper: per-scan Gaussian, Eq. 8-9 literal", PAPER),
     ("+ no-return as a Bernoulli per beam", dataclasses.replace(PAPER, no_return=True)),
     ("+ variance floor (sensor noise)", dataclasses.replace(PAPER, no_return=True, noise_sigma=FULL.noise_sigma)),
-    (
-        "+ none class (background of the log)",
-        dataclasses.replace(FULL, robust=0.0, shifts=0, temperature="none", smoothing="none"),
-    ),
-    ("+ robust beams (mixture with the background)", dataclasses.replace(FULL, shifts=0, temperature="none", smoothing="none")),
-    ("+ beam-shifted training copies", dataclasses.replace(FULL, temperature="none", smoothing="none")),
-    ("+ temperature (leave-one-out design effect)", dataclasses.replace(FULL, smoothing="none")),
-    ("+ HMM forward filter along the path (Eq. 7): default", FULL),
-    ("alternative: forward-backward smoothing", dataclasses.replace(FULL, smoothing="forward-backward")),
-    ("alternative: robust weight 0.3, no smoothing", dataclasses.replace(FULL, robust=0.3, smoothing="none")),
+    ("+ none class (background of the log)", dataclasses.replace(STREAM, robust=0.0, shifts=0, temperature="none", smoothing="none")),
+    ("+ robust beams (mixture with the background)", dataclasses.replace(STREAM, shifts=0, temperature="none", smoothing="none")),
+    ("+ beam-shifted training copies", dataclasses.replace(STREAM, temperature="none", smoothing="none")),
+    ("+ temperature (leave-one-out design effect)", dataclasses.replace(STREAM, smoothing="none")),
+    ("+ HMM forward filter along the path (Eq. 7): streaming", STREAM),
+    ("+ forward-backward (offline: the whole log)", dataclasses.replace(STREAM, smoothing="forward-backward")),
+    ("+ evidence length 0.5 m", dataclasses.replace(STREAM, smoothing="forward-backward", evidence_length=0.5)),
+    ("alternative: forward filter, evidence length 0.5 m", dataclasses.replace(STREAM, evidence_length=0.5)),
+    ("alternative: robust weight 0.3, no smoothing", dataclasses.replace(STREAM, robust=0.3, smoothing="none")),
 ]  # fmt: skip
+DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
 
 
 @dataclass
@@ -85,20 +86,38 @@ def score(scenario: str, config: Config, seed: int = 0, sim: Any = None) -> Scor
     )
 
 
-def ablation(seed: int = 0, scenarios: tuple[str, ...] = ("corridor", "building")) -> pd.DataFrame:
-    """One row per configuration: balanced accuracy and ECE per scenario."""
+def ablation(
+    seed: int | tuple[int, ...] = 0, scenarios: tuple[str, ...] = ("corridor", "building")
+) -> pd.DataFrame:
+    """One row per configuration: balanced accuracy and ECE per scenario (and seed)."""
     from toolkit.sim import simulate
 
-    sims = {s: simulate(s, seed=seed) for s in scenarios}
+    seeds = (seed,) if isinstance(seed, int) else tuple(seed)
+    sims = {(s, k): simulate(s, seed=k) for s in scenarios for k in seeds}
     rows = []
     for name, config in ABLATION:
-        row: dict[str, Any] = {"model": name}
+        row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
         for s in scenarios:
-            r = score(s, config, seed, sims[s])
-            row[f"{s} BA"] = round(r.balanced_accuracy, 3)
-            row[f"{s} ECE"] = round(r.ece, 3)
+            for k in seeds:
+                r = score(s, config, k, sims[s, k])
+                tag = s if len(seeds) == 1 else f"{s} s{k}"
+                row[f"{tag} BA"] = round(r.balanced_accuracy, 3)
+                row[f"{tag} ECE"] = round(r.ece, 3)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def recall_table(
+    config: Config | None = None,
+    seed: int = 0,
+    scenarios: tuple[str, ...] = ("corridor", "building"),
+) -> pd.DataFrame:
+    """Recall per true class of one configuration (the default), one row per scenario."""
+    rows = []
+    for s in scenarios:
+        r = score(s, config or FULL, seed)
+        rows.append({"scenario": s, **{k: round(v, 3) for k, v in r.recall.items()}})
+    return pd.DataFrame(rows).astype(object).fillna("")
 
 
 def markdown(table: pd.DataFrame) -> str:
@@ -114,10 +133,13 @@ def markdown(table: pd.DataFrame) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, nargs="+", default=[0], help="one or more seeds")
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--recall", action="store_true", help="also recall per class (default)")
     args = parser.parse_args()
-    text = markdown(ablation(args.seed))
+    text = markdown(ablation(tuple(args.seed)))
+    if args.recall:
+        text += "\n\n" + markdown(recall_table(seed=args.seed[0]))
     print(text)
     if args.out:
         args.out.write_text(text + "\n")

@@ -18,6 +18,12 @@ What the paper leaves open, and is decided here (each switchable, for the ablati
   ahead; without it one such beam outweighs every beam that fits).
 - temperature: B beams are not independent, so the summed log-likelihood is too confident;
   it is scaled by a factor fitted by leave-one-out on the training scans (see classify.py).
+- smoothing along the path (Eq. 7): an HMM over places, forward only (streaming: the map so
+  far) or forward-backward (offline: a whole log, each scan also judged by the ones after).
+- evidence length: scans a few centimetres apart see nearly the same thing, so the HMM would
+  count one view many times; with `evidence_length` each scan's tempered log-likelihood is
+  scaled by the distance travelled since the previous scan over this length (one scan's
+  worth of evidence per `evidence_length` metres).
 """
 
 from __future__ import annotations
@@ -51,8 +57,9 @@ class Config:
     none_class: bool = True
     robust: float = 0.9  # per beam, the share of readings the world explains, not the feature
     temperature: str = "loo"  # "loo": fitted by leave-one-out; "none": 1 (literal)
-    smoothing: str = "forward"  # Eq. 7, causal; "forward-backward" also uses later scans; "none"
+    smoothing: str = "forward-backward"  # Eq. 7 offline; "forward": causal (streaming); "none"
     place_length: float = 1.0  # m travelled per expected change of place (HMM switching)
+    evidence_length: float | None = 0.5  # m: in the HMM, one scan's evidence per this distance
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
 
     def to_dict(self) -> dict[str, Any]:
