@@ -136,6 +136,25 @@ def test_forward_filter_is_causal_and_smoothing_fixes_isolated_errors() -> None:
     assert not np.allclose(smooth(changed, eps, "forward-backward")[:120], both[:120])
 
 
+def test_standing_still_adds_no_evidence(world) -> None:  # type: ignore[no-untyped-def]
+    """With an evidence length, a robot that stops and scans the same spot five times over is
+    no surer of its place than one that scanned it once; without it the HMM counts the view
+    five times and grows more confident."""
+    ranges, poses, _, training = world
+    model = fit(ranges, LASER, training)
+    assert model.config.evidence_length and model.config.smoothing == "forward-backward"
+    once = classify(model, ranges, poses)
+    still = np.repeat(np.arange(len(ranges)), 5)
+    again = classify(model, ranges[still], poses[still])
+    assert np.allclose(again.prob[::5], once.prob, atol=1e-4)
+    assert np.array_equal(again.label[::5], once.label)
+    counted = dataclasses.replace(
+        model, config=dataclasses.replace(model.config, evidence_length=None)
+    )
+    base, five = classify(counted, ranges, poses), classify(counted, ranges[still], poses[still])
+    assert five.confidence[::5].mean() > base.confidence.mean() + 0.01
+
+
 def test_model_json_round_trip_and_sensor_check(world, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     ranges, poses, _, training = world
     model = fit(ranges, LASER, training)

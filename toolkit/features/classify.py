@@ -417,21 +417,22 @@ def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.n
 
 
 def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
-    """Per scan, the distance travelled since the previous scan (m; turning 1 rad ~ 1 m)."""
+    """Per scan, the distance travelled since the previous scan (m; turning 1 rad ~ 1 m; the
+    first scan: inf, all it sees is new)."""
     if poses is None or len(poses) != n:
         return None
-    step = np.zeros(n)
+    step = np.full(n, np.inf)
     if n > 1:
         d = np.diff(poses[:, :2], axis=0)
         turn = np.abs(np.angle(np.exp(1j * np.diff(poses[:, 2]))))
-        step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
-        step[0] = step[1]
-    return np.nan_to_num(step, nan=0.0)
+        step[1:] = np.nan_to_num(np.hypot(d[:, 0], d[:, 1]) + turn, nan=0.0)
+    return step
 
 
 def evidence_weights(config: Config, n: int, poses: np.ndarray | None) -> np.ndarray:
     """Per scan, the share of a scan's evidence the HMM gets from it: the path travelled since
-    the previous scan over `evidence_length` (at most 1); 1 without poses."""
+    the previous scan over `evidence_length` (at most 1; a robot standing still adds none);
+    1 without poses."""
     step = path_steps(n, poses)
     if step is None or not config.evidence_length:
         return np.ones(n)
