@@ -92,14 +92,14 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
     pairs = len(seeds)
     rates: dict[str, float] = {}
     for method in ("point_to_line", "point_to_point"):
-        sc.match_pairs_icp(ds.ranges[:2], seeds[:1], ds.laser, method)  # type: ignore[arg-type]
+        sc.match_pairs_icp(ds.ranges[:2], seeds[:1], ds.laser, method)
         times = []
         for r in range(max(1, repeats // 2)):
             lo = (r * sample) % (pairs - sample)
             t0 = time.perf_counter()
             sc.match_pairs_icp(
                 ds.ranges[lo : lo + sample + 1], seeds[lo : lo + sample], ds.laser, method
-            )  # type: ignore[arg-type]
+            )
             times.append(time.perf_counter() - t0)
         rates[f"icp-{method}"] = sample / float(np.median(times))
     # the Gaussian matcher last: once numba's thread pool has run, Open3D's ICP slows 10-100x
@@ -133,6 +133,7 @@ def child_accuracy(name: str, work: str) -> list[dict[str, Any]]:
 
     ds = _dataset(name, Path(work))
     truth = truth_poses(ds)
+    assert truth is not None, f"{name} has no ground truth"
     warm = ds.__class__(t=ds.t[:3], ranges=ds.ranges[:3], laser=ds.laser, odometry=ds.odometry[:3])
     rows = []
     for method in METHODS:
