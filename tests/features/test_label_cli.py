@@ -142,6 +142,14 @@ def test_trajectory_option_and_errors(
 
     code, _, err = cli("label", data, "--out", tmp_path / "y")
     assert code == 1 and "--regions" in err
+    regions = ("--regions", data / "regions.csv")
+    code, _, err = cli("label", data, *regions, "--out", tmp_path / "e", "--evidence-length", -1)
+    assert code == 1 and "--evidence-length -1.0" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "e").exists()
+    code, _, err = cli("label", data, *regions, "--out", tmp_path / "e", "--evidence-length", 0)
+    assert code == 0, err
+    saved = json.loads((tmp_path / "e" / "model.json").read_text())["config"]
+    assert saved["evidence_length"] is None and saved["smoothing"] == "forward-backward"
 
     model = json.loads((tmp_path / "run" / "model.json").read_text())
     model["laser"]["beams"] = 361

@@ -42,6 +42,15 @@ def label_command(
             "(default 0.9; lower trusts every beam of the taught scans more)"
         ),
     ] = None,
+    evidence_length: Annotated[
+        float | None,
+        typer.Option(
+            "--evidence-length",
+            help="m of path per scan's worth of evidence in the HMM (default 0.5; 0: every "
+            "scan counts fully, as if consecutive scans were independent); when learning "
+            "(a --model keeps its own)",
+        ),
+    ] = None,
     paper: Annotated[
         bool, typer.Option("--paper", help="the paper's literal per-scan model (for comparison)")
     ] = False,
@@ -67,6 +76,10 @@ def label_command(
         if not 0.0 <= robust < 1.0:
             raise ToolkitError(f"--robust {robust}: a weight in [0, 1)")
         config = replace(config or Config(), robust=robust)
+    if evidence_length is not None:
+        if evidence_length < 0:
+            raise ToolkitError(f"--evidence-length {evidence_length}: a distance >= 0 (m)")
+        config = replace(config or Config(), evidence_length=evidence_length or None)
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)

@@ -405,13 +405,10 @@ def _forward_backward(
 def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.ndarray:
     """Per scan, the probability that the place changed since the previous scan: grows with
     the distance travelled (and turned, 1 rad ~ 1 m) along the trajectory."""
-    if poses is None or len(poses) != n:
+    step = path_steps(n, poses)
+    if step is None:
         return np.full(n, config.switch_per_scan)
-    step = np.zeros(n)
-    if n > 1:
-        d = np.diff(poses[:, :2], axis=0)
-        turn = np.abs(np.angle(np.exp(1j * np.diff(poses[:, 2]))))
-        step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
+    step[:1] = 0.0
     eps = -np.expm1(-step / config.place_length)
     return np.clip(np.nan_to_num(eps, nan=config.switch_per_scan), 1e-6, 1.0)
 
@@ -424,19 +421,19 @@ def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
     step = np.full(n, np.inf)
     if n > 1:
         d = np.diff(poses[:, :2], axis=0)
-        turn = np.abs(np.angle(np.exp(1j * np.diff(poses[:, 2]))))
-        step[1:] = np.nan_to_num(np.hypot(d[:, 0], d[:, 1]) + turn, nan=0.0)
+        turn = np.abs(np.remainder(np.diff(poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
+        step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
     return step
 
 
 def evidence_weights(config: Config, n: int, poses: np.ndarray | None) -> np.ndarray:
     """Per scan, the share of a scan's evidence the HMM gets from it: the path travelled since
     the previous scan over `evidence_length` (at most 1; a robot standing still adds none);
-    1 without poses."""
+    1 without poses (or where a pose is NaN)."""
     step = path_steps(n, poses)
     if step is None or not config.evidence_length:
         return np.ones(n)
-    return np.clip(step / config.evidence_length, 0.0, 1.0)
+    return np.nan_to_num(np.clip(step / config.evidence_length, 0.0, 1.0), nan=1.0)
 
 
 def smooth(emit: np.ndarray, eps: np.ndarray, how: str) -> np.ndarray:

@@ -78,6 +78,7 @@ PAPER = Config(
     robust=0.0,
     temperature="none",
     smoothing="none",
+    evidence_length=None,
 )
 SMOOTHINGS = ("none", "forward", "forward-backward")
 
