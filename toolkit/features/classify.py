@@ -12,7 +12,9 @@ with m the return mask (Bernoulli per beam for return / no-return) and r centred
 at large. The sum over beams is tempered (beams are not independent, see
 `fit_temperature`), normalised into posteriors (Eq. 9), and smoothed along the trajectory by
 an HMM over places (Eq. 7's conditioning on the map: the previous scans, and with
-forward-backward the following ones too).
+forward-backward, the default for a whole log, the following ones too). In the HMM each scan
+counts for the path travelled since the previous one over `evidence_length` (scans a few
+centimetres apart are not independent views; see `evidence_weights`).
 """
 
 from __future__ import annotations
