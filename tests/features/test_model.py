@@ -58,9 +58,10 @@ def test_matrix_product_equals_the_per_beam_sum(world, config: Config) -> None: 
     assert np.max(np.abs(fast - ref) / scale) < 1e-9
 
 
-def test_robust_kernel_equals_the_mixture_per_beam(world) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("strict", [False, True])
+def test_robust_kernel_equals_the_mixture_per_beam(world, strict: bool) -> None:  # type: ignore[no-untyped-def]
     ranges, _, _, training = world
-    model = fit(ranges, LASER, training, Config())
+    model = fit(ranges, LASER, training, Config(strict_returns=strict))
     ll, bg = robust_loglik(model, ranges)
     bg_terms = world_terms(ranges.astype(np.float64), model)
     assert np.allclose(bg, bg_terms.sum(axis=1), atol=1e-6)
@@ -100,6 +101,9 @@ def test_shifted_copies_mark_edges_missing_not_no_return() -> None:
     wall = np.full((10, LASER.beams), 2.0)
     _, _, p = beam_statistics(wall, LASER, Config(shifts=3))
     assert np.all(p > 0.98)
+    # strict returns: the prior is over the 10 real scans, not the 70 copies
+    _, _, p = beam_statistics(wall, LASER, Config(shifts=3, strict_returns=True))
+    assert np.allclose(p[3:-3], 10.5 / 11) and np.all(p > 0.9)
 
 
 def test_temperature_is_the_design_effect_of_correlated_beams() -> None:

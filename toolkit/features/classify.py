@@ -163,6 +163,9 @@ def _robust_kernel(  # pragma: no cover - numba
     bin_of: np.ndarray,
     bin_scale: float,
     log_eps: float,
+    ret: np.ndarray,
+    mix_hit: np.ndarray,
+    miss_eps: float,
     out: np.ndarray,
     bg_out: np.ndarray,
 ) -> None:
@@ -176,31 +179,36 @@ def _robust_kernel(  # pragma: no cover - numba
         for b in range(nb):
             r = ranges[s, b]
             if np.isfinite(r):
-                world = bg_table[b, bin_of[min(max(int(r * bin_scale), 0), last)]] + bg_hit[b]
+                density = bg_table[b, bin_of[min(max(int(r * bin_scale), 0), last)]]
+                world = density + bg_hit[b]
+                mix = density + mix_hit[b] + log_eps
                 for f in range(nf):
                     d = r - mean[b, f]
-                    out[s, f] += _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], world + log_eps)
+                    out[s, f] += _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], mix) + ret[b, f]
             else:
                 world = bg_miss[b]
                 for f in range(nf):
-                    out[s, f] += _logaddexp(miss[b, f], world + log_eps)
+                    out[s, f] += _logaddexp(miss[b, f], world + miss_eps)
             bg_sum += world
         bg_out[s] = bg_sum
 
 
 def _robust_params(model: FeatureModel) -> tuple[np.ndarray, ...]:
-    """Per (beam, feature): mean, precision, log-density constant of a return (with the
-    return probability), log-probability of a no-return; all weighted by (1 - robust)."""
+    """Per (beam, feature): mean, precision, log-density constant of a return, log-probability
+    of a no-return, and a log term added to every return. Mixed with the world (weighted by
+    1 - robust): the range of a return, and unless returns are strict, the return itself."""
     gauss = np.isfinite(model.var)
     v = np.where(gauss, model.var, 1.0)
     log_keep = np.log1p(-model.config.robust)
     p = np.clip(model.p_return, 1e-9, 1 - 1e-9)
     norm = np.where(gauss, -0.5 * (LOG_2PI + np.log(v)), -np.log(model.laser.range_max))
-    hit = np.log(p) + norm + log_keep
-    miss = np.log1p(-p) + log_keep
+    if model.config.strict_returns:
+        hit, miss, ret = norm + log_keep, np.log1p(-p), np.log(p)
+    else:
+        hit, miss, ret = np.log(p) + norm + log_keep, np.log1p(-p) + log_keep, np.zeros_like(p)
     mean = np.where(gauss, model.mean, 0.0)
     prec = np.where(gauss, 1.0 / v, 0.0)
-    return tuple(np.ascontiguousarray(a.T) for a in (mean, prec, hit, miss))
+    return tuple(np.ascontiguousarray(a.T) for a in (mean, prec, hit, miss, ret))
 
 
 def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -210,8 +218,9 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
     bg = model.background
     if bg is None:
         raise ValueError("robust beams need the background model")
-    mean, prec, hit, miss = _robust_params(model)
+    mean, prec, hit, miss, ret = _robust_params(model)
     q = np.clip(bg.p_return, 1e-9, 1 - 1e-9)
+    strict = model.config.strict_returns
     bin_of = bin_table(bg.edges)
     out = np.empty((len(ranges), len(model.features)))
     bg_out = np.empty(len(ranges))
@@ -227,6 +236,9 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
         bin_of,
         1.0 / BIN_STEP,
         float(np.log(model.config.robust)),
+        ret,
+        np.zeros_like(q) if strict else np.log(q),
+        -np.inf if strict else float(np.log(model.config.robust)),
         out,
         bg_out,
     )
@@ -317,8 +329,15 @@ def _robust_beam_terms(
         -0.5 * (LOG_2PI + np.log(v) + (np.nan_to_num(scans) - mean) ** 2 / v),
         -np.log(model.laser.range_max),
     )
+    rho = np.log(model.config.robust)
+    if model.config.strict_returns:  # the world explains a return's range, not the return
+        q = np.clip(model.background.p_return, 1e-9, 1 - 1e-9)  # type: ignore[union-attr]
+        ok = np.isfinite(scans)
+        density = world - np.log(q)
+        ranged = np.logaddexp(dens + keep, density + rho) - density
+        return np.where(ok, ranged + np.log(p) - np.log(q), np.log1p(-p) - np.log1p(-q))
     own = np.where(np.isfinite(scans), np.log(p) + dens, np.log1p(-p)) + keep
-    return np.logaddexp(own, world + np.log(model.config.robust)) - world
+    return np.logaddexp(own, world + rho) - world
 
 
 def fit_temperature(

@@ -39,8 +39,9 @@ ABLATION: list[tuple[str, Config]] = [
     ("+ temperature (leave-one-out design effect)", dataclasses.replace(STREAM, smoothing="none")),
     ("+ HMM forward filter along the path (Eq. 7): streaming", STREAM),
     ("+ forward-backward (offline: the whole log)", dataclasses.replace(STREAM, smoothing="forward-backward")),
-    ("+ evidence length 0.5 m", dataclasses.replace(STREAM, smoothing="forward-backward", evidence_length=0.5)),
-    ("alternative: forward filter, evidence length 0.5 m", dataclasses.replace(STREAM, evidence_length=0.5)),
+    ("+ evidence length 0.5 m", FULL),
+    ("alternative: forward filter with evidence length 0.5 m", dataclasses.replace(FULL, smoothing="forward")),
+    ("alternative: strict returns (implicit prior for none)", dataclasses.replace(FULL, strict_returns=True)),
     ("alternative: robust weight 0.3, no smoothing", dataclasses.replace(STREAM, robust=0.3, smoothing="none")),
 ]  # fmt: skip
 DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
