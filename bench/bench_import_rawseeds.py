@@ -29,7 +29,7 @@ T0 = 1235714832.018787  # the start of Bicocca 27a
 POOL = 4096  # distinct range lines; timestamps are all distinct
 
 CHILD = """
-import json, resource, sys, time
+import json, sys, time
 from pathlib import Path
 from importers.rawseeds import Rawseeds
 from importers.base import ImportOptions
@@ -38,8 +38,11 @@ start, cpu = time.perf_counter(), time.process_time()
 Rawseeds().import_to([src], out, ImportOptions())
 seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
 meta = json.loads((out / "meta.json").read_text())
+# VmHWM, not ru_maxrss: Linux carries ru_maxrss over fork and exec, so a child of a big
+# parent would report the parent's peak; VmHWM belongs to this process's own address space.
+hwm = next(l for l in open("/proc/self/status") if l.startswith("VmHWM:"))
 print(json.dumps({"seconds": seconds, "cpu_seconds": cpu, "scans": meta["scans"],
-                  "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+                  "peak_mb": int(hwm.split()[1]) / 1024}))
 """
 
 

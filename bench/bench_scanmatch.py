@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from bench import peak_rss_mb
+
 REAL = Path(
     os.environ.get(
         "TOOLKIT_REAL_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
@@ -52,12 +54,6 @@ def _child(*args: str, timeout: float = 3600) -> Any:
     if result.returncode != 0:
         raise RuntimeError(f"bench child {args} failed: {result.stderr.strip()[-2000:]}")
     return json.loads(result.stdout.strip().splitlines()[-1])
-
-
-def _peak_rss_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 # ---------------------------------------------------------------- children
@@ -208,7 +204,7 @@ def child_map(dataset: str, out: str, voxel: float) -> dict[str, Any]:
     metrics = json.loads((run / "metrics.json").read_text())
     return {
         "seconds": seconds,
-        "peak_rss_mb": _peak_rss_mb(),
+        "peak_rss_mb": peak_rss_mb(),
         "pairs_per_s": metrics["pairs_per_second"],
         "cloud_mb": (run / "cloud.ply").stat().st_size / 2**20,
     }
