@@ -8,18 +8,7 @@ from typing import Annotated
 import typer
 
 from toolkit.cli import app
-
-
-def _parse_extra(pairs: list[str]) -> dict[str, str]:
-    from toolkit.errors import ToolkitError
-
-    extra = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise ToolkitError(f"option {pair!r} is not KEY=VALUE")
-        extra[key.strip()] = value.strip()
-    return extra
+from toolkit.cli.options import key_values
 
 
 @app.command("import")
@@ -56,7 +45,7 @@ def import_command(
         scan_topic=scan_topic,
         odom_topic=odom_topic,
         laser=laser,
-        extra=_parse_extra(option or []),
+        extra=key_values(option, "-O"),
     )
     written = importers.import_log(fmt, sources, out, options, force=force)
     if not quiet:

@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from toolkit.cli import app
+from toolkit.cli.options import key_values
 
 
 def _value(text: str) -> Any:
@@ -25,15 +26,7 @@ def _value(text: str) -> Any:
 
 
 def _pairs(pairs: list[str] | None, flag: str) -> dict[str, Any]:
-    from toolkit.errors import ToolkitError
-
-    out = {}
-    for pair in pairs or []:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.strip():
-            raise ToolkitError(f"{flag} {pair!r} is not KEY=VALUE")
-        out[key.strip().replace("-", "_")] = _value(value.strip())
-    return out
+    return {k.replace("-", "_"): _value(v) for k, v in key_values(pairs, flag).items()}
 
 
 def _config(path: Path | None) -> dict[str, Any]:
