@@ -14,7 +14,16 @@ from pathlib import Path
 from importers.base import Importer, ImportOptions
 from toolkit.errors import ToolkitError
 
-__all__ = ["ImportOptions", "Importer", "detect", "get", "import_log", "names", "register"]
+__all__ = [
+    "ImportOptions",
+    "Importer",
+    "detect",
+    "get",
+    "import_log",
+    "names",
+    "register",
+    "resolve",
+]
 
 _REGISTRY: dict[str, type[Importer]] = {}
 _BROKEN: dict[str, str] = {}  # module name -> why it failed to import
@@ -57,20 +66,58 @@ def get(name: str) -> Importer:
         raise ToolkitError(f"unknown format {name!r}; known: {known}") from None
 
 
-def detect(sources: Sequence[Path]) -> Importer:
-    """The one importer whose sniffer accepts the first source."""
+def _claims(path: Path) -> list[Importer]:
+    return [imp for cls in _REGISTRY.values() if (imp := cls()).sniff(path)]
+
+
+def _logs_in(directory: Path, importer: Importer | None) -> list[tuple[Importer, Path]]:
+    """The files directly in `directory` that an importer (the given one, or any) claims."""
+    found = []
+    for child in sorted(directory.iterdir()):
+        if child.is_file():
+            claims = [importer] if importer and importer.sniff(child) else []
+            found += [(imp, child) for imp in (claims if importer else _claims(child))]
+    return found
+
+
+def resolve(fmt: str, sources: Sequence[Path]) -> tuple[Importer, list[Path]]:
+    """The importer for `sources` ('auto' detects it from the first) and the sources to give it.
+
+    A directory that the format does not read as a whole (a Rawseeds session is read whole)
+    stands for the one log of that format inside it, e.g. a `toolkit simulate` output."""
     _load_all()
     first = Path(sources[0])
     if not first.exists():
         raise ToolkitError("no such file or directory", file=first)
-    hits = [cls() for cls in _REGISTRY.values() if cls().sniff(first)]
-    if len(hits) == 1:
-        return hits[0]
-    if not hits:
+    importer = get(fmt) if fmt != "auto" else None
+    if importer is None:
+        hits = _claims(first)
+        if len(hits) > 1:
+            raise ToolkitError(
+                f"ambiguous format ({', '.join(h.name for h in hits)}); name it", file=first
+            )
+        importer = hits[0] if hits else None
+    if importer is not None and (not first.is_dir() or importer.sniff(first)):
+        return importer, list(sources)
+    inside = _logs_in(first, importer) if first.is_dir() else []
+    if len(inside) == 1 and len(sources) == 1:
+        return inside[0][0], [inside[0][1]]
+    what = f"{importer.name} log" if importer else "log of a known format"
+    if not inside:
+        hint = "" if importer else f"; name the format (one of {', '.join(names())})"
         raise ToolkitError(
-            f"cannot tell the format; name it (one of {', '.join(names())})", file=first
+            f"cannot tell the format{hint}"
+            if not importer and not first.is_dir()
+            else f"no {what} here{hint}",
+            file=first,
         )
-    raise ToolkitError(f"ambiguous format ({', '.join(h.name for h in hits)}); name it", file=first)
+    listed = ", ".join(f"{p.name} ({imp.name})" for imp, p in inside)
+    raise ToolkitError(f"{len(inside)} candidates ({listed}); name the file", file=first)
+
+
+def detect(sources: Sequence[Path]) -> Importer:
+    """The importer that `toolkit import auto` would use for `sources`."""
+    return resolve("auto", sources)[0]
 
 
 def import_log(
@@ -87,5 +134,5 @@ def import_log(
     for p in paths:
         if not p.exists():
             raise ToolkitError("no such file or directory", file=p)
-    importer = detect(paths) if fmt == "auto" else get(fmt)
+    importer, paths = resolve(fmt, paths)
     return importer.import_to(paths, Path(out), options or ImportOptions(), force=force)

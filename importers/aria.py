@@ -86,7 +86,7 @@ class Aria(Importer):
         first = text.lstrip().split("\n", 1)[0].strip()
         return (
             first == "LaserOdometryLog"
-            or "ArLaserLogger" in text
+            or re.search(r"^#.*ArLaserLogger", text, re.M) is not None  # its header comment
             or re.search(r"^\s*(sick1conf|scan1conf)\s*:", text, re.M) is not None
         )
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import ROOT, Cli
 from toolkit.cli import app
 
 
@@ -106,3 +107,17 @@ def test_usage_errors_are_one_line_not_internal(tmp_path: Path) -> None:
     assert_one_line_error(result, "--out")
     assert "internal" not in result.stderr
     assert_one_line_error(run("info", tmp_path, "--no-such-flag"), "no-such-flag")
+
+
+def test_auto_reads_a_simulate_output_directory(tmp_path: Path, cli: Cli) -> None:
+    """A directory holding one log (plus truth files) stands for that log; prose is no log."""
+    for sample in ("corridor-carmen", "corridor-aria", "building-rawseeds"):
+        code, _, err = cli("import", "auto", ROOT / "datasets" / sample, "--out", tmp_path / sample)
+        assert code == 0, err
+    code, _, err = cli(
+        "import", "carmen", ROOT / "datasets" / "corridor-aria", "--out", tmp_path / "x"
+    )
+    assert code == 1 and "no carmen log here" in err
+    code, _, err = cli("import", "auto", ROOT / "README.md", "--out", tmp_path / "y")
+    assert code == 1 and "cannot tell the format" in err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
