@@ -99,18 +99,18 @@ def resolve(fmt: str, sources: Sequence[Path]) -> tuple[Importer, list[Path]]:
         importer = hits[0] if hits else None
     if importer is not None and (not first.is_dir() or importer.sniff(first)):
         return importer, list(sources)
-    inside = _logs_in(first, importer) if first.is_dir() else []
+    if not first.is_dir():  # a file no importer claims
+        raise ToolkitError(
+            f"cannot tell the format; name it (one of {', '.join(names())})", file=first
+        )
+    inside = _logs_in(first, importer)
     if len(inside) == 1 and len(sources) == 1:
         return inside[0][0], [inside[0][1]]
-    what = f"{importer.name} log" if importer else "log of a known format"
     if not inside:
-        hint = "" if importer else f"; name the format (one of {', '.join(names())})"
-        raise ToolkitError(
-            f"cannot tell the format{hint}"
-            if not importer and not first.is_dir()
-            else f"no {what} here{hint}",
-            file=first,
+        what = (
+            f"{importer.name} log" if importer else f"log of a known format ({', '.join(names())})"
         )
+        raise ToolkitError(f"no {what} in this directory", file=first)
     listed = ", ".join(f"{p.name} ({imp.name})" for imp, p in inside)
     raise ToolkitError(f"{len(inside)} candidates ({listed}); name the file", file=first)
 

@@ -117,7 +117,7 @@ def test_auto_reads_a_simulate_output_directory(tmp_path: Path, cli: Cli) -> Non
     code, _, err = cli(
         "import", "carmen", ROOT / "datasets" / "corridor-aria", "--out", tmp_path / "x"
     )
-    assert code == 1 and "no carmen log here" in err
+    assert code == 1 and "no carmen log in this directory" in err
     code, _, err = cli("import", "auto", ROOT / "README.md", "--out", tmp_path / "y")
     assert code == 1 and "cannot tell the format" in err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
