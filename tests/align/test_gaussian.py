@@ -131,3 +131,43 @@ def test_icp_point_to_line_on_an_ordered_room_outline() -> None:
     assert np.abs(moved - cur).max() < 1e-6
     with pytest.raises(ValueError, match="2D"):
         align.icp(np.zeros((5, 3)), np.zeros((5, 3)), method="point_to_line")
+
+
+def reference_gaussian(
+    cur: np.ndarray, prev: np.ndarray, iterations: int, variant: str, max_shift: float | None
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Eq. 3-6 written out in plain numpy, the kernels' yardstick."""
+    d = cur - prev
+    w0 = np.ones(len(d))
+    bad = ~np.isfinite(d).all(axis=1)
+    w0[bad] = 0.0
+    d[bad] = 0.0
+    if max_shift is not None:
+        w0[(d * d).sum(axis=1) > max_shift**2] = 0.0
+    w = w0
+    mu = w @ d / w.sum()
+    r2 = ((d - mu) ** 2).sum(axis=1)
+    var = float(w @ r2 / w.sum())
+    for _ in range(iterations):
+        cap = 1.0 / (2.0 * max(var, 1e-12))
+        w = np.minimum(np.exp(-r2 * cap) * cap * w0 if variant == "text" else w * r2, cap)
+        mu = w @ d / w.sum()
+        r2 = ((d - mu) ** 2).sum(axis=1)
+        var = float(w @ r2 / w.sum())
+    if max_shift is not None and np.linalg.norm(mu) > max_shift:
+        mu = mu * max_shift / np.linalg.norm(mu)
+    return mu, var, w
+
+
+@pytest.mark.parametrize("variant", ["text", "paper"])
+@pytest.mark.parametrize("dim", [2, 3, 5])
+def test_kernels_give_the_plain_numpy_numbers(variant: str, dim: int) -> None:
+    cur, prev = cloud(3000, dim, np.full(dim, 0.04), 0.01, seed=dim)
+    cur[:300] += 0.3  # outliers, some beyond the bound
+    cur[7] = np.nan
+    for iterations, max_shift in ((2, None), (4, 0.35), (0, None)):
+        mu, var, w = reference_gaussian(cur, prev, iterations, variant, max_shift)
+        r = align.gaussian(cur, prev, iterations=iterations, max_shift=max_shift, variant=variant)  # type: ignore[arg-type]
+        np.testing.assert_allclose(r.shift, mu, rtol=1e-12, atol=1e-15)
+        assert r.variance == pytest.approx(var, rel=1e-12)
+        np.testing.assert_allclose(r.weights, w, rtol=1e-9, atol=1e-300)

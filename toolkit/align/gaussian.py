@@ -10,13 +10,19 @@ multiplies the weight by the squared residual, which does the opposite. The defa
 (`variant="text"`) follows the text, w_i <- w0_i exp(-r_i^2 / (2 sigma^2)); the printed form
 is `variant="paper"`, w_i <- w_i r_i^2. Both are capped at 1 / (2 sigma^2), the peak of the
 Gaussian kernel in the paper's scaling, so no single point can dominate.
+
+Speed: a few passes over the K x D points, no temporaries of K x D beyond the displacements
+(laid out D x K so each pass is a contiguous loop); numba for the passes, numpy's vectorised
+exp for the Gaussian weights.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
+import numba as nb
 import numpy as np
 
 Variant = Literal["text", "paper"]
@@ -47,60 +53,102 @@ def gaussian(
     follow the first mean. `max_shift` is the motion model's bound: displacements longer
     than it are not evidence (weight 0) and the estimate is clamped to that length.
     """
-    cur = np.asarray(cur, dtype=np.float64)
-    prev = np.asarray(prev, dtype=np.float64)
+    cur = np.ascontiguousarray(cur, dtype=np.float64)
+    prev = np.ascontiguousarray(prev, dtype=np.float64)
     if cur.shape != prev.shape or cur.ndim != 2:
         raise ValueError(f"cur {cur.shape} and prev {prev.shape} must both be K x D")
     if variant not in ("text", "paper"):
         raise ValueError(f"variant must be 'text' or 'paper', not {variant!r}")
-    d = cur - prev
-    w0 = np.ones(len(d)) if weights is None else np.asarray(weights, dtype=np.float64).copy()
-    if w0.shape != (len(d),):
-        raise ValueError(f"weights {w0.shape} do not match {len(d)} points")
-    if not np.isfinite(d).all():
-        w0[~np.isfinite(d).all(axis=1)] = 0.0
-        d = np.nan_to_num(d)
-    if max_shift is not None:
-        w0[np.einsum("ij,ij->i", d, d) > max_shift * max_shift] = 0.0
+    k, dim = cur.shape
+    if weights is None:
+        w0 = np.ones(k)
+    else:
+        w0 = np.array(weights, dtype=np.float64)  # a copy: the kernel zeroes rejected points
+        if w0.shape != (k,):
+            raise ValueError(f"weights {w0.shape} do not match {k} points")
+    mu = np.zeros(dim)
+    d = np.empty((dim, k))
+    r2 = np.empty(k)
+    _displacements(cur, prev, -1.0 if max_shift is None else float(max_shift), d, w0)
+    var = _moments(d, w0, mu, r2)  # Eq. 3-4
     w = w0
-    mu = _mean(d, w)  # Eq. 3
-    r2 = _sq_residuals(d, mu)
-    var = _variance(r2, w)  # Eq. 4
-    for _ in range(iterations):
+    for _ in range(iterations):  # Eq. 5-6, then Eq. 3-4 again
         cap = 1.0 / (2.0 * max(var, _TINY))
-        if variant == "text":  # Eq. 5-6 as the text describes them: changed points lose weight
-            w = np.exp(r2 * -cap)
-            w *= cap
-            w *= w0
-        else:  # Eq. 6 as printed: the weight grows with the squared residual
-            w = w * r2
-        np.minimum(w, cap, out=w)
-        if not w.sum() > 0:
+        if variant == "text":  # as the text describes them: changed points lose weight
+            w = np.multiply(r2, -cap)
+            np.exp(w, out=w)
+            total = _scale_capped(w, cap, w0)
+        else:  # as printed: the weight grows with the squared residual
+            w = np.multiply(w, r2)
+            total = _scale_capped(w, cap, None)
+        if not total > 0:
             break
-        mu = _mean(d, w)
-        r2 = _sq_residuals(d, mu)
-        var = _variance(r2, w)
+        var = _moments(d, w, mu, r2)
     if max_shift is not None:
-        norm = float(np.linalg.norm(mu))
+        norm = math.sqrt(float(mu @ mu))
         if norm > max_shift:
-            mu = mu * (max_shift / norm)
+            mu *= max_shift / norm
     return GaussianResult(mu, var, w, iterations)
 
 
-def _mean(d: np.ndarray, w: np.ndarray) -> np.ndarray:
-    total = w.sum()
-    if not total > 0:
-        return np.zeros(d.shape[1])
-    return np.asarray(w @ d / total)
+@nb.njit(cache=True, nogil=True)
+def _displacements(
+    cur: np.ndarray, prev: np.ndarray, max_shift: float, d: np.ndarray, w0: np.ndarray
+) -> None:
+    """cur - prev into `d`, dimension by dimension (D x K: every later pass is a contiguous
+    loop). A displacement with a non-finite coordinate, or longer than `max_shift` (< 0: no
+    bound), is no evidence: weight 0 (and 0 in `d`, so sums stay finite)."""
+    k, dim = cur.shape
+    bound2 = max_shift * max_shift
+    for i in range(k):
+        n2 = 0.0
+        for j in range(dim):
+            v = cur[i, j] - prev[i, j]
+            d[j, i] = v
+            n2 += v * v
+        if not math.isfinite(n2):
+            for j in range(dim):
+                d[j, i] = 0.0
+            w0[i] = 0.0
+        elif max_shift >= 0.0 and n2 > bound2:
+            w0[i] = 0.0
 
 
-def _sq_residuals(d: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    r = d - mu
-    return np.einsum("ij,ij->i", r, r)
+@nb.njit(cache=True, nogil=True, fastmath={"contract"})
+def _scale_capped(w: np.ndarray, cap: float, w0: np.ndarray | None) -> float:
+    """w <- min(w cap w0, cap) (text) or min(w, cap) (printed: w0 None); returns the sum."""
+    total = 0.0
+    if w0 is None:
+        for i in range(w.shape[0]):
+            w[i] = min(w[i], cap)
+            total += w[i]
+    else:
+        for i in range(w.shape[0]):
+            w[i] = min(w[i] * cap * w0[i], cap)
+            total += w[i]
+    return total
 
 
-def _variance(r2: np.ndarray, w: np.ndarray) -> float:
-    total = w.sum()
-    if not total > 0:
+@nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
+def _moments(d: np.ndarray, w: np.ndarray, mu: np.ndarray, r2: np.ndarray) -> float:
+    """Weighted mean of the D x K displacements into `mu`, squared residuals into `r2`, and
+    their weighted mean (the variance); zeros when no point has weight."""
+    dim, k = d.shape
+    total = np.sum(w)
+    r2[:] = 0.0
+    for j in range(dim):
+        dj = d[j]
+        acc = 0.0
+        for i in range(k):
+            acc += w[i] * dj[i]
+        m = acc / total if total > 0.0 else 0.0
+        mu[j] = m
+        for i in range(k):
+            r = dj[i] - m
+            r2[i] += r * r
+    if not total > 0.0:
         return 0.0
-    return float(w @ r2 / total)
+    s = 0.0
+    for i in range(k):
+        s += w[i] * r2[i]
+    return s / total
