@@ -72,12 +72,9 @@ def _claims(path: Path) -> list[Importer]:
 
 def _logs_in(directory: Path, importer: Importer | None) -> list[tuple[Importer, Path]]:
     """The files directly in `directory` that an importer (the given one, or any) claims."""
-    found = []
-    for child in sorted(directory.iterdir()):
-        if child.is_file():
-            claims = [importer] if importer and importer.sniff(child) else []
-            found += [(imp, child) for imp in (claims if importer else _claims(child))]
-    return found
+    candidates = [importer] if importer else [cls() for cls in _REGISTRY.values()]
+    files = [child for child in sorted(directory.iterdir()) if child.is_file()]
+    return [(imp, f) for f in files for imp in candidates if imp.sniff(f)]
 
 
 def resolve(fmt: str, sources: Sequence[Path]) -> tuple[Importer, list[Path]]:
