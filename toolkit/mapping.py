@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -214,15 +214,17 @@ def write_run(
     voxel: float = 0.0,
     config: sc.MatchConfig | None = None,
     force: bool = False,
+    matcher: Callable[..., sc.PairMatches] | None = None,
 ) -> Path:
-    """Align `ds` by `method` and write the run directory `out`, atomically."""
+    """Align `ds` by `method` and write the run directory `out`, atomically (`matcher`: see
+    `trajectory.build`)."""
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
     from toolkit.progress import task
 
     with task(f"map ({method})", 4) as (progress, bar):
-        result = build(ds, method, config)
+        result = build(ds, method, config, matcher)
         progress.advance(bar)
         robot = result.poses
         truth = truth_poses(ds)
@@ -258,10 +260,11 @@ def map_dataset(
     method: str = "gaussian",
     voxel: float = 0.0,
     force: bool = False,
+    matcher: Callable[..., sc.PairMatches] | None = None,
 ) -> Path:
     """`toolkit map`: load a dataset directory and write its run directory."""
     check_output(Path(out), force)
-    return write_run(load(dataset), out, method, voxel, force=force)
+    return write_run(load(dataset), out, method, voxel, force=force, matcher=matcher)
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -119,9 +120,13 @@ def build(
     ds: Dataset,
     method: str = "gaussian",
     config: sc.MatchConfig | None = None,
+    matcher: Callable[..., sc.PairMatches] | None = None,
 ) -> TrajectoryResult:
     """The trajectory of `ds` by `method`: gaussian (the paper's matcher), icp (2D
-    point-to-line), icp-point (Open3D point-to-point) or odometry (no matching)."""
+    point-to-line), icp-point (Open3D point-to-point) or odometry (no matching).
+
+    `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
+    runs the pairs on a Dask cluster (`toolkit.scale.matcher_for`)."""
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     odo = odometry_poses(ds)
@@ -143,7 +148,7 @@ def build(
     seeds = sc.laser_motion(robot_seed, ds.laser)
     t0 = time.perf_counter()
     if method == "gaussian":
-        matches = sc.match_pairs(ds.ranges, seeds, ds.laser, config, ref)
+        matches = (matcher or sc.match_pairs)(ds.ranges, seeds, ds.laser, config, ref)
         used: dict[str, object] = config.to_dict()
     else:
         icp_method: Literal["point_to_line", "point_to_point"] = (

@@ -1,4 +1,4 @@
-"""`toolkit map DATASET --out RUN [--method gaussian|icp|icp-point|odometry] [--voxel M]`"""
+"""`toolkit map DATASET --out RUN [--method ...] [--voxel M] [--scheduler none|local:N|ADDRESS]`"""
 
 from __future__ import annotations
 
@@ -26,6 +26,13 @@ def map_command(
         float, typer.Option(help="voxel size (m) to downsample cloud.ply; 0 keeps every return")
     ] = 0.0,
     force: Annotated[bool, typer.Option("--force", help="replace an existing run")] = False,
+    scheduler: Annotated[
+        str,
+        typer.Option(
+            help="where to match the scan pairs (gaussian): none (this process), local or local:N "
+            "(a Dask LocalCluster of N workers) or a Dask scheduler's address"
+        ),
+    ] = "none",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
 ) -> None:
     """Align the scans, build the trajectory and the maps, and measure them against ground truth.
@@ -35,13 +42,16 @@ def map_command(
     """
     from toolkit.errors import ToolkitError
     from toolkit.mapping import map_dataset
+    from toolkit.scale import client_for, matcher_for
     from toolkit.trajectory import METHODS
 
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
-    run = map_dataset(dataset, out, method, voxel, force)
+    with client_for(scheduler) as client:
+        matcher = matcher_for(client) if client is not None else None
+        run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
     if quiet:
         return
     metrics = json.loads((run / "metrics.json").read_text())

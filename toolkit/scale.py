@@ -1,0 +1,187 @@
+"""Scale out on Dask: the same matching on a cluster of worker processes, bit for bit.
+
+    with client_for("local:4") as client:             # None in-process, or a Dask Client
+        matches = match_pairs_on(client, ranges, seeds, laser, config, ref)
+
+The pair list (reference keyframe and seed of every scan, from odometry) is known before any
+matching, so a long log is cut into chunks of consecutive pairs. A chunk [lo, hi) ships the
+scans from the keyframe of its first pair (the overlap: one scan for consecutive pairs, back
+to the current keyframe with keyframes) to its last scan; the worker matches them with
+`toolkit.align.scan.match_pairs` and the chunks' relative poses are gathered in order. Every
+pair is matched by the same kernel from the same inputs wherever it runs, so the composed
+trajectory equals the single-process run exactly.
+
+Schedulers: None or "none" (this process), "local" / "local:N" (a LocalCluster of N worker
+processes, one thread each), or the address of a running `dask scheduler` (tcp://host:8786).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from toolkit.align import scan as sc
+from toolkit.dataset import LaserGeometry
+from toolkit.errors import ToolkitError
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+CHUNK_PAIRS = 2_000  # pairs per task: seconds of work, a few MB of scans to ship
+CONNECT_TIMEOUT = "10s"  # to reach a scheduler given by address
+
+
+def parse_scheduler(scheduler: str | None, workers: int | None = None) -> tuple[str, int]:
+    """("none" | "local" | address, workers) from a --scheduler value."""
+    if scheduler is None or scheduler in ("", "none"):
+        return "none", 1
+    if scheduler == "local" or scheduler.startswith("local:"):
+        _, _, count = scheduler.partition(":")
+        try:
+            n = int(count) if count else (workers or os.cpu_count() or 1)
+        except ValueError:
+            raise ToolkitError(
+                f"--scheduler {scheduler!r}: N in local:N must be a number"
+            ) from None
+        if n < 1:
+            raise ToolkitError(f"--scheduler {scheduler!r}: needs at least one worker")
+        return "local", n
+    return scheduler, workers or 0
+
+
+@contextmanager
+def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Client | None]:
+    """None for in-process work, else a Dask Client: to a fresh LocalCluster of `workers`
+    processes with one thread each ("local", "local:N"), or to the scheduler at an address."""
+    kind, n = parse_scheduler(scheduler, workers)
+    if kind == "none":
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    if kind == "local":
+        with (
+            LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                host="127.0.0.1",
+            ) as cluster,
+            Client(cluster) as client,
+        ):
+            yield client
+        return
+    try:
+        client = Client(kind, timeout=CONNECT_TIMEOUT)
+    except OSError as e:
+        raise ToolkitError(f"cannot reach the Dask scheduler at {kind}: {e}") from None
+    with client:
+        yield client
+
+
+def pair_chunks(ref: np.ndarray, chunk: int = CHUNK_PAIRS) -> list[tuple[int, int, int]]:
+    """(first, lo, hi) per chunk of pairs lo..hi-1 (pair k matches scan k+1 to ref[k+1]):
+    `first` is the earliest scan the chunk needs, its first pair's reference."""
+    n = len(ref) - 1
+    return [(int(ref[lo + 1]), lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
+
+
+def _match_chunk(
+    ranges: np.ndarray,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    config: sc.MatchConfig,
+    ref: np.ndarray,
+    skip: int,
+    threads: int | None,
+) -> sc.PairMatches:
+    """Worker side: match scans 1.. of the slice `ranges` against `ref` (slice indices), keep
+    the pairs after the first `skip` (those before the chunk, matched only as overlap)."""
+    if threads:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+    out = sc.match_pairs(ranges, seeds, laser, config, ref)
+    return _take(out, slice(skip, None))
+
+
+def _take(m: sc.PairMatches, part: slice) -> sc.PairMatches:
+    return sc.PairMatches(
+        m.pose[part],
+        m.covariance[part],
+        m.sigma[part],
+        m.used[part],
+        m.degenerate[part],
+        m.agreement[part],
+    )
+
+
+def concat(parts: list[sc.PairMatches]) -> sc.PairMatches:
+    """The chunks' matches, in order, as one PairMatches."""
+    fields = ("pose", "covariance", "sigma", "used", "degenerate", "agreement")
+    return sc.PairMatches(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
+
+
+def match_pairs_on(
+    client: Client | None,
+    ranges: np.ndarray,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    config: sc.MatchConfig | None = None,
+    ref: np.ndarray | None = None,
+    chunk: int = CHUNK_PAIRS,
+    threads: int | None = 1,
+) -> sc.PairMatches:
+    """`match_pairs` with the pairs cut into chunks run as Dask tasks on `client` (None: in
+    this process, all at once). Same arguments, same result, bit for bit.
+
+    Reference scans must not go backwards (`keyframes` and consecutive pairs don't), so a
+    chunk's scans are one contiguous slice. `threads` caps numba's threads per task (one per
+    worker process by default; None leaves numba's default)."""
+    config = config or sc.MatchConfig()
+    if client is None:
+        return sc.match_pairs(ranges, seeds, laser, config, ref)
+    refs = sc._refs(ref, len(ranges))
+    if len(refs) > 2 and (np.diff(refs[1:]) < 0).any():
+        raise ValueError("chunked matching needs reference scans that never go backwards")
+    futures = []
+    for first, lo, hi in pair_chunks(refs, chunk):
+        local_ref = refs[first : hi + 1] - first
+        local_ref[0] = 0
+        futures.append(
+            client.submit(
+                _match_chunk,
+                ranges[first : hi + 1],
+                seeds[first:hi],
+                laser,
+                config,
+                local_ref,
+                lo - first,
+                threads,
+                pure=False,
+            )
+        )
+    if not futures:
+        return sc.PairMatches.empty(0)
+    parts: list[sc.PairMatches] = client.gather(futures)
+    return concat(parts)
+
+
+def matcher_for(client: Client | None, chunk: int = CHUNK_PAIRS) -> Any:
+    """A `match_pairs`-shaped callable that runs on `client` (for `trajectory.build`)."""
+
+    def match(
+        ranges: np.ndarray,
+        seeds: np.ndarray,
+        laser: LaserGeometry,
+        config: sc.MatchConfig | None = None,
+        ref: np.ndarray | None = None,
+    ) -> sc.PairMatches:
+        return match_pairs_on(client, ranges, seeds, laser, config, ref, chunk)
+
+    return match
