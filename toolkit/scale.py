@@ -17,9 +17,12 @@ processes, one thread each), or the address of a running `dask scheduler` (tcp:/
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -185,3 +188,152 @@ def matcher_for(client: Client | None, chunk: int = CHUNK_PAIRS) -> Any:
         return match_pairs_on(client, ranges, seeds, laser, config, ref, chunk)
 
     return match
+
+
+# ---------------------------------------------------------------- many logs, one task each
+
+SUFFIXES = (".gz", ".bz2", ".xz")
+
+
+@dataclass
+class Outcome:
+    """What happened to one source log: written, skipped (already complete) or failed."""
+
+    source: Path
+    dataset: Path
+    status: str  # "written" | "skipped" | "failed"
+    error: str = ""
+
+
+def dataset_name(source: Path, root: Path | None) -> Path:
+    """The dataset's path under --out: the source's path below `root` (the directory it was
+    found in) without its extensions, e.g. robotA/2024-05-01.log.gz -> robotA/2024-05-01."""
+    rel = source.relative_to(root) if root is not None else Path(source.name)
+    name = rel.name
+    while Path(name).suffix.lower() in SUFFIXES:
+        name = Path(name).stem
+    name = Path(name).stem or name
+    return rel.with_name(name)
+
+
+def find_logs(fmt: str, sources: list[Path]) -> list[tuple[Path, Path]]:
+    """(log, dataset name) for every source: files as they are, glob patterns expanded,
+    directories walked for what the format's sniffer claims (a directory it claims, such as a
+    Rawseeds session, is one log). With 'auto', any format's sniffer."""
+    import glob
+
+    import importers
+
+    sniffers = [importers.get(name) for name in (importers.names() if fmt == "auto" else [fmt])]
+
+    def claimed(path: Path) -> bool:
+        for imp in sniffers:
+            try:
+                if imp.sniff(path):
+                    return True
+            except Exception:  # too damaged to sniff: import it, so the failure is reported
+                return True
+        return False
+
+    def walk(directory: Path, root: Path) -> list[tuple[Path, Path]]:
+        found: list[tuple[Path, Path]] = []
+        for child in sorted(directory.iterdir()):
+            if child.is_dir():
+                found += (
+                    [(child, dataset_name(child, root))] if claimed(child) else walk(child, root)
+                )
+            elif child.is_file() and claimed(child):
+                found.append((child, dataset_name(child, root)))
+        return found
+
+    logs: list[tuple[Path, Path]] = []
+    for source in sources:
+        if not source.exists() and glob.has_magic(str(source)):
+            matches = sorted(Path(p) for p in glob.glob(str(source), recursive=True))
+            if not matches:
+                raise ToolkitError("no file matches this pattern", file=source)
+            logs += [(p, dataset_name(p, None)) for p in matches if p.is_file() or claimed(p)]
+        elif not source.exists():
+            raise ToolkitError("no such file or directory", file=source)
+        elif source.is_dir() and not claimed(source):
+            logs += walk(source, source)
+        else:
+            logs.append((source, dataset_name(source, None)))
+    seen: dict[Path, Path] = {}
+    for log, name in logs:
+        if name in seen:
+            raise ToolkitError(f"{seen[name]} and {log} would both become dataset {name}")
+        seen[name] = log
+    return logs
+
+
+def is_complete(dataset: Path, source: Path) -> bool:
+    """True when `dataset` holds a finished import (meta.json is written last, atomically) of
+    `source` whose files are unchanged (same sha256)."""
+    from toolkit.dataset import META, sha256
+
+    meta_path = dataset / META
+    if not meta_path.is_file():
+        return False
+    try:
+        files = json.loads(meta_path.read_text())["source"]["files"]
+        listed = {Path(f["path"]).resolve(): f["sha256"] for f in files}
+    except (ValueError, KeyError, TypeError):
+        return False
+    if source.is_file() and source.resolve() not in listed:
+        return False
+    return all(p.is_file() and sha256(p) == digest for p, digest in listed.items())
+
+
+def _import_one(fmt: str, source: Path, out: Path, options: Any, force: bool) -> Outcome:
+    """Worker side: one log into one dataset; every failure becomes an Outcome, not a raise."""
+    import importers
+
+    try:
+        if not force and is_complete(out, source):
+            return Outcome(source, out, "skipped")
+        importers.import_log(fmt, [source], out, options, force=True)
+        return Outcome(source, out, "written")
+    except ToolkitError as e:
+        return Outcome(source, out, "failed", e.line())
+    except Exception as e:  # a damaged log may break a parser anywhere: report it, go on
+        return Outcome(source, out, "failed", f"{e} ({type(e).__module__}.{type(e).__name__})")
+
+
+def import_many(
+    client: Client | None,
+    fmt: str,
+    logs: list[tuple[Path, Path]],
+    out: Path,
+    options: Any = None,
+    force: bool = False,
+) -> list[Outcome]:
+    """Import every (log, name) into out/name, one task per log on `client` (None: here, one
+    after the other). Failures are returned, by source, and do not stop the others; complete
+    datasets of unchanged sources are skipped unless `force`."""
+    from toolkit.progress import track
+
+    jobs = [(source.resolve(), out / name) for source, name in logs]
+    if client is None:
+        return [
+            _import_one(fmt, source, dataset, options, force)
+            for source, dataset in track(jobs, "import logs")
+        ]
+    from distributed import as_completed
+
+    futures = {
+        client.submit(_import_one, fmt, source, dataset, options, force, pure=False): (
+            source,
+            dataset,
+        )
+        for source, dataset in jobs
+    }
+    done: dict[Path, Outcome] = {}
+    for future in track(as_completed(futures), "import logs", total=len(futures)):
+        source, dataset = futures[future]
+        if future.status == "error":  # the worker died (e.g. a crash in native code)
+            error = future.exception()
+            done[dataset] = Outcome(source, dataset, "failed", f"{error} ({type(error).__name__})")
+        else:
+            done[dataset] = future.result()
+    return [done[dataset] for _, dataset in jobs]

@@ -1,4 +1,4 @@
-"""`toolkit import FORMAT SOURCE... --out DATASET`"""
+"""`toolkit import FORMAT SOURCE... --out DATASET [--each [--scheduler none|local:N|ADDRESS]]`"""
 
 from __future__ import annotations
 
@@ -32,9 +32,25 @@ def import_command(
         list[str] | None,
         typer.Option("--option", "-O", help="format-specific KEY=VALUE (see `toolkit formats`)"),
     ] = None,
+    each: Annotated[
+        bool,
+        typer.Option(
+            "--each",
+            help="many logs: every SOURCE file, quoted glob pattern, or log found in a "
+            "directory tree becomes its own dataset OUT/<name>; complete ones are skipped",
+        ),
+    ] = False,
+    scheduler: Annotated[
+        str,
+        typer.Option(
+            help="with --each: where the imports run: none (this process), local or local:N "
+            "(a Dask LocalCluster of N workers) or a Dask scheduler's address"
+        ),
+    ] = "none",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
 ) -> None:
-    """Import a log into a dataset directory (Parquet + meta.json), atomically."""
+    """Import a log into a dataset directory (Parquet + meta.json), atomically; or, with
+    --each, many logs into one dataset each."""
     import importers
     from toolkit.cli.info_cmd import print_summary
     from toolkit.dataset import load
@@ -47,9 +63,43 @@ def import_command(
         laser=laser,
         extra=key_values(option, "-O"),
     )
+    if each or scheduler != "none":
+        _import_each(fmt, sources, out, options, force, scheduler, quiet)
+        return
     written = importers.import_log(fmt, sources, out, options, force=force)
     if not quiet:
         print_summary(summary(load(written)))
+
+
+def _import_each(
+    fmt: str,
+    sources: list[Path],
+    out: Path,
+    options: object,
+    force: bool,
+    scheduler: str,
+    quiet: bool,
+) -> None:
+    """One dataset per log; a line per failure on stderr and exit 1 if any failed."""
+    from toolkit.errors import ToolkitError
+    from toolkit.scale import client_for, find_logs, import_many
+
+    logs = find_logs(fmt, sources)
+    if not logs:
+        raise ToolkitError(f"no {'' if fmt == 'auto' else fmt + ' '}log found in the sources")
+    with client_for(scheduler) as client:
+        outcomes = import_many(client, fmt, logs, out, options, force)
+    failed = [o for o in outcomes if o.status == "failed"]
+    for o in failed:
+        typer.echo(f"failed: {o.source}: {o.error}", err=True)
+    if not quiet:
+        counts = {s: sum(o.status == s for o in outcomes) for s in ("written", "skipped")}
+        typer.echo(
+            f"{out}: {counts['written']} written, {counts['skipped']} skipped (complete), "
+            f"{len(failed)} failed, of {len(outcomes)} logs"
+        )
+    if failed:
+        raise typer.Exit(1)
 
 
 @app.command("formats")
