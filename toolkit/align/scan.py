@@ -139,22 +139,48 @@ def robot_motion(laser_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _bearing(y: float, x: float) -> float:
-    """atan2 to ~1e-5 rad (a polynomial): only picks the beam, the residual stays exact."""
+    """atan2 to ~1e-5 rad (a polynomial): only picks the beam, the residual stays exact.
+    Branch-free (selects), so a loop of it vectorises; NaN in, NaN out."""
     ax = abs(x)
     ay = abs(y)
     big = max(ax, ay)
-    if big == 0.0:
-        return 0.0
-    z = min(ax, ay) / big
+    z = min(ax, ay) / (big if big > 0.0 else 1.0)
     z2 = z * z
     a = z * (
         0.99986605 + z2 * (-0.33029950 + z2 * (0.18014100 + z2 * (-0.08513300 + z2 * 0.02083510)))
     )
-    if ay > ax:
-        a = 1.5707963267948966 - a
-    if x < 0.0:
-        a = 3.141592653589793 - a
-    return -a if y < 0.0 else a
+    a = 1.5707963267948966 - a if ay > ax else a
+    a = 3.141592653589793 - a if x < 0.0 else a
+    a = -a if y < 0.0 else a
+    return a if x == x else x
+
+
+_POW2_NEG = np.array([2.0**-k for k in range(64)])  # 2^-k, the exponent part of _exp_neg
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _exp_neg(x: float) -> float:
+    """exp(-x) for x >= 0 to ~1e-9 relative (0 beyond 40): a weight, not a result; the
+    library exp is a third of a round's cost. 2^-n from a table, 2^-f (|f| <= 1/2) by a
+    degree-7 Taylor polynomial of exp(-f ln 2)."""
+    if not x < 40.0:
+        return 0.0
+    y = x * 1.4426950408889634  # x / ln 2
+    n = int(y + 0.5)
+    t = (y - n) * -0.6931471805599453  # |t| <= ln 2 / 2
+    p = 1.0 + t * (
+        1.0
+        + t
+        * (
+            0.5
+            + t
+            * (
+                1.0 / 6.0
+                + t * (1.0 / 24.0 + t * (1.0 / 120.0 + t * (1.0 / 720.0 + t * (1.0 / 5040.0))))
+            )
+        )
+    )
+    return p * _POW2_NEG[n]
 
 
 # state slots of one refinement, kept in a small float64 array
@@ -231,6 +257,7 @@ def _refine(
     ny: np.ndarray,
     cx: np.ndarray,
     cy: np.ndarray,
+    fb: np.ndarray,
     state: np.ndarray,
 ) -> None:
     """Gaussian rounds (Eq. 3-6 on point-to-line correspondences) from pose `start`, bounded
@@ -269,16 +296,20 @@ def _refine(
         sw = 0.0
         swe = 0.0
         used = 0.0
+        # every return's fractional beam index in the previous scan, in one branch-free
+        # (vectorised) pass; the gathers and sums below then need no trig
         for j in range(nbeams):
+            ax = c * cx[j] - s * cy[j]
+            ay = s * cx[j] + c * cy[j]
+            fb[j] = (_bearing(ay + fty, ax + ftx) - angle_min) * inv_inc
+        for j in range(nbeams):
+            f = fb[j]
+            if not (f >= 0.0 and f < nbeams - 1):  # NaN (no return) fails too
+                continue
             ax = c * cx[j] - s * cy[j]  # the return's offset from the current laser, rotated
             ay = s * cx[j] + c * cy[j]
             qx = ax + ftx
             qy = ay + fty
-            if math.isnan(qx):
-                continue
-            f = (_bearing(qy, qx) - angle_min) * inv_inc
-            if not (f >= 0.0 and f < nbeams - 1):
-                continue
             i = int(f)
             n0 = nx[i]
             if math.isnan(n0):
@@ -293,7 +324,7 @@ def _refine(
             elif paper:  # Eq. 6 as printed: weight times squared residual, capped
                 w = min(e2 / var, 1.0)
             else:  # the text: changed returns lose weight
-                w = math.exp(-e2 * cap)
+                w = _exp_neg(e2 * cap)
             if w < 1e-6:
                 continue
             used += 1.0
@@ -310,7 +341,7 @@ def _refine(
             sw += w
             swe += w * e2
             if last:
-                score += math.exp(-e2 * agree)
+                score += _exp_neg(e2 * agree)
         if sw <= 0.0 or used < min_points:
             tx, ty, th = seed[0], seed[1], seed[2]
             degenerate = 2
@@ -478,19 +509,19 @@ def _match_pair(
     out_stats: np.ndarray,
     work: np.ndarray,
 ) -> None:
-    """Match one pair. `work` is a 6 x B float32 scratch array (no allocation per pair).
+    """Match one pair. `work` is a 7 x B float32 scratch array (no allocation per pair).
 
     Refines from the odometry first. If too few returns then agree (odometry off by more
     than the correspondences reach: a wheel slip), restarts from a ladder of headings
     within the motion model and keeps the start whose result most returns agree with.
     """
-    px, py, nx, ny, cx, cy = work[0], work[1], work[2], work[3], work[4], work[5]
+    px, py, nx, ny, cx, cy, fb = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     valid = _prepare(prev, cur, cos_a, sin_a, params, px, py, nx, ny, cx, cy)
     state = np.empty(_STATE)
     best = np.empty(_STATE)
     start = np.empty(3)
     start[:] = seed[:3]
-    _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, best)
+    _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, fb, best)
     rescue_step = params[13]
     if rescue_step > 0.0 and best[_SCORE] < params[14] * valid:
         max_turn = params[2]
@@ -499,13 +530,15 @@ def _match_pair(
         for k in range(1, steps + 1):
             for sign in (-1.0, 1.0):
                 start[2] = seed[2] + sign * k * rescue_step
-                _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, state)
+                _refine(
+                    start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, fb, state
+                )
                 if state[_SCORE] > 1.5 * best[_SCORE]:
                     best[:] = state
                     rescued = True
         if rescued:  # polish: more rounds from the chosen start
             start[0], start[1], start[2] = best[_TX], best[_TY], best[_TH]
-            _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, state)
+            _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, fb, state)
             if state[_SCORE] >= best[_SCORE]:
                 best[:] = state
     degenerate = _covariance(best, params, out_cov)
@@ -538,7 +571,7 @@ def _match_all(
     nbeams = ranges.shape[1]
     nchunks = max(1, min(npairs, 64))
     for chunk in nb.prange(nchunks):
-        work = np.empty((6, nbeams), dtype=np.float32)
+        work = np.empty((7, nbeams), dtype=np.float32)
         lo = chunk * npairs // nchunks
         hi = (chunk + 1) * npairs // nchunks
         for k in range(lo, hi):
@@ -674,8 +707,8 @@ class StreamMatcher:
     """The matcher one scan at a time, for a robot: float32 scans, constant working memory.
 
     Give it each scan with the odometry's pose at that scan; it returns the corrected robot
-    pose. It keeps the keyframe scan (B float32), a 6 x B float32 work array and the beam
-    angle tables: about 36 B bytes in all, whatever the log's length (6.8 KB at 181 beams).
+    pose. It keeps the keyframe scan (B float32), a 7 x B float32 work array and the beam
+    angle tables: about 40 B bytes in all, whatever the log's length (7.6 KB at 181 beams).
     Keyframes, seeds, the kernel and the composition are those of the batch form
     (`match_pairs` with `keyframes`, composed by `toolkit.trajectory`), so the poses are the
     same.
@@ -690,7 +723,7 @@ class StreamMatcher:
         self._key_odometry = np.zeros(3)
         self._key_pose = np.zeros(3)
         self._started = False
-        self._work = np.empty((6, laser.beams), dtype=np.float32)
+        self._work = np.empty((7, laser.beams), dtype=np.float32)
         self.pose = np.zeros(3)  # relative pose of the last pair (laser frame)
         self.covariance = np.zeros((3, 3))
         self.stats = np.zeros(4)  # sigma, correspondences used, degenerate, agreement
