@@ -4,7 +4,7 @@ Rows: one per scheduler. `none` is the single-process run (numba's threads over 
 `local:N` cuts the pairs into chunks (toolkit.scale.CHUNK_PAIRS) and runs them on N worker
 processes with one thread each. The log is the simulated building's scans repeated to
 50,000 (10,000 with --quick), consecutive pairs seeded by odometry. Figures: pairs/s (median
-of repeats, scans already on the cluster's side of `submit`), the cluster's start-up and its
+of repeats, shipping the scans to the workers included), the cluster's start-up and its
 first tiny task (each worker process loads the numba kernels from the cache; a fresh
 checkout compiles them once per worker), and whether the poses equal the single-process
 ones bit for bit. On a shared machine the figures follow the free cores, not the worker count.
