@@ -127,6 +127,18 @@ def test_map_cli_unreachable_scheduler_is_one_line(
     assert not (tmp_path / "run").exists()
 
 
+def test_map_cli_scheduler_needs_the_gaussian_matcher(
+    single: tuple[Path, pd.DataFrame], tmp_path: Path, cli: Cli
+) -> None:
+    data, _ = single
+    code, _, err = cli(
+        "map", data, "--out", tmp_path / "run", "--method", "icp", "--scheduler", "local:2"
+    )
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert "--scheduler" in err and "icp" in err
+    assert not (tmp_path / "run").exists()
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -140,6 +152,7 @@ def test_map_on_dask_scheduler_and_two_workers(
     dask = str(Path(sys.executable).parent / "dask")
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
+    logs = [(tmp_path / f"{name}.log").open("w") for name in ("scheduler", "worker0", "worker1")]
     procs = [
         subprocess.Popen(
             [
@@ -154,7 +167,7 @@ def test_map_on_dask_scheduler_and_two_workers(
                 "--no-show",
             ],
             stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
+            stderr=logs[0],  # kept in tmp_path by pytest, to read after a failure
         )
     ]
     try:
@@ -171,14 +184,14 @@ def test_map_on_dask_scheduler_and_two_workers(
                     "127.0.0.1",
                 ],
                 stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
+                stderr=logs[1 + i],
             )
-            for _ in range(2)
+            for i in range(2)
         ]
         from distributed import Client
 
-        with Client(address, timeout="30s") as c:
-            c.wait_for_workers(2, timeout=60)
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=120)
             assert len(c.scheduler_info()["workers"]) == 2
         data, one = single
         code, _, err = cli("map", data, "--out", tmp_path / "two", "--scheduler", address, "-q")
@@ -194,3 +207,5 @@ def test_map_on_dask_scheduler_and_two_workers(
                 p.wait(timeout=max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
                 p.kill()
+        for log in logs:
+            log.close()

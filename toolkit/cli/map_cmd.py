@@ -49,6 +49,8 @@ def map_command(
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
+    if scheduler != "none" and method != "gaussian":
+        raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     with client_for(scheduler) as client:
         matcher = matcher_for(client) if client is not None else None
         run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
