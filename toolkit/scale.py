@@ -153,13 +153,16 @@ def match_pairs_on(
     if len(refs) > 2 and (np.diff(refs[1:]) < 0).any():
         raise ValueError("chunked matching needs reference scans that never go backwards")
     futures = []
-    for first, lo, hi in pair_chunks(refs, chunk):
+    chunks = pair_chunks(refs, chunk)
+    # scans straight to the workers, not through the scheduler inside the task graph
+    scans = client.scatter([ranges[first : hi + 1] for first, _, hi in chunks], hash=False)
+    for (first, lo, hi), part in zip(chunks, scans, strict=True):
         local_ref = refs[first : hi + 1] - first
         local_ref[0] = 0
         futures.append(
             client.submit(
                 _match_chunk,
-                ranges[first : hi + 1],
+                part,
                 seeds[first:hi],
                 laser,
                 config,
