@@ -20,7 +20,7 @@ demo: install    ## import the bundled and real logs, map, label, report into $(
 	OUT=$(OUT) PATH="$(CURDIR)/$(BIN):$$PATH" bash scripts/demo.sh
 
 test: install    ## the whole test suite, on both cores
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow" -x
