@@ -2,8 +2,10 @@
 
 Rows (column `table`):
 - speed: pairs per second on 181-beam scans (the simulated building), the Gaussian matcher
-  over the whole log at once against 2D point-to-line ICP and Open3D point-to-point ICP on
-  the same pairs (ICP on a sample of pairs: it runs one pair at a time); medians of repeats.
+  over the whole log at once (numba's threads; and on one thread, per core as ICP runs)
+  against 2D point-to-line ICP and Open3D point-to-point ICP on the same pairs, with the
+  same seeds, correspondence distance and cap on rounds (ICP on a sample of pairs: it runs
+  one pair at a time); medians of repeats.
 - accuracy: per log (simulated corridor and building; real CARMEN logs with the corrected
   poses as truth and seeded odometry drift, `toolkit.trajectory.REAL_LOG_DRIFT`) and method:
   ATE after SE(2) alignment, RPE per scan (translation, rotation), failures (> 0.2 m or 5°),
@@ -78,6 +80,8 @@ def _dataset(name: str, work: Path) -> Any:
 
 
 def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
+    import numba
+
     from toolkit.align import scan as sc
     from toolkit.trajectory import odometry_poses
 
@@ -87,6 +91,10 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
     seeds = sc.laser_motion(sc.between(odo[:-1], odo[1:]), ds.laser)
     pairs = len(seeds)
     rates: dict[str, float] = {}
+    # ICP as the matcher is run: the same odometry seeds, its gate as the correspondence
+    # distance, its cap on rounds (ICP converges within it here: 30 gave the same poses
+    # ~10% slower)
+    config = sc.MatchConfig()
     for method in ("point_to_line", "point_to_point"):
         sc.match_pairs_icp(ds.ranges[:2], seeds[:1], ds.laser, method)
         times = []
@@ -94,7 +102,12 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
             lo = (r * sample) % (pairs - sample)
             t0 = time.perf_counter()
             sc.match_pairs_icp(
-                ds.ranges[lo : lo + sample + 1], seeds[lo : lo + sample], ds.laser, method
+                ds.ranges[lo : lo + sample + 1],
+                seeds[lo : lo + sample],
+                ds.laser,
+                method,
+                max_distance=config.gate,
+                iterations=config.iterations,
             )
             times.append(time.perf_counter() - t0)
         rates[f"icp-{method}"] = sample / float(np.median(times))
@@ -106,6 +119,16 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
         sc.match_pairs(ds.ranges, seeds, ds.laser)
         times.append(time.perf_counter() - t0)
     rates["gaussian"] = pairs / float(np.median(times))
+    # per core, as ICP runs (one pair at a time, one thread)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        sc.match_pairs(ds.ranges, seeds, ds.laser)
+        times.append(time.perf_counter() - t0)
+    numba.set_num_threads(threads)
+    rates["gaussian-1-thread"] = pairs / float(np.median(times))
     best_icp = max(rates["icp-point_to_line"], rates["icp-point_to_point"])
     return [
         {
@@ -113,11 +136,11 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
             "name": name,
             "log": "building (sim)",
             "beams": ds.n_beams,
-            "pairs": pairs if name == "gaussian" else sample,
+            "pairs": pairs if name.startswith("gaussian") else sample,
             "pairs_per_s": rate,
             "gaussian_speedup": rates["gaussian"] / rate,
-            "vs_best_icp": rates["gaussian"] / best_icp if name == "gaussian" else None,
-            "threads": int(os.environ.get("NUMBA_NUM_THREADS", os.cpu_count() or 1)),
+            "vs_best_icp": rate / best_icp if name.startswith("gaussian") else None,
+            "threads": threads if name == "gaussian" else 1,
         }
         for name, rate in rates.items()
     ]
@@ -238,7 +261,7 @@ def child_stream() -> dict[str, Any]:
 
 def run(out: Path, quick: bool) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
-    rows += _child("speed", "100" if quick else "400", "3" if quick else "5")
+    rows += _child("speed", "100" if quick else "400", "3" if quick else "9")
     logs = ["corridor", "building"] + [n for n in CARMEN[: 1 if quick else None]]
     with tempfile.TemporaryDirectory(dir=out) as work:
         for name in logs:

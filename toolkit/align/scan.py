@@ -573,6 +573,9 @@ def _match_pair(
     out_stats[3] = best[_SCORE] / max(valid, 1)
 
 
+_CHUNKS = 512  # pieces of a log's pairs for the threads (8 or more pairs each at 4,000)
+
+
 @nb.njit(cache=True, parallel=True)
 def _match_all(
     ranges: np.ndarray,
@@ -588,10 +591,15 @@ def _match_all(
     out_cov: np.ndarray,
     out_stats: np.ndarray,
 ) -> None:
-    """Pairs (ref[k], first+k+1) of `ranges` for every k, in parallel chunks of pairs."""
+    """Pairs (ref[k], first+k+1) of `ranges` for every k, in parallel chunks of pairs.
+
+    Many small chunks, handed out one at a time (`match_pairs` sets numba's parallel chunk
+    size to 1): on a shared machine a thread whose core is busy elsewhere takes fewer
+    chunks instead of holding the others at the end (static halves ran slower on 2 threads
+    than on 1 under load)."""
     npairs = seeds.shape[0]
     nbeams = ranges.shape[1]
-    nchunks = max(1, min(npairs, 64))
+    nchunks = max(1, min(npairs, _CHUNKS))
     for chunk in nb.prange(nchunks):
         work = np.empty((7, nbeams), dtype=np.float32)
         lo = chunk * npairs // nchunks
@@ -697,22 +705,23 @@ def match_pairs(
     stats = np.zeros((n, 4))
     cos_a, sin_a = _tables(laser)
     params = _params(config, laser)
-    for lo in range(0, n, chunk):
-        hi = min(lo + chunk, n)
-        _match_all(
-            ranges,
-            refs[lo + 1 : hi + 1],
-            lo,
-            cos_a,
-            sin_a,
-            float(laser.angle_min),
-            float(laser.angle_increment),
-            seeds[lo:hi],
-            params,
-            out.pose[lo:hi],
-            out.covariance[lo:hi],
-            stats[lo:hi],
-        )
+    with nb.parallel_chunksize(1):
+        for lo in range(0, n, chunk):
+            hi = min(lo + chunk, n)
+            _match_all(
+                ranges,
+                refs[lo + 1 : hi + 1],
+                lo,
+                cos_a,
+                sin_a,
+                float(laser.angle_min),
+                float(laser.angle_increment),
+                seeds[lo:hi],
+                params,
+                out.pose[lo:hi],
+                out.covariance[lo:hi],
+                stats[lo:hi],
+            )
     out.sigma[:] = stats[:, 0]
     out.used[:] = stats[:, 1]
     out.degenerate[:] = stats[:, 2]
