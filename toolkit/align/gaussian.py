@@ -69,21 +69,24 @@ def gaussian(
     mu = np.zeros(dim)
     d = np.empty((dim, k))
     r2 = np.empty(k)
-    _displacements(cur, prev, -1.0 if max_shift is None else float(max_shift), d, w0)
-    var = _moments(d, w0, mu, r2)  # Eq. 3-4
+    np.subtract(cur.T, prev.T, out=d)  # D x K: every later pass is a contiguous loop
+    total = _screen(d, -1.0 if max_shift is None else float(max_shift), w0, r2)
+    var = _moments(d, w0, total, mu, r2)  # Eq. 3-4
     w = w0
+    buffer = np.empty(k) if iterations > 0 else w0
     for _ in range(iterations):  # Eq. 5-6, then Eq. 3-4 again
         cap = 1.0 / (2.0 * max(var, _TINY))
         if variant == "text":  # as the text describes them: changed points lose weight
-            w = np.multiply(r2, -cap)
-            np.exp(w, out=w)
-            total = _scale_capped(w, cap, w0)
+            np.multiply(r2, -cap, out=buffer)
+            np.exp(buffer, out=buffer)
+            total = _scale_capped(buffer, cap, w0)
         else:  # as printed: the weight grows with the squared residual
-            w = np.multiply(w, r2)
-            total = _scale_capped(w, cap, None)
+            np.multiply(w, r2, out=buffer)
+            total = _scale_capped(buffer, cap, None)
+        w = buffer
         if not total > 0:
             break
-        var = _moments(d, w, mu, r2)
+        var = _moments(d, w, total, mu, r2)
     if max_shift is not None:
         norm = math.sqrt(float(mu @ mu))
         if norm > max_shift:
@@ -92,29 +95,34 @@ def gaussian(
 
 
 @nb.njit(cache=True, nogil=True)
-def _displacements(
-    cur: np.ndarray, prev: np.ndarray, max_shift: float, d: np.ndarray, w0: np.ndarray
-) -> None:
-    """cur - prev into `d`, dimension by dimension (D x K: every later pass is a contiguous
-    loop). A displacement with a non-finite coordinate, or longer than `max_shift` (< 0: no
-    bound), is no evidence: weight 0 (and 0 in `d`, so sums stay finite)."""
-    k, dim = cur.shape
-    bound2 = max_shift * max_shift
+def _screen(d: np.ndarray, max_shift: float, w0: np.ndarray, n2: np.ndarray) -> float:
+    """A displacement (D x K `d`) with a non-finite coordinate, or longer than `max_shift`
+    (< 0: no bound), is no evidence: weight 0 in `w0` (and 0 in `d`, so sums stay finite).
+    `n2` is scratch (K). Returns the total weight left."""
+    dim, k = d.shape
+    n2[:] = 0.0
+    for j in range(dim):
+        dj = d[j]
+        for i in range(k):
+            n2[i] += dj[i] * dj[i]
+    bound2 = max_shift * max_shift if max_shift >= 0.0 else np.inf
+    total = 0.0
+    bad = 0
     for i in range(k):
-        n2 = 0.0
-        for j in range(dim):
-            v = cur[i, j] - prev[i, j]
-            d[j, i] = v
-            n2 += v * v
-        if not math.isfinite(n2):
-            for j in range(dim):
-                d[j, i] = 0.0
-            w0[i] = 0.0
-        elif max_shift >= 0.0 and n2 > bound2:
-            w0[i] = 0.0
+        keep = n2[i] <= bound2  # NaN fails; inf > inf is False, so test finiteness too
+        keep = keep and n2[i] < np.inf
+        bad += 0 if n2[i] < np.inf else 1
+        w0[i] = w0[i] if keep else 0.0
+        total += w0[i]
+    if bad:
+        for i in range(k):
+            if not n2[i] < np.inf:
+                for j in range(dim):
+                    d[j, i] = 0.0
+    return total
 
 
-@nb.njit(cache=True, nogil=True, fastmath={"contract"})
+@nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _scale_capped(w: np.ndarray, cap: float, w0: np.ndarray | None) -> float:
     """w <- min(w cap w0, cap) (text) or min(w, cap) (printed: w0 None); returns the sum."""
     total = 0.0
@@ -130,12 +138,13 @@ def _scale_capped(w: np.ndarray, cap: float, w0: np.ndarray | None) -> float:
 
 
 @nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
-def _moments(d: np.ndarray, w: np.ndarray, mu: np.ndarray, r2: np.ndarray) -> float:
-    """Weighted mean of the D x K displacements into `mu`, squared residuals into `r2`, and
-    their weighted mean (the variance); zeros when no point has weight."""
+def _moments(d: np.ndarray, w: np.ndarray, total: float, mu: np.ndarray, r2: np.ndarray) -> float:
+    """Weighted mean of the D x K displacements into `mu` (`total`: the weights' sum),
+    squared residuals into `r2`, and their weighted mean (the variance); zeros when no
+    point has weight."""
     dim, k = d.shape
-    total = np.sum(w)
-    r2[:] = 0.0
+    if dim == 0:
+        r2[:] = 0.0
     for j in range(dim):
         dj = d[j]
         acc = 0.0
@@ -143,9 +152,14 @@ def _moments(d: np.ndarray, w: np.ndarray, mu: np.ndarray, r2: np.ndarray) -> fl
             acc += w[i] * dj[i]
         m = acc / total if total > 0.0 else 0.0
         mu[j] = m
-        for i in range(k):
-            r = dj[i] - m
-            r2[i] += r * r
+        if j == 0:
+            for i in range(k):
+                r = dj[i] - m
+                r2[i] = r * r
+        else:
+            for i in range(k):
+                r = dj[i] - m
+                r2[i] += r * r
     if not total > 0.0:
         return 0.0
     s = 0.0
