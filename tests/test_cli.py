@@ -8,17 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT, Cli
+from tests.conftest import ROOT, Cli, toolkit_process
 from toolkit.cli import app
-
-
-def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "toolkit", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
 
 
 def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> None:
@@ -34,7 +25,7 @@ def test_every_command_answers_help() -> None:
     names = [c.name for c in app.registered_commands]
     assert {"import", "info"} <= set(names)
     for name in names:
-        result = run(name, "--help")
+        result = toolkit_process(name, "--help")
         assert result.returncode == 0, (name, result.stderr)
         assert "Usage" in result.stdout
 
@@ -42,24 +33,28 @@ def test_every_command_answers_help() -> None:
 def test_unknown_format_names_the_known_ones(tmp_path: Path) -> None:
     src = tmp_path / "x.log"
     src.write_text("hello\n")
-    assert_one_line_error(run("import", "nosuch", src, "--out", tmp_path / "d"), "unknown format")
+    assert_one_line_error(
+        toolkit_process("import", "nosuch", src, "--out", tmp_path / "d"), "unknown format"
+    )
     assert not (tmp_path / "d").exists()
 
 
 def test_missing_source_is_named(tmp_path: Path) -> None:
     missing = tmp_path / "missing.log"
-    assert_one_line_error(run("import", "auto", missing, "--out", tmp_path / "d"), str(missing))
+    assert_one_line_error(
+        toolkit_process("import", "auto", missing, "--out", tmp_path / "d"), str(missing)
+    )
 
 
 def test_undetectable_format_says_so(tmp_path: Path) -> None:
     src = tmp_path / "notes.txt"
     src.write_text("dear diary, the robot drove around\n")
-    assert_one_line_error(run("import", "auto", src, "--out", tmp_path / "d"), "format")
+    assert_one_line_error(toolkit_process("import", "auto", src, "--out", tmp_path / "d"), "format")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
 def test_info_on_a_non_dataset(tmp_path: Path) -> None:
-    assert_one_line_error(run("info", tmp_path), "not a dataset")
+    assert_one_line_error(toolkit_process("info", tmp_path), "not a dataset")
 
 
 @pytest.mark.parametrize("bad", ["KEY", "=v"])
@@ -67,7 +62,7 @@ def test_malformed_format_option(tmp_path: Path, bad: str) -> None:
     src = tmp_path / "x.log"
     src.write_text("x\n")
     assert_one_line_error(
-        run("import", "auto", src, "--out", tmp_path / "d", "-O", bad), "KEY=VALUE"
+        toolkit_process("import", "auto", src, "--out", tmp_path / "d", "-O", bad), "KEY=VALUE"
     )
 
 
@@ -103,10 +98,10 @@ def test_interrupt_exits_130_and_writes_nothing(tmp_path: Path) -> None:
 
 
 def test_usage_errors_are_one_line_not_internal(tmp_path: Path) -> None:
-    result = run("import", "carmen", tmp_path / "x.log")  # no --out
+    result = toolkit_process("import", "carmen", tmp_path / "x.log")  # no --out
     assert_one_line_error(result, "--out")
     assert "internal" not in result.stderr
-    assert_one_line_error(run("info", tmp_path, "--no-such-flag"), "no-such-flag")
+    assert_one_line_error(toolkit_process("info", tmp_path, "--no-such-flag"), "no-such-flag")
 
 
 def test_auto_reads_a_simulate_output_directory(tmp_path: Path, cli: Cli) -> None:

@@ -4,8 +4,6 @@ atomically, and one-line errors; checked on a simulated log whose truth is known
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,17 +11,9 @@ import pandas as pd
 import pytest
 
 import toolkit
+from tests.conftest import toolkit_process
 from toolkit import mapping
 from toolkit.sim import simulate
-
-
-def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "toolkit", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +25,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
-    result = run("map", dataset, "--out", out)
+    result = toolkit_process("map", dataset, "--out", out)
     assert result.returncode == 0, result.stderr
     assert "ATE" in result.stdout
     names = {p.name for p in out.iterdir()}
@@ -104,13 +94,13 @@ def test_errors_are_one_line_and_leave_nothing(dataset: Path, tmp_path: Path) ->
         (("map", dataset, "--out", tmp_path / "r2", "--method", "magic"), "unknown method"),
         (("map", dataset, "--out", tmp_path / "r3", "--voxel", "-1"), "--voxel"),
     ]:
-        result = run(*args)
+        result = toolkit_process(*args)
         assert result.returncode == 1, result
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and needle in lines[0] and "Traceback" not in result.stderr
     assert not any(tmp_path.glob("r*"))
     (tmp_path / "taken").mkdir()
-    result = run("map", dataset, "--out", tmp_path / "taken")
+    result = toolkit_process("map", dataset, "--out", tmp_path / "taken")
     assert result.returncode == 1 and "--force" in result.stderr
 
 
