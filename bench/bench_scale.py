@@ -24,8 +24,8 @@ SCHEDULERS = ("none", "local:1", "local:2", "local:4")
 
 def _log(scans: int) -> tuple[np.ndarray, np.ndarray, Any]:
     from toolkit.align import scan as sc
+    from toolkit.poses import odometry_poses
     from toolkit.sim import simulate
-    from toolkit.trajectory import odometry_poses
 
     ds = simulate("building", seed=0).dataset
     odo = odometry_poses(ds)

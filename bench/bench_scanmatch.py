@@ -7,7 +7,7 @@ Rows (column `table`):
   same seeds, correspondence distance and cap on rounds (ICP on a sample of pairs: it runs
   one pair at a time); medians of repeats.
 - accuracy: per log (simulated corridor and building; real CARMEN logs with the corrected
-  poses as truth and seeded odometry drift, `toolkit.trajectory.REAL_LOG_DRIFT`) and method:
+  poses as truth and seeded odometry drift, `toolkit.poses.REAL_LOG_DRIFT`) and method:
   ATE after SE(2) alignment, RPE per scan (translation, rotation), failures (> 0.2 m or 5°),
   pairs/s.
 - memory: peak RSS of `toolkit map` (load, match, trajectory, cloud, map.png, metrics) on a
@@ -63,7 +63,7 @@ def _child(*args: str, timeout: float = 3600) -> Any:
 
 def _dataset(name: str, work: Path) -> Any:
     import toolkit
-    from toolkit.trajectory import with_drift
+    from toolkit.poses import with_drift
 
     if name in ("corridor", "building"):
         from toolkit.sim import simulate
@@ -83,7 +83,7 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
     import numba
 
     from toolkit.align import scan as sc
-    from toolkit.trajectory import odometry_poses
+    from toolkit.poses import odometry_poses
 
     ds = _dataset("building", Path())
     odo = odometry_poses(ds)
@@ -148,7 +148,7 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
 
 def child_accuracy(name: str, work: str) -> list[dict[str, Any]]:
     from toolkit.metrics import evaluate
-    from toolkit.trajectory import build, truth_poses
+    from toolkit.poses import build, truth_poses
 
     ds = _dataset(name, Path(work))
     truth = truth_poses(ds)
@@ -190,7 +190,7 @@ def child_make_log(scans: int, out: str) -> dict[str, Any]:
 
     import toolkit
     from toolkit.align import scan as sc
-    from toolkit.trajectory import compose_steps
+    from toolkit.poses import compose_steps
 
     base = _dataset("building", Path())
     laps = -(-scans // base.n_scans)
@@ -235,7 +235,7 @@ def child_map(dataset: str, out: str, voxel: float) -> dict[str, Any]:
 
 def child_stream() -> dict[str, Any]:
     from toolkit.align import scan as sc
-    from toolkit.trajectory import build, odometry_poses
+    from toolkit.poses import build, odometry_poses
 
     ds = _dataset("corridor", Path())
     batch = build(ds, "gaussian").poses

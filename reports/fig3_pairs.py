@@ -42,7 +42,7 @@ def pick_pairs(ranges: np.ndarray, sections: np.ndarray) -> dict[str, int]:
 def align_pair(ds: Any, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
     """Relative laser pose (x, y, theta) of scan k in scan k-1's frame by each method."""
     sc = require("toolkit.align.scan", "match_pairs", "match_pairs_icp", "laser_motion")
-    traj = require("toolkit.trajectory", "odometry_poses", "truth_poses")
+    traj = require("toolkit.poses", "odometry_poses", "truth_poses")
     odo = traj.odometry_poses(ds)[k - 1 : k + 1]
     gt = traj.truth_poses(ds)[k - 1 : k + 1]
     seed = sc.laser_motion(sc.between(odo[:1], odo[1:]), ds.laser)

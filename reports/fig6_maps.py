@@ -45,7 +45,7 @@ def _maps(ctx: Context, section: Section, name: str) -> dict[str, Any]:
     axes = fig.subplots(1, len(methods), squeeze=False)[0]
     gt = None
     if truth:
-        from toolkit.trajectory import truth_poses
+        from toolkit.poses import truth_poses
 
         gt = truth_poses(ds)
     for ax, method in zip(axes, methods, strict=True):

@@ -96,7 +96,7 @@ def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
     """The trajectory of `ds` by `method`, timed, with ATE/RPE against ground truth if any."""
     from reports.context import Run
 
-    traj = require("toolkit.trajectory", "build", "truth_poses")
+    traj = require("toolkit.poses", "build", "truth_poses")
     mapping = require("toolkit.mapping", "run_metrics", "write_tum")
     if method == "odometry" and ds.odometry is None:
         raise NotAvailable(f"{name} has no odometry")
@@ -136,7 +136,7 @@ def warm_up(ds: Dataset, method: str) -> None:
     start-up (measured: the first full section by Open3D ICP took 4-5x the next ones)."""
     if method == "odometry" or (method, ds.n_beams) in _warm or ds.n_scans < 3:
         return
-    from toolkit.trajectory import build
+    from toolkit.poses import build
 
     build(slice_scans(ds, np.arange(min(WARM_UP_SCANS, ds.n_scans))), method)
     _warm.add((method, ds.n_beams))
@@ -169,7 +169,7 @@ def with_drift(ds: Dataset, seed: int = 0) -> Dataset:
     """`ds` with odometry made by the simulator's wheel-odometry model (default parameters:
     unequal wheels, scale error, noise, slips) along its ground truth at the scan times."""
     sim = require("toolkit.sim", "OdometryModel")
-    traj = require("toolkit.trajectory", "truth_poses")
+    traj = require("toolkit.poses", "truth_poses")
     truth = traj.truth_poses(ds)
     if truth is None:
         raise NotAvailable("no ground truth to add drift to")
@@ -210,4 +210,4 @@ def path_distance(xy: np.ndarray) -> np.ndarray:
 
 def poses_at(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
     """Poses (S x 3) of a pose table at times `t` (the trajectory module's interpolation)."""
-    return np.asarray(require("toolkit.trajectory", "poses_at").poses_at(frame, t))
+    return np.asarray(require("toolkit.poses", "poses_at").poses_at(frame, t))

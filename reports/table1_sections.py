@@ -42,7 +42,7 @@ def sections_of(ctx: Context, name: str) -> np.ndarray:
 
 def section_rows(ctx: Context, name: str = CORRIDOR) -> pd.DataFrame:
     """Long table: section, method, pairs, error mean/std (m), rotation error, seconds."""
-    traj = require("toolkit.trajectory", "build", "truth_poses")
+    traj = require("toolkit.poses", "build", "truth_poses")
     metrics = require("toolkit.metrics", "RPE")
     ds = ctx.dataset(name)
     if ds.groundtruth is None:

@@ -7,16 +7,28 @@ learned place features, after Aznar, Pujol et al., PLoS ONE 2014.
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING, Any
+
 __version__ = "0.1.0"
 
-from toolkit import align
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, load, save
 from toolkit.errors import ToolkitError
 
-# The function, not the module: `toolkit.trajectory(ds, method="gaussian")`. Imported here,
-# eagerly, so that a later `import toolkit.trajectory` finds the module loaded and leaves
-# this name alone.
-from toolkit.trajectory import trajectory
+if TYPE_CHECKING:
+    from toolkit import align
+    from toolkit.poses import trajectory
+
+
+def __getattr__(name: str) -> Any:
+    """`toolkit.align` and `toolkit.trajectory(ds, method)` load the numba matcher on first
+    use, so that commands which do not align (info, import, ...) start without it."""
+    if name == "align":
+        return importlib.import_module("toolkit.align")
+    if name == "trajectory":
+        return importlib.import_module("toolkit.poses").trajectory
+    raise AttributeError(f"module 'toolkit' has no attribute {name!r}")
+
 
 __all__ = [
     "Dataset",

@@ -31,7 +31,7 @@ from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.metrics import evaluate
-from toolkit.trajectory import TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 
 CHUNK = 20_000  # scans per chunk of map building
 

@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from toolkit.align import scan as sc
+from toolkit.poses import odometry_poses, truth_poses
 from toolkit.sim import LaserModel, simulate
 from toolkit.sim.geometry import WorldBuilder
-from toolkit.trajectory import odometry_poses, truth_poses
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +141,7 @@ def test_paper_variant_and_bad_arguments(building: object) -> None:
 
 
 def test_streaming_gives_the_batch_poses_in_constant_memory(building: object) -> None:
-    from toolkit.trajectory import build
+    from toolkit.poses import build
 
     ds = building
     batch = build(ds, "gaussian").poses  # type: ignore[arg-type]

@@ -12,8 +12,8 @@ import pytest
 import toolkit
 from toolkit.align import scan as sc
 from toolkit.metrics import ATE, RPE, Failures, align_se2, evaluate
+from toolkit.poses import build, compose_refs, compose_steps, poses_at, truth_poses, with_drift
 from toolkit.sim import simulate
-from toolkit.trajectory import build, compose_refs, compose_steps, poses_at, truth_poses, with_drift
 
 
 def random_walk(n: int, seed: int) -> np.ndarray:

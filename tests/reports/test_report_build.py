@@ -171,8 +171,8 @@ def test_table1_errors_are_the_metric_of_the_runs(report: Report) -> None:
     from reports.context import QUICK_CORRIDOR_SCANS
     from reports.runs import slice_scans
     from toolkit.metrics import RPE
+    from toolkit.poses import build, truth_poses
     from toolkit.sim import simulate
-    from toolkit.trajectory import build, truth_poses
 
     sim = simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS)
     part = slice_scans(sim.dataset, np.flatnonzero(sim.sections == 3))
@@ -199,7 +199,7 @@ def test_fig3_pairs_close_and_distant(report: Report) -> None:
 
 def test_fig6_odometry_map_against_corrected(report: Report) -> None:
     from toolkit.metrics import ATE
-    from toolkit.trajectory import truth_poses
+    from toolkit.poses import truth_poses
 
     section = report.section("maps")
     data = section.data["corridor"]

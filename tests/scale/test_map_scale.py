@@ -17,9 +17,9 @@ import pytest
 
 from tests.conftest import Cli
 from toolkit.dataset import Dataset, save
+from toolkit.poses import build
 from toolkit.scale import client_for, match_pairs_on, matcher_for, pair_chunks, parse_scheduler
 from toolkit.sim import simulate
-from toolkit.trajectory import build
 
 pytestmark = pytest.mark.xdist_group("dask")  # one cluster at a time under --dist loadgroup
 
@@ -56,7 +56,7 @@ def test_parse_scheduler() -> None:
 
 def test_chunks_start_at_the_keyframe_of_their_first_pair(log: Dataset) -> None:
     from toolkit.align import scan as sc
-    from toolkit.trajectory import odometry_poses
+    from toolkit.poses import odometry_poses
 
     odo = odometry_poses(log)
     assert odo is not None

@@ -745,7 +745,7 @@ class StreamMatcher:
     pose. It keeps the keyframe scan (B float32), a 7 x B float32 work array and the beam
     angle tables: about 40 B bytes in all, whatever the log's length (7.6 KB at 181 beams).
     Keyframes, seeds, the kernel and the composition are those of the batch form
-    (`match_pairs` with `keyframes`, composed by `toolkit.trajectory`), so the poses are the
+    (`match_pairs` with `keyframes`, composed by `toolkit.poses`), so the poses are the
     same.
     """
 

@@ -42,8 +42,8 @@ def map_command(
     """
     from toolkit.errors import ToolkitError
     from toolkit.mapping import map_dataset
+    from toolkit.poses import METHODS
     from toolkit.scale import client_for, matcher_for
-    from toolkit.trajectory import METHODS
 
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
