@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,29 +10,16 @@ import pandas as pd
 import pytest
 
 import toolkit.sim.output
-from toolkit.cli import main
+from tests.conftest import Cli
 from toolkit.dataset import load
 
 
-def run_cli(monkeypatch: pytest.MonkeyPatch, *args: str) -> int:
-    monkeypatch.setattr(sys, "argv", ["toolkit", *args])
-    try:
-        main()
-    except SystemExit as done:
-        return int(done.code or 0)
-    return 0
-
-
-def test_simulate_writes_native_files_and_truth(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
-) -> None:
+def test_simulate_writes_native_files_and_truth(tmp_path: Path, cli: Cli) -> None:
     config = tmp_path / "models.json"
     config.write_text(json.dumps({"wheel_diff": 0.004, "range_sigma": 0.0, "seed": 9}))
     out = tmp_path / "corridor"
     args = ["simulate", "corridor", "--out", str(out), "--format", "carmen", "--scans", "400"]
-    code = run_cli(
-        monkeypatch, *args, "--config", str(config), "--slip-prob", "0", "-p", "units=mm"
-    )
+    code, _, _ = cli(*args, "--config", str(config), "--slip-prob", "0", "-p", "units=mm")
     assert code == 0
     assert {p.name for p in out.iterdir()} == {
         "sim.log", "truth.parquet", "regions.csv", "simulation.json"
@@ -48,8 +34,8 @@ def test_simulate_writes_native_files_and_truth(
 
     # the same log again from simulation.json as the config, in another format
     again = tmp_path / "again"
-    code = run_cli(
-        monkeypatch, "simulate", "corridor", "--out", str(again), "-f", "dataset",
+    code, _, _ = cli(
+        "simulate", "corridor", "--out", str(again), "-f", "dataset",
         "--config", str(out / "simulation.json"),
     )  # fmt: skip
     assert code == 0
@@ -58,15 +44,13 @@ def test_simulate_writes_native_files_and_truth(
     pd.testing.assert_frame_equal(pd.read_parquet(again / "truth.parquet"), truth)
 
 
-def test_existing_output_is_refused_and_kept(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
-) -> None:
+def test_existing_output_is_refused_and_kept(tmp_path: Path, cli: Cli) -> None:
     out = tmp_path / "sim"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
-    code = run_cli(monkeypatch, "simulate", "building", "--out", str(out), "-f", "carmen")
+    code, _, err_text = cli("simulate", "building", "--out", str(out), "-f", "carmen")
     assert code == 1
-    assert capsys.readouterr().err.strip() == f"error: {out}: exists; pass --force to replace it"
+    assert err_text.strip() == f"error: {out}: exists; pass --force to replace it"
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
 
 
@@ -81,42 +65,36 @@ def test_existing_output_is_refused_and_kept(
     ],
 )
 def test_bad_input_is_one_line_and_leaves_nothing(
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
-    tmp_path: Path,
-    args: list[str],
-    message: str,
+    tmp_path: Path, args: list[str], message: str, cli: Cli
 ) -> None:
     out = tmp_path / "sim"
     cmd = ["simulate", "corridor", "--out", str(out), "-f", "rawseeds", "--scans", "50"]
-    code = run_cli(monkeypatch, *cmd, *args)
-    err = capsys.readouterr().err.strip().splitlines()
+    code, _, err_text = cli(*cmd, *args)
+    err = err_text.strip().splitlines()
     assert code == 1
     assert len(err) == 1 and message in err[0]
     assert list(tmp_path.iterdir()) == []
 
 
-def test_interrupted_write_leaves_nothing(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+def test_interrupted_write_leaves_nothing(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, cli: Cli
+) -> None:
     def broken(*args: object) -> None:
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(toolkit.sim.output, "write_truth", broken)
     out = tmp_path / "sim"
-    code = run_cli(
-        monkeypatch, "simulate", "corridor", "--out", str(out), "-f", "aria", "--scans", "200"
-    )
+    code, _, _ = cli("simulate", "corridor", "--out", str(out), "-f", "aria", "--scans", "200")
     assert code == 1
     assert list(tmp_path.iterdir()) == []  # the native log was written, then all removed
 
 
-def test_import_auto_reads_the_native_file_beside_the_truth(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
-) -> None:
+def test_import_auto_reads_the_native_file_beside_the_truth(tmp_path: Path, cli: Cli) -> None:
     out = tmp_path / "sim"
     args = ["simulate", "building", "--out", str(out), "-f", "rawseeds", "--scans", "200"]
-    assert run_cli(monkeypatch, *args) == 0
+    assert cli(*args)[0] == 0
     dataset = tmp_path / "ds"
-    assert run_cli(monkeypatch, "import", "auto", str(out), "--out", str(dataset), "-q") == 0
+    assert cli("import", "auto", str(out), "--out", str(dataset), "-q")[0] == 0
     ds = load(dataset)
     truth = pd.read_parquet(out / "truth.parquet")
     assert ds.groundtruth is not None
