@@ -34,6 +34,7 @@ SCANS = "scans.parquet"
 ODOMETRY = "odometry.parquet"
 GROUNDTRUTH = "groundtruth.parquet"
 META = "meta.json"
+ROW_GROUP_SCANS = 4096  # scans per Parquet row group: the chunk a Dask worker reads and matches
 
 
 @dataclass(frozen=True)
@@ -224,20 +225,42 @@ def scans_schema(beams: int) -> pa.Schema:
 
 
 class ScansWriter:
-    """Append scans batch by batch to a Parquet file: imports of huge logs in constant memory."""
+    """Append scans batch by batch to a Parquet file: imports of huge logs in constant memory.
 
-    def __init__(self, path: Path, beams: int) -> None:
+    Rows are buffered into row groups of `ROW_GROUP_SCANS` scans, whatever the batches, so that
+    row group k holds scans k*N .. (k+1)*N - 1 (the chunks `toolkit.scale` hands to workers)."""
+
+    def __init__(self, path: Path, beams: int, group: int = ROW_GROUP_SCANS) -> None:
         self.path = path
         self.beams = beams
+        self.group = group
         self.rows = 0
+        self._pending: list[tuple[np.ndarray, np.ndarray]] = []
+        self._buffered = 0
         self._writer = pq.ParquetWriter(path, scans_schema(beams), compression="zstd")
 
     def write(self, t: np.ndarray, ranges: np.ndarray) -> None:
         if len(t):
-            self._writer.write_table(scans_table(t, ranges), row_group_size=1 << 16)
+            self._pending.append((t, ranges))
+            self._buffered += len(t)
             self.rows += len(t)
+            if self._buffered >= self.group:
+                self._flush(final=False)
+
+    def _flush(self, final: bool) -> None:
+        if not self._pending:
+            return
+        t = np.concatenate([p[0] for p in self._pending])
+        ranges = np.concatenate([p[1] for p in self._pending])
+        whole = len(t) if final else len(t) - len(t) % self.group
+        if whole:
+            table = scans_table(t[:whole], ranges[:whole])
+            self._writer.write_table(table, row_group_size=self.group)
+        self._pending = [(t[whole:], ranges[whole:])] if whole < len(t) else []
+        self._buffered = len(t) - whole
 
     def close(self) -> None:
+        self._flush(final=True)
         self._writer.close()
 
     def __enter__(self) -> ScansWriter:
@@ -250,15 +273,37 @@ class ScansWriter:
 def read_scans(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a scans table as (t, S x B float32 ranges)."""
     table = pq.read_table(path)
+    return table.column("t").to_numpy(), _ranges(table, path)
+
+
+def read_scan_rows(path: Path, start: int, stop: int) -> np.ndarray:
+    """The ranges (float32) of scans start..stop-1 of a scans table, decoding only the row
+    groups that hold them (a worker's chunk of a long log on shared storage)."""
+    parquet = pq.ParquetFile(path)
+    meta = parquet.metadata
+    ends = np.cumsum([meta.row_group(i).num_rows for i in range(meta.num_row_groups)])
+    if not 0 <= start < stop <= (ends[-1] if len(ends) else 0):
+        raise ToolkitError(f"rows {start}..{stop - 1} are not in this scans table", file=path)
+    first, last = np.searchsorted(ends, [start, stop - 1], side="right")
+    offset = int(ends[first - 1]) if first else 0
+    groups = list(range(first, last + 1))
+    table = parquet.read_row_groups(groups, columns=["ranges"], use_threads=False)
+    return _ranges(table, path)[start - offset : stop - offset]
+
+
+def _ranges(table: pa.Table, path: Path) -> np.ndarray:
     ranges_col = table.column("ranges")
     list_type = ranges_col.type
     if not pa.types.is_fixed_size_list(list_type):
         raise FormatError("ranges is not a fixed-size list", file=path)
     beams = list_type.list_size
     flat = ranges_col.combine_chunks().flatten() if len(table) else pa.array([], pa.float32())
-    ranges = flat.to_numpy(zero_copy_only=False).reshape(len(table), beams)
-    t = table.column("t").to_numpy()
-    return t, ranges
+    return flat.to_numpy(zero_copy_only=False).reshape(len(table), beams)
+
+
+def write_scans(path: Path, t: np.ndarray, ranges: np.ndarray) -> None:
+    """A scans table in row groups of `ROW_GROUP_SCANS` scans."""
+    pq.write_table(scans_table(t, ranges), path, row_group_size=ROW_GROUP_SCANS, compression="zstd")
 
 
 def write_poses(path: Path, frame: pd.DataFrame) -> None:
@@ -320,11 +365,9 @@ def make_meta(
 def write_dataset_files(ds: Dataset, directory: Path, *, scans_written: bool = False) -> None:
     """Write every table and meta.json of `ds` into an existing directory."""
     if not scans_written:
-        pq.write_table(scans_table(ds.t, ds.ranges), directory / SCANS, compression="zstd")
+        write_scans(directory / SCANS, ds.t, ds.ranges)
     for name, extra in ds.lasers.items():
-        pq.write_table(
-            scans_table(extra.t, extra.ranges), directory / f"scans-{name}.parquet", "zstd"
-        )
+        write_scans(directory / f"scans-{name}.parquet", extra.t, extra.ranges)
     if ds.odometry is not None:
         write_poses(directory / ODOMETRY, ds.odometry)
     if ds.groundtruth is not None:

@@ -207,6 +207,15 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
     return out
 
 
+def _meta_digest(ds: Dataset) -> str | None:
+    """sha256 of the dataset's meta.json (its identity: sources' sha256, import time), so a
+    re-run can tell an unchanged dataset (`toolkit.scale.run_is_current`)."""
+    from toolkit.dataset import META, sha256
+
+    meta = ds.path / META if ds.path else None
+    return sha256(meta) if meta is not None and meta.is_file() else None
+
+
 def write_run(
     ds: Dataset,
     out: str | Path,
@@ -231,6 +240,7 @@ def write_run(
         with atomic_dir(out, force=force) as tmp:
             settings = {
                 "dataset": str(ds.path) if ds.path else None,
+                "dataset_meta_sha256": _meta_digest(ds),
                 "method": method,
                 "voxel": voxel,
                 "matcher": result.config,
