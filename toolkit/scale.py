@@ -17,13 +17,16 @@ processes, one thread each), or the address of a running `dask scheduler` (tcp:/
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import quote
 
 import numpy as np
 
@@ -88,29 +91,62 @@ def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Cl
 
 
 def pair_chunks(ref: np.ndarray, chunk: int = CHUNK_PAIRS) -> list[tuple[int, int, int]]:
-    """(first, lo, hi) per chunk of pairs lo..hi-1 (pair k matches scan k+1 to ref[k+1]):
-    `first` is the earliest scan the chunk needs, its first pair's reference."""
+    """(first, lo, hi) per chunk of pairs lo..hi-1 (pair k matches scan k+1 to ref[k+1]).
+
+    Chunk k holds the pairs whose current scans are k*chunk .. (k+1)*chunk - 1: exactly one
+    row group of a scans.parquet written in row groups of `chunk` scans. `first` is the
+    earliest scan the chunk needs, its first pair's reference (the overlap)."""
     n = len(ref) - 1
-    return [(int(ref[lo + 1]), lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
+    if n < 1:
+        return []
+    bounds = sorted({0, n, *range(chunk - 1, n, chunk)})
+    return [(int(ref[lo + 1]), lo, hi) for lo, hi in itertools.pairwise(bounds)]
+
+
+def chunk_plan(
+    refs: np.ndarray, seeds: np.ndarray, lo: int, hi: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The pairs lo..hi-1 as a small log of their own: (earlier, ref, seeds, skip).
+
+    The small log's scans are `earlier` (the scans before lo+1 that these pairs use as
+    references: the keyframe overlap, one scan with keyframes or consecutive pairs) followed
+    by scans lo+1..hi; `ref` and `seeds` are for `match_pairs` on it. With several earlier
+    references, the first `skip` pairs match them to each other and are dropped."""
+    cur = refs[lo + 1 : hi + 1]
+    earlier = np.unique(cur[cur <= lo])
+    m = len(earlier)
+    local_ref = np.empty(m + hi - lo, dtype=np.int64)
+    local_ref[:m] = np.maximum(np.arange(m) - 1, 0)
+    local_ref[m:] = np.where(cur <= lo, np.searchsorted(earlier, cur), cur - (lo + 1) + m)
+    local_seeds = np.vstack([np.zeros((m - 1, 3)), seeds[lo:hi]])
+    return earlier, local_ref, local_seeds, m - 1
 
 
 def _match_chunk(
-    ranges: np.ndarray,
+    earlier: np.ndarray,
+    own: np.ndarray | tuple[str, int, int],
     seeds: np.ndarray,
     laser: LaserGeometry,
     config: sc.MatchConfig,
     ref: np.ndarray,
     skip: int,
     threads: int | None,
-) -> sc.PairMatches:
-    """Worker side: match scans 1.. of the slice `ranges` against `ref` (slice indices), keep
-    the pairs after the first `skip` (those before the chunk, matched only as overlap)."""
+) -> tuple[sc.PairMatches, float]:
+    """Worker side: match a chunk's pairs (see `chunk_plan`); `own` is the chunk's scans, or
+    (scans.parquet, start, stop) to read them from the dataset on shared storage. Returns
+    the pairs after `skip` and the seconds spent in the task (reading and matching)."""
+    t0 = time.perf_counter()
     if threads:
         import numba
 
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
-    out = sc.match_pairs(ranges, seeds, laser, config, ref)
-    return _take(out, slice(skip, None))
+    if isinstance(own, tuple):
+        from toolkit.dataset import read_scan_rows
+
+        path, start, stop = own
+        own = read_scan_rows(Path(path), start, stop)
+    out = sc.match_pairs(np.vstack([earlier, own]), seeds, laser, config, ref)
+    return _take(out, slice(skip, None)), time.perf_counter() - t0
 
 
 def _take(m: sc.PairMatches, part: slice) -> sc.PairMatches:
@@ -130,6 +166,23 @@ def concat(parts: list[sc.PairMatches]) -> sc.PairMatches:
     return sc.PairMatches(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
 
 
+@dataclass
+class ChunkTimes:
+    """Where a cluster run's time went: the whole call, and the tasks' own time."""
+
+    wall: float = 0.0  # submit to gathered, seconds
+    inside: list[float] = field(default_factory=list)  # per task: reading + matching
+    pairs: list[int] = field(default_factory=list)  # per task
+
+
+def row_group_scans(scans: Path) -> int:
+    """The scans per row group of a scans.parquet (its first group's), the natural chunk."""
+    import pyarrow.parquet as pq
+
+    meta = pq.ParquetFile(scans).metadata
+    return max(meta.row_group(0).num_rows, 2) if meta.num_row_groups else CHUNK_PAIRS
+
+
 def match_pairs_on(
     client: Client | None,
     ranges: np.ndarray,
@@ -137,49 +190,69 @@ def match_pairs_on(
     laser: LaserGeometry,
     config: sc.MatchConfig | None = None,
     ref: np.ndarray | None = None,
-    chunk: int = CHUNK_PAIRS,
+    chunk: int | None = None,
     threads: int | None = 1,
+    scans: Path | None = None,
+    times: ChunkTimes | None = None,
 ) -> sc.PairMatches:
     """`match_pairs` with the pairs cut into chunks run as Dask tasks on `client` (None: in
     this process, all at once). Same arguments, same result, bit for bit.
 
-    Reference scans must not go backwards (`keyframes` and consecutive pairs don't), so a
-    chunk's scans are one contiguous slice. `threads` caps numba's threads per task (one per
-    worker process by default; None leaves numba's default)."""
+    With `scans` (the dataset's scans.parquet, whose rows are `ranges`, on storage the
+    workers share), each worker reads its own chunk's rows and the client ships only seeds,
+    indices and the chunk's earlier reference scans; the chunk defaults to the file's row
+    group, so a worker decodes exactly one. Without, the client scatters each chunk's scans.
+    Reference scans must not go backwards (`keyframes` and consecutive pairs don't).
+    `threads` caps numba's threads per task (one per worker process by default; None leaves
+    numba's default). `times`, if given, is filled with the wall and in-task seconds."""
     config = config or sc.MatchConfig()
     if client is None:
         return sc.match_pairs(ranges, seeds, laser, config, ref)
     refs = sc._refs(ref, len(ranges))
     if len(refs) > 2 and (np.diff(refs[1:]) < 0).any():
         raise ValueError("chunked matching needs reference scans that never go backwards")
-    futures = []
-    chunks = pair_chunks(refs, chunk)
-    # scans straight to the workers, not through the scheduler inside the task graph
-    scans = client.scatter([ranges[first : hi + 1] for first, _, hi in chunks], hash=False)
-    for (first, lo, hi), part in zip(chunks, scans, strict=True):
-        local_ref = refs[first : hi + 1] - first
-        local_ref[0] = 0
-        futures.append(
-            client.submit(
-                _match_chunk,
-                part,
-                seeds[first:hi],
-                laser,
-                config,
-                local_ref,
-                lo - first,
-                threads,
-                pure=False,
-            )
+    if scans is not None:
+        import pyarrow.parquet as pq
+
+        scans = Path(scans).resolve()
+        if pq.ParquetFile(scans).metadata.num_rows != len(ranges):
+            raise ToolkitError(f"has not the {len(ranges)} scans being matched", file=scans)
+    chunk = chunk or (row_group_scans(scans) if scans is not None else CHUNK_PAIRS)
+    t0 = time.perf_counter()
+    bounds = [(lo, hi) for _, lo, hi in pair_chunks(refs, chunk)]
+    plans = [chunk_plan(refs, seeds, lo, hi) for lo, hi in bounds]
+    if scans is not None:
+        owns: list[Any] = [(str(scans), lo + 1, hi + 1) for lo, hi in bounds]
+    else:  # straight to the workers, not through the scheduler inside the task graph
+        owns = client.scatter([ranges[lo + 1 : hi + 1] for lo, hi in bounds], hash=False)
+    futures = [
+        client.submit(
+            _match_chunk,
+            ranges[earlier],
+            own,
+            local_seeds,
+            laser,
+            config,
+            local_ref,
+            skip,
+            threads,
+            pure=False,
         )
+        for (earlier, local_ref, local_seeds, skip), own in zip(plans, owns, strict=True)
+    ]
     if not futures:
         return sc.PairMatches.empty(0)
-    parts: list[sc.PairMatches] = client.gather(futures)
-    return concat(parts)
+    parts: list[tuple[sc.PairMatches, float]] = client.gather(futures)
+    if times is not None:
+        times.wall = time.perf_counter() - t0
+        times.inside = [seconds for _, seconds in parts]
+        times.pairs = [len(m) for m, _ in parts]
+    return concat([m for m, _ in parts])
 
 
-def matcher_for(client: Client | None, chunk: int = CHUNK_PAIRS) -> Any:
-    """A `match_pairs`-shaped callable that runs on `client` (for `trajectory.build`)."""
+def matcher_for(client: Client | None, chunk: int | None = None, scans: Path | None = None) -> Any:
+    """A `match_pairs`-shaped callable that runs on `client` (for `poses.build`); with
+    `scans`, the workers read the chunks' scans from that file (see `match_pairs_on`)."""
 
     def match(
         ranges: np.ndarray,
@@ -188,7 +261,7 @@ def matcher_for(client: Client | None, chunk: int = CHUNK_PAIRS) -> Any:
         config: sc.MatchConfig | None = None,
         ref: np.ndarray | None = None,
     ) -> sc.PairMatches:
-        return match_pairs_on(client, ranges, seeds, laser, config, ref, chunk)
+        return match_pairs_on(client, ranges, seeds, laser, config, ref, chunk, scans=scans)
 
     return match
 
@@ -196,21 +269,22 @@ def matcher_for(client: Client | None, chunk: int = CHUNK_PAIRS) -> Any:
 # ---------------------------------------------------------------- many logs, one task each
 
 SUFFIXES = (".gz", ".bz2", ".xz")
+PARTITION = "dataset"  # the fleet's hive partition key: FLEET/dataset=<name>/scans.parquet
 
 
 @dataclass
 class Outcome:
-    """What happened to one source log: written, skipped (already complete) or failed."""
+    """What happened to one input (a log, a dataset): written, skipped (complete) or failed."""
 
     source: Path
-    dataset: Path
+    target: Path  # the dataset or run directory
     status: str  # "written" | "skipped" | "failed"
     error: str = ""
 
 
 def dataset_name(source: Path, root: Path | None) -> Path:
-    """The dataset's path under --out: the source's path below `root` (the directory it was
-    found in) without its extensions, e.g. robotA/2024-05-01.log.gz -> robotA/2024-05-01."""
+    """The dataset's name: the source's path below `root` (the directory it was found in)
+    without its extensions, e.g. robotA/2024-05-01.log.gz -> robotA/2024-05-01."""
     rel = source.relative_to(root) if root is not None else Path(source.name)
     name = rel.name
     while Path(name).suffix.lower() in SUFFIXES:
@@ -219,12 +293,57 @@ def dataset_name(source: Path, root: Path | None) -> Path:
     return rel.with_name(name)
 
 
+def partition_dir(name: Path) -> str:
+    """A dataset's directory in a fleet: hive style `dataset=<name>`, with '/' and other
+    special characters %-escaped as Spark and pyarrow write (and read back) partition values:
+    robotA/2024-05-01 -> dataset=robotA%2F2024-05-01."""
+    return f"{PARTITION}={quote(name.as_posix(), safe='')}"
+
+
+def _find(
+    sources: list[Path],
+    claimed: Callable[[Path], bool],
+    taken: Callable[[Path], bool],
+    name: Callable[[Path, Path | None], Path],
+) -> list[tuple[Path, Path]]:
+    """(input, name) for every source: `taken` paths as they are, glob patterns expanded,
+    other directories walked for what `claimed` says is one input (not looking inside it)."""
+    import glob
+
+    def walk(directory: Path, root: Path) -> list[tuple[Path, Path]]:
+        found: list[tuple[Path, Path]] = []
+        for child in sorted(directory.iterdir()):
+            if child.is_dir() and not claimed(child):
+                found += walk(child, root)
+            elif claimed(child):
+                found.append((child, name(child, root)))
+        return found
+
+    inputs: list[tuple[Path, Path]] = []
+    for source in sources:
+        if not source.exists() and glob.has_magic(str(source)):
+            matches = sorted(Path(p) for p in glob.glob(str(source), recursive=True))
+            if not matches:
+                raise ToolkitError("no file matches this pattern", file=source)
+            inputs += [(p, name(p, None)) for p in matches if taken(p)]
+        elif not source.exists():
+            raise ToolkitError("no such file or directory", file=source)
+        elif source.is_dir() and not claimed(source):
+            inputs += walk(source, source)
+        else:
+            inputs.append((source, name(source, None)))
+    seen: dict[Path, Path] = {}
+    for path, key in inputs:
+        if key in seen:
+            raise ToolkitError(f"{seen[key]} and {path} would both become {key}")
+        seen[key] = path
+    return inputs
+
+
 def find_logs(fmt: str, sources: list[Path]) -> list[tuple[Path, Path]]:
     """(log, dataset name) for every source: files as they are, glob patterns expanded,
     directories walked for what the format's sniffer claims (a directory it claims, such as a
     Rawseeds session, is one log). With 'auto', any format's sniffer."""
-    import glob
-
     import importers
 
     sniffers = [importers.get(name) for name in (importers.names() if fmt == "auto" else [fmt])]
@@ -238,36 +357,26 @@ def find_logs(fmt: str, sources: list[Path]) -> list[tuple[Path, Path]]:
                 return True
         return False
 
-    def walk(directory: Path, root: Path) -> list[tuple[Path, Path]]:
-        found: list[tuple[Path, Path]] = []
-        for child in sorted(directory.iterdir()):
-            if child.is_dir():
-                found += (
-                    [(child, dataset_name(child, root))] if claimed(child) else walk(child, root)
-                )
-            elif child.is_file() and claimed(child):
-                found.append((child, dataset_name(child, root)))
-        return found
+    return _find(sources, claimed, lambda p: p.is_file() or claimed(p), dataset_name)
 
-    logs: list[tuple[Path, Path]] = []
-    for source in sources:
-        if not source.exists() and glob.has_magic(str(source)):
-            matches = sorted(Path(p) for p in glob.glob(str(source), recursive=True))
-            if not matches:
-                raise ToolkitError("no file matches this pattern", file=source)
-            logs += [(p, dataset_name(p, None)) for p in matches if p.is_file() or claimed(p)]
-        elif not source.exists():
-            raise ToolkitError("no such file or directory", file=source)
-        elif source.is_dir() and not claimed(source):
-            logs += walk(source, source)
-        else:
-            logs.append((source, dataset_name(source, None)))
-    seen: dict[Path, Path] = {}
-    for log, name in logs:
-        if name in seen:
-            raise ToolkitError(f"{seen[name]} and {log} would both become dataset {name}")
-        seen[name] = log
-    return logs
+
+def is_dataset_dir(path: Path) -> bool:
+    """A directory with a dataset's meta.json or scans.parquet (a damaged one too: mapping
+    it reports what is wrong)."""
+    from toolkit.dataset import META, SCANS
+
+    return path.is_dir() and ((path / META).exists() or (path / SCANS).exists())
+
+
+def find_datasets(sources: list[Path]) -> list[tuple[Path, Path]]:
+    """(dataset directory, name) for every source: dataset directories as they are (named by
+    their directory), glob patterns expanded, directory trees (a fleet) walked for datasets,
+    named by their path below the tree (a fleet's `dataset=...` directories keep their name)."""
+
+    def name(path: Path, root: Path | None) -> Path:
+        return path.relative_to(root) if root is not None else Path(path.name)
+
+    return _find(sources, is_dataset_dir, is_dataset_dir, name)
 
 
 def is_complete(dataset: Path, source: Path) -> bool:
@@ -288,19 +397,51 @@ def is_complete(dataset: Path, source: Path) -> bool:
     return all(p.is_file() and sha256(p) == digest for p, digest in listed.items())
 
 
-def _import_one(fmt: str, source: Path, out: Path, options: Any, force: bool) -> Outcome:
-    """Worker side: one log into one dataset; every failure becomes an Outcome, not a raise."""
-    import importers
-
+def _attempt(source: Path, target: Path, work: Callable[[], str]) -> Outcome:
+    """Run `work` (returning "written" or "skipped"); every failure becomes an Outcome."""
     try:
-        if not force and is_complete(out, source):
-            return Outcome(source, out, "skipped")
-        importers.import_log(fmt, [source], out, options, force=True)
-        return Outcome(source, out, "written")
+        return Outcome(source, target, work())
     except ToolkitError as e:
-        return Outcome(source, out, "failed", e.line())
-    except Exception as e:  # a damaged log may break a parser anywhere: report it, go on
-        return Outcome(source, out, "failed", f"{e} ({type(e).__module__}.{type(e).__name__})")
+        return Outcome(source, target, "failed", e.line())
+    except Exception as e:  # a damaged input may break a parser anywhere: report it, go on
+        return Outcome(source, target, "failed", f"{e} ({type(e).__module__}.{type(e).__name__})")
+
+
+def _import_one(source: Path, out: Path, fmt: str, options: Any, force: bool) -> Outcome:
+    """Worker side: one log into one dataset."""
+
+    def work() -> str:
+        import importers
+
+        if not force and is_complete(out, source):
+            return "skipped"
+        importers.import_log(fmt, [source], out, options, force=True)
+        return "written"
+
+    return _attempt(source, out, work)
+
+
+def _each(
+    client: Client | None, what: str, fn: Callable[..., Outcome], jobs: list[tuple[Any, ...]]
+) -> list[Outcome]:
+    """fn(*job) for every job, one task each on `client` (None: here, one after the other);
+    each job starts with (source, target). Outcomes in the jobs' order."""
+    from toolkit.progress import track
+
+    if client is None:
+        return [fn(*job) for job in track(jobs, what)]
+    from distributed import as_completed
+
+    futures = {client.submit(fn, *job, pure=False): job for job in jobs}
+    done: dict[Path, Outcome] = {}
+    for future in track(as_completed(futures), what, total=len(futures)):
+        source, target = futures[future][:2]
+        if future.status == "error":  # the worker died (e.g. a crash in native code)
+            error = future.exception()
+            done[target] = Outcome(source, target, "failed", f"{error} ({type(error).__name__})")
+        else:
+            done[target] = future.result()
+    return [done[job[1]] for job in jobs]
 
 
 def import_many(
@@ -311,32 +452,100 @@ def import_many(
     options: Any = None,
     force: bool = False,
 ) -> list[Outcome]:
-    """Import every (log, name) into out/name, one task per log on `client` (None: here, one
-    after the other). Failures are returned, by source, and do not stop the others; complete
-    datasets of unchanged sources are skipped unless `force`."""
-    from toolkit.progress import track
+    """Import every (log, name) into the fleet `out`, as out/dataset=<name> (`partition_dir`),
+    one task per log on `client` (None: here, one after the other). Failures are returned, by
+    source, and do not stop the others; complete datasets of unchanged sources are skipped
+    unless `force`."""
+    jobs = [
+        (source.resolve(), out / partition_dir(name), fmt, options, force) for source, name in logs
+    ]
+    return _each(client, "import logs", _import_one, jobs)
 
-    jobs = [(source.resolve(), out / name) for source, name in logs]
-    if client is None:
-        return [
-            _import_one(fmt, source, dataset, options, force)
-            for source, dataset in track(jobs, "import logs")
-        ]
-    from distributed import as_completed
 
-    futures = {
-        client.submit(_import_one, fmt, source, dataset, options, force, pure=False): (
-            source,
-            dataset,
+# ---------------------------------------------------------------- many datasets, one run each
+
+
+def run_is_current(run: Path, dataset: Path, method: str, voxel: float) -> bool:
+    """True when `run` is a finished run (metrics.json is written last; the run directory is
+    renamed into place whole) of the same inputs: the dataset's meta.json (written last by an
+    import: its sources' sha256 and creation time), the method, the voxel size and, for
+    gaussian, the matcher's parameters."""
+    from toolkit.align.scan import MatchConfig
+    from toolkit.dataset import META, sha256
+
+    try:
+        config = json.loads((run / "config.json").read_text())
+        if not (run / "metrics.json").is_file():
+            return False
+        same = (
+            config.get("dataset_meta_sha256") == sha256(dataset / META)
+            and config.get("method") == method
+            and config.get("voxel") == voxel
         )
-        for source, dataset in jobs
-    }
-    done: dict[Path, Outcome] = {}
-    for future in track(as_completed(futures), "import logs", total=len(futures)):
-        source, dataset = futures[future]
-        if future.status == "error":  # the worker died (e.g. a crash in native code)
-            error = future.exception()
-            done[dataset] = Outcome(source, dataset, "failed", f"{error} ({type(error).__name__})")
-        else:
-            done[dataset] = future.result()
-    return [done[dataset] for _, dataset in jobs]
+        matcher = json.loads(json.dumps(MatchConfig().to_dict()))
+        return same and (method != "gaussian" or config.get("matcher") == matcher)
+    except (OSError, ValueError):
+        return False
+
+
+def _map_one(
+    dataset: Path,
+    run: Path,
+    method: str,
+    voxel: float,
+    force: bool,
+    threads: int | None,
+    matcher: Any = None,
+) -> Outcome:
+    """One dataset into one run directory (on a worker: `threads` numba threads)."""
+
+    def work() -> str:
+        from toolkit.mapping import map_dataset
+
+        if not force and run_is_current(run, dataset, method, voxel):
+            return "skipped"
+        if threads:
+            import numba
+
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+        map_dataset(dataset, run, method, voxel, force=True, matcher=matcher)
+        return "written"
+
+    return _attempt(dataset, run, work)
+
+
+def map_many(
+    client: Client | None,
+    datasets: list[tuple[Path, Path]],
+    out: Path,
+    method: str = "gaussian",
+    voxel: float = 0.0,
+    force: bool = False,
+    shared_storage: bool = False,
+) -> list[Outcome]:
+    """Map every (dataset, name) into out/name, mirroring the names (a fleet's
+    dataset=<name> directories stay so). On `client`: one task per dataset (its whole map
+    on a worker, one thread); a single gaussian dataset instead has its pairs matched in
+    chunks on the cluster and its map drawn here (one long log), its workers reading their
+    scans from the dataset when `shared_storage` (else the scans are shipped). Failures
+    are returned by dataset and do not stop the others; current runs are skipped unless
+    `force`."""
+    from toolkit.dataset import SCANS
+
+    jobs = [(dataset.resolve(), out / name) for dataset, name in datasets]
+    if client is not None and len(jobs) == 1 and method == "gaussian":
+        dataset, run = jobs[0]
+        matcher = matcher_for(client, scans=dataset / SCANS if shared_storage else None)
+        return [_map_one(dataset, run, method, voxel, force, None, matcher)]
+    threads = 1 if client is not None else None
+    return _each(
+        client, "map datasets", _map_one, [(*job, method, voxel, force, threads) for job in jobs]
+    )
+
+
+def on_shared_storage(scheduler: str | None) -> bool:
+    """Whether the workers of `scheduler` read a dataset's scans themselves: yes on a
+    scheduler given by address (the cluster shares the paths; shipping the scans from this
+    process would make its network the limit), no on a LocalCluster (same machine: the scans
+    in memory are shipped, which costs less here than decoding them again, see bench_scale)."""
+    return parse_scheduler(scheduler)[0] not in ("none", "local")

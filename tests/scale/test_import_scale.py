@@ -1,5 +1,5 @@
 """`toolkit import --each [--scheduler]`: a fleet's directory tree of real CARMEN logs, one
-dataset each; a damaged log is reported by name without stopping the others; a re-run skips
+dataset each (FLEET/dataset=<name>, hive-partitioned); a damaged log is reported by name without stopping the others; a re-run skips
 what is complete and re-imports what changed; a LocalCluster writes the same datasets."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from tests.conftest import Cli
 from toolkit.dataset import load
-from toolkit.scale import dataset_name, find_logs
+from toolkit.scale import dataset_name, find_logs, partition_dir
 
 pytestmark = [pytest.mark.real, pytest.mark.xdist_group("dask")]
 
@@ -38,6 +38,7 @@ def fleet(real: Path, tmp_path: Path) -> Path:
 def test_dataset_names_mirror_the_tree(fleet: Path) -> None:
     assert dataset_name(fleet / "robotA" / LOGS[0], fleet) == Path("robotA/orebro-corrected")
     assert dataset_name(Path("/x/run.7.log.bz2"), None) == Path("run.7")
+    assert partition_dir(Path("robotA/orebro-corrected")) == "dataset=robotA%2Forebro-corrected"
     found = find_logs("carmen", [fleet])
     assert [name for _, name in found] == [
         Path("robotA/orebro-corrected"),
@@ -64,12 +65,15 @@ def test_each_reports_the_damaged_log_and_writes_the_others(
     assert len(failures) == 1 and "Traceback" not in err
     assert failures[0].startswith(f"failed: {fleet / 'robotB' / 'broken.log.gz'}: ")
     assert "2 written, 0 skipped (complete), 1 failed, of 3 logs" in stdout
-    assert not (out / "robotB" / "broken").exists()
+    assert sorted(p.name for p in out.iterdir()) == [
+        "dataset=robotA%2Forebro-corrected",
+        "dataset=robotB%2Ffhw-corrected",
+    ]
     code, _, err = cli("import", "carmen", real / "carmen_radish_corrected" / LOGS[0],
                        "--out", tmp_path / "alone", "-q")  # fmt: skip
     assert code == 0, err
-    _same_dataset(out / "robotA" / "orebro-corrected", tmp_path / "alone")
-    assert load(out / "robotB" / "fhw-corrected").n_scans > 100
+    _same_dataset(out / "dataset=robotA%2Forebro-corrected", tmp_path / "alone")
+    assert load(out / "dataset=robotB%2Ffhw-corrected").n_scans > 100
 
     # re-run: complete datasets are skipped; a changed source is imported again
     (fleet / "robotB" / "broken.log.gz").unlink()
@@ -81,7 +85,7 @@ def test_each_reports_the_damaged_log_and_writes_the_others(
     link.symlink_to(real / "carmen_radish_corrected" / "belgioioso-corrected.log.gz")
     code, stdout, _ = cli("import", "carmen", fleet, "--each", "--out", out)
     assert "1 written, 1 skipped (complete), 0 failed, of 2 logs" in stdout
-    again = load(out / "robotA" / "orebro-corrected")
+    again = load(out / "dataset=robotA%2Forebro-corrected")
     assert again.n_scans != load(tmp_path / "alone").n_scans
 
 
@@ -96,5 +100,5 @@ def test_local_cluster_writes_the_same_datasets(fleet: Path, tmp_path: Path, cli
     assert code == 1
     assert len(err.strip().splitlines()) == 1 and "broken.log.gz" in err
     assert "2 written, 0 skipped (complete), 1 failed, of 3 logs" in stdout
-    for name in ("orebro-corrected", "fhw-corrected"):
+    for name in ("dataset=orebro-corrected", "dataset=fhw-corrected"):
         _same_dataset(one / name, two / name)

@@ -16,9 +16,16 @@ import pandas as pd
 import pytest
 
 from tests.conftest import Cli
-from toolkit.dataset import Dataset, save
+from toolkit.dataset import Dataset, load, save
 from toolkit.poses import build
-from toolkit.scale import client_for, match_pairs_on, matcher_for, pair_chunks, parse_scheduler
+from toolkit.scale import (
+    chunk_plan,
+    client_for,
+    match_pairs_on,
+    matcher_for,
+    pair_chunks,
+    parse_scheduler,
+)
 from toolkit.sim import simulate
 
 pytestmark = pytest.mark.xdist_group("dask")  # one cluster at a time under --dist loadgroup
@@ -54,7 +61,7 @@ def test_parse_scheduler() -> None:
     assert parse_scheduler("tcp://10.0.0.1:8786") == ("tcp://10.0.0.1:8786", 0)
 
 
-def test_chunks_start_at_the_keyframe_of_their_first_pair(log: Dataset) -> None:
+def test_chunks_are_row_groups_and_start_at_their_keyframe(log: Dataset) -> None:
     from toolkit.align import scan as sc
     from toolkit.poses import odometry_poses
 
@@ -62,11 +69,25 @@ def test_chunks_start_at_the_keyframe_of_their_first_pair(log: Dataset) -> None:
     assert odo is not None
     ref = sc.keyframes(odo, 0.3, 0.2)
     chunks = pair_chunks(ref, 100)
-    assert [lo for _, lo, _ in chunks] == list(range(0, log.n_scans - 1, 100))
+    # chunk k: the pairs whose current scans are 100k .. 100k+99 (row group k)
+    assert [(lo + 1, hi) for _, lo, hi in chunks][:3] == [(1, 99), (100, 199), (200, 299)]
     assert chunks[-1][2] == log.n_scans - 1
     for first, lo, _ in chunks:
         assert first == ref[lo + 1] <= lo  # overlap back to the keyframe, at least one scan
     assert any(first < lo for first, lo, _ in chunks[1:])  # the keyframe case occurs here
+
+
+def test_chunk_plan_with_several_earlier_references() -> None:
+    """References that are neither keyframes nor consecutive: every earlier one is shipped,
+    the pairs between them are dropped, the chunk's own pairs keep their seeds."""
+    refs = np.array([0, 0, 0, 1, 1, 2, 4, 6])
+    seeds = np.arange(21.0).reshape(7, 3)
+    earlier, ref, local_seeds, skip = chunk_plan(refs, seeds, 3, 7)  # pairs 3..6: scans 4..7
+    assert earlier.tolist() == [1, 2]
+    assert skip == 1
+    # small log: [scan 1, scan 2, scan 4, scan 5, scan 6, scan 7]
+    assert ref.tolist() == [0, 0, 0, 1, 2, 4]
+    assert np.array_equal(local_seeds[skip:], seeds[3:7])
 
 
 @pytest.mark.parametrize("odometry", [True, False], ids=["keyframes", "consecutive"])
@@ -83,6 +104,27 @@ def test_cluster_trajectory_equals_single_process(
         assert np.array_equal(alone.matches.pose, spread.matches.pose)
         assert np.array_equal(alone.matches.covariance, spread.matches.covariance)
         assert np.array_equal(alone.matches.degenerate, spread.matches.degenerate)
+
+
+def test_workers_reading_their_row_groups_give_the_same_trajectory(
+    log: Dataset, client: object, tmp_path: Path
+) -> None:
+    """The scans read by the workers from scans.parquet (row groups of 100 scans here), by
+    whole row groups and by chunks that cut across them: the single-process poses."""
+    from toolkit.dataset import SCANS, ScansWriter
+
+    scans = tmp_path / SCANS
+    with ScansWriter(scans, log.n_beams, group=100) as writer:
+        writer.write(log.t, log.ranges)
+    alone = build(log)
+    for chunk in (None, 97):  # None: the file's row group, one per task
+        spread = build(log, matcher=matcher_for(client, chunk, scans=scans))  # type: ignore[arg-type]
+        assert np.array_equal(alone.poses, spread.poses)
+    other = tmp_path / "other.parquet"
+    with ScansWriter(other, log.n_beams) as writer:
+        writer.write(log.t[:-1], log.ranges[:-1])
+    with pytest.raises(Exception, match="has not the 700 scans"):
+        build(log, matcher=matcher_for(client, scans=other))  # type: ignore[arg-type]
 
 
 def test_cluster_matching_is_real_work(log: Dataset, client: object) -> None:
@@ -110,6 +152,72 @@ def test_map_cli_local_cluster_same_trajectory(
     assert (data.parent / "one" / "trajectory.tum").read_bytes() == (
         tmp_path / "two" / "trajectory.tum"
     ).read_bytes()
+
+
+def _part(ds: Dataset, lo: int, hi: int) -> Dataset:
+    """Scans lo..hi-1 of `ds` with their odometry and ground truth: a log of its own."""
+
+    def cut(frame: pd.DataFrame | None) -> pd.DataFrame | None:
+        if frame is None:
+            return None
+        return frame[(frame.t >= ds.t[lo]) & (frame.t <= ds.t[hi - 1])]
+
+    return Dataset(ds.t[lo:hi], ds.ranges[lo:hi], ds.laser, cut(ds.odometry), cut(ds.groundtruth))
+
+
+@pytest.fixture(scope="module")
+def fleet(log: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """dataset=east and dataset=west (two parts of the log) and dataset=broken (its
+    scans.parquet cut short: a damaged copy)."""
+    root = tmp_path_factory.mktemp("fleet")
+    save(_part(log, 0, 400), root / "dataset=east")
+    save(_part(log, 300, 700), root / "dataset=west")
+    broken = root / "dataset=broken"
+    save(_part(log, 0, 100), broken)
+    scans = (broken / "scans.parquet").read_bytes()
+    (broken / "scans.parquet").write_bytes(scans[: len(scans) // 2])
+    return root
+
+
+def test_map_fleet_damaged_dataset_by_name_cluster_same_runs_rerun_skips(
+    fleet: Path, tmp_path: Path, cli: Cli
+) -> None:
+    here, there = tmp_path / "here", tmp_path / "there"
+    code, out, err = cli("map", fleet, "--out", here)
+    assert code == 1
+    failures = err.strip().splitlines()
+    assert len(failures) == 1 and "Traceback" not in err
+    assert failures[0].startswith(f"failed: {(fleet / 'dataset=broken').resolve()}: ")
+    assert "2 written, 0 skipped (complete), 1 failed, of 3 datasets" in out
+    assert sorted(p.name for p in here.iterdir()) == ["dataset=east", "dataset=west"]
+    # one task per dataset on a LocalCluster: the same failure, the same runs bit for bit
+    code, out, err = cli("map", fleet, "--out", there, "--scheduler", "local:2")
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "dataset=broken" in err
+    for name in ("dataset=east", "dataset=west"):
+        a = pd.read_parquet(here / name / "trajectory.parquet")
+        b = pd.read_parquet(there / name / "trajectory.parquet")
+        assert np.array_equal(a.to_numpy(), b.to_numpy())
+    # and each is the single-dataset run
+    code, _, err = cli("map", fleet / "dataset=west", "--out", tmp_path / "west", "-q")
+    assert code == 0, err
+    assert (tmp_path / "west" / "trajectory.tum").read_bytes() == (
+        here / "dataset=west" / "trajectory.tum"
+    ).read_bytes()
+    # re-run: complete runs of unchanged datasets are skipped, a changed one is mapped again
+    pattern = str(fleet / "dataset=[ew]*")  # a quoted glob, without the broken one
+    code, out, err = cli("map", pattern, "--out", here)
+    assert (code, err) == (0, "")
+    assert "0 written, 2 skipped (complete), 0 failed, of 2 datasets" in out
+    meta = fleet / "dataset=east" / "meta.json"
+    kept = meta.read_text()
+    meta.write_text(kept.replace('"scans"', '"scans" ', 1))  # re-imported: another meta.json
+    try:
+        code, out, _ = cli("map", pattern, "--out", here)
+        assert code == 0 and "1 written, 1 skipped (complete)" in out
+        code, out, _ = cli("map", pattern, "--out", here, "--method", "odometry")
+        assert code == 0 and "2 written, 0 skipped (complete)" in out
+    finally:
+        meta.write_text(kept)
 
 
 def test_map_cli_unreachable_scheduler_is_one_line(
@@ -146,9 +254,11 @@ def _free_port() -> int:
 
 
 def test_map_on_dask_scheduler_and_two_workers(
-    single: tuple[Path, pd.DataFrame], tmp_path: Path, cli: Cli
+    single: tuple[Path, pd.DataFrame], fleet: Path, tmp_path: Path, cli: Cli
 ) -> None:
-    """`dask scheduler` + two `dask worker` processes on loopback, as on a real cluster."""
+    """`dask scheduler` + two `dask worker` processes on loopback, as on a real cluster: one
+    dataset's pairs in chunks, the workers reading their scans from scans.parquet; then a
+    fleet, one dataset per task, the damaged one reported by name."""
     dask = str(Path(sys.executable).parent / "dask")
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
@@ -198,6 +308,12 @@ def test_map_on_dask_scheduler_and_two_workers(
         assert code == 0, err
         two = pd.read_parquet(tmp_path / "two" / "trajectory.parquet")
         assert np.array_equal(one.to_numpy(), two.to_numpy())
+        runs = tmp_path / "runs"
+        code, out, err = cli("map", fleet, "--out", runs, "--scheduler", address)
+        assert code == 1 and "2 written, 0 skipped (complete), 1 failed, of 3 datasets" in out
+        assert len(err.strip().splitlines()) == 1 and "dataset=broken" in err
+        east = pd.read_parquet(runs / "dataset=east" / "trajectory.parquet")
+        assert np.array_equal(east.to_numpy(), build(load(fleet / "dataset=east")).frame.to_numpy())
     finally:
         for p in reversed(procs):
             p.terminate()

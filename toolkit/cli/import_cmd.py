@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from toolkit.cli import app
 from toolkit.cli.options import key_values
+
+if TYPE_CHECKING:
+    from toolkit.scale import Outcome
 
 
 @app.command("import")
@@ -37,7 +40,8 @@ def import_command(
         typer.Option(
             "--each",
             help="many logs: every SOURCE file, quoted glob pattern, or log found in a "
-            "directory tree becomes its own dataset OUT/<name>; complete ones are skipped",
+            "directory tree becomes its own dataset OUT/dataset=<name> (a hive-partitioned "
+            "fleet); complete ones are skipped",
         ),
     ] = False,
     scheduler: Annotated[
@@ -89,6 +93,11 @@ def _import_each(
         raise ToolkitError(f"no {'' if fmt == 'auto' else fmt + ' '}log found in the sources")
     with client_for(scheduler) as client:
         outcomes = import_many(client, fmt, logs, out, options, force)
+    report_outcomes(outcomes, out, "logs", quiet)
+
+
+def report_outcomes(outcomes: list[Outcome], out: Path, noun: str, quiet: bool) -> None:
+    """A line per failure on stderr (`failed: INPUT: why`), a count line, exit 1 if any failed."""
     failed = [o for o in outcomes if o.status == "failed"]
     for o in failed:
         typer.echo(f"failed: {o.source}: {o.error}", err=True)
@@ -96,7 +105,7 @@ def _import_each(
         counts = {s: sum(o.status == s for o in outcomes) for s in ("written", "skipped")}
         typer.echo(
             f"{out}: {counts['written']} written, {counts['skipped']} skipped (complete), "
-            f"{len(failed)} failed, of {len(outcomes)} logs"
+            f"{len(failed)} failed, of {len(outcomes)} {noun}"
         )
     if failed:
         raise typer.Exit(1)

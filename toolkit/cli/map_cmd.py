@@ -1,4 +1,5 @@
-"""`toolkit map DATASET --out RUN [--method ...] [--voxel M] [--scheduler none|local:N|ADDRESS]`"""
+"""`toolkit map DATASET --out RUN [--method ...] [--voxel M] [--scheduler none|local:N|ADDRESS]`,
+or `toolkit map DATASET... --out DIR` (several datasets, a fleet's tree, a quoted glob)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,14 @@ from toolkit.cli import app
 
 @app.command("map")
 def map_command(
-    dataset: Annotated[Path, typer.Argument(help="dataset directory")],
+    datasets: Annotated[
+        list[Path],
+        typer.Argument(
+            metavar="DATASET...",
+            help="a dataset directory; or several, a directory tree of them (a fleet), or a "
+            "quoted glob: then OUT gets one run per dataset",
+        ),
+    ],
     out: Annotated[Path, typer.Option("--out", "-o", help="run directory to write")],
     method: Annotated[
         str,
@@ -33,26 +41,40 @@ def map_command(
             "(a Dask LocalCluster of N workers) or a Dask scheduler's address"
         ),
     ] = "none",
+    each: Annotated[
+        bool,
+        typer.Option(
+            "--each",
+            help="many datasets (implied by several DATASETs, a tree or a glob): one run each, "
+            "OUT/<name below the tree>; failures by name; current runs are skipped",
+        ),
+    ] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
 ) -> None:
     """Align the scans, build the trajectory and the maps, and measure them against ground truth.
 
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
-    metrics.json; atomically.
+    metrics.json; atomically. With many datasets, OUT/<name>/ for each.
     """
+    from toolkit.dataset import SCANS
     from toolkit.errors import ToolkitError
     from toolkit.mapping import map_dataset
     from toolkit.poses import METHODS
-    from toolkit.scale import client_for, matcher_for
+    from toolkit.scale import client_for, matcher_for, on_shared_storage
 
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
+    if each or _many(datasets):
+        _map_each(datasets, out, method, voxel, force, scheduler, quiet)
+        return
+    dataset = datasets[0]
     if scheduler != "none" and method != "gaussian":
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     with client_for(scheduler) as client:
-        matcher = matcher_for(client) if client is not None else None
+        scans = dataset / SCANS if on_shared_storage(scheduler) else None
+        matcher = matcher_for(client, scans=scans) if client is not None else None
         run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
     if quiet:
         return
@@ -67,3 +89,39 @@ def map_command(
             f"{rpe['rotation_deg']:.3f}°, {fails['count']} failures"
         )
     typer.echo(line)
+
+
+def _many(datasets: list[Path]) -> bool:
+    """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
+    import glob
+
+    from toolkit.scale import is_dataset_dir
+
+    if len(datasets) != 1:
+        return True
+    one = datasets[0]
+    if not one.exists():
+        return glob.has_magic(str(one))
+    return one.is_dir() and not is_dataset_dir(one)
+
+
+def _map_each(
+    datasets: list[Path],
+    out: Path,
+    method: str,
+    voxel: float,
+    force: bool,
+    scheduler: str,
+    quiet: bool,
+) -> None:
+    """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
+    from toolkit.cli.import_cmd import report_outcomes
+    from toolkit.errors import ToolkitError
+    from toolkit.scale import client_for, find_datasets, map_many, on_shared_storage
+
+    found = find_datasets(datasets)
+    if not found:
+        raise ToolkitError("no dataset found in the inputs (a dataset directory has meta.json)")
+    with client_for(scheduler) as client:
+        outcomes = map_many(client, found, out, method, voxel, force, on_shared_storage(scheduler))
+    report_outcomes(outcomes, out, "datasets", quiet)
