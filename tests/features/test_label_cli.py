@@ -78,6 +78,33 @@ def test_label_writes_the_run(sim_dirs: tuple[Path, Path], tmp_path: Path, cli: 
     assert code == 1 and "--force" in err and len(err.strip().splitlines()) == 1
 
 
+def test_surroundings_find_the_plain_corridor_calibrated(
+    sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
+) -> None:
+    """--none-model surroundings: the plain corridor is "none" (not a door or a window whose
+    ordinary beams it shares), and the probabilities are calibrated (the issue's ECE target)."""
+    data, _ = sim_dirs
+    scores = {}
+    for none_model in ("world", "surroundings"):
+        run = tmp_path / none_model
+        code, _, err = cli(
+            "label", data, "--regions", data / "regions.csv", "--out", run,
+            "--none-model", none_model,
+        )  # fmt: skip
+        assert code == 0, err
+        scores[none_model] = json.loads((run / "labels-metrics.json").read_text())["truth"]
+    world, around = scores["world"], scores["surroundings"]
+    assert around["recall"]["none"] > 0.9 > 0.5 > world["recall"]["none"]
+    assert around["balanced_accuracy"] > world["balanced_accuracy"] + 0.05
+    assert around["ece"] <= 0.05 < world["ece"]
+    model = json.loads((tmp_path / "surroundings" / "model.json").read_text())
+    assert model["config"]["none_model"] == "surroundings" and model["config"]["strict_returns"]
+    assert all("none_offset" in f for f in model["features"])
+    code, _, err = cli("label", data, "--regions", data / "regions.csv", "--out",
+                       tmp_path / "bad", "--none-model", "nothing")  # fmt: skip
+    assert code == 1 and "--none-model 'nothing'" in err
+
+
 def test_saved_model_applies_to_another_log(
     sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
 ) -> None:

@@ -22,7 +22,12 @@ from toolkit.features.classify import (
     world_terms,
 )
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
-from toolkit.features.model import beam_statistics, fit_background, shifted_copies
+from toolkit.features.model import (
+    beam_statistics,
+    commonness,
+    fit_background,
+    shifted_copies,
+)
 
 
 @pytest.fixture(scope="module")
@@ -61,15 +66,38 @@ def test_matrix_product_equals_the_per_beam_sum(world, config: Config) -> None: 
 @pytest.mark.parametrize("strict", [False, True])
 def test_robust_kernel_equals_the_mixture_per_beam(world, strict: bool) -> None:  # type: ignore[no-untyped-def]
     ranges, _, _, training = world
-    model = fit(ranges, LASER, training, Config(strict_returns=strict))
-    ll, bg = robust_loglik(model, ranges)
+    config = Config(strict_returns=strict, none_model="surroundings")
+    model = fit(ranges, LASER, training, config)
+    ll, bg, around = robust_loglik(model, ranges)
     bg_terms = world_terms(ranges.astype(np.float64), model)
     assert np.allclose(bg, bg_terms.sum(axis=1), atol=1e-6)
+    common = commonness(model)
     for k in range(len(model.features)):
         ratio = beam_terms(
             ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model
         )
         assert np.allclose(ll[:, k], (ratio + bg_terms).sum(axis=1), atol=1e-3)
+        # the surroundings: the feature's own terms on common beams, the world's elsewhere
+        surroundings = (common[k] * ratio + bg_terms).sum(axis=1)
+        assert np.allclose(around[:, k], surroundings, atol=1e-3)
+
+
+def test_commonness_tells_distinctive_beams_from_ordinary_ones() -> None:
+    """A wall at 2 m the whole log shows is ordinary; the same beams seeing 5 m (a doorway the
+    log passes once) or no return (glass) where the log has the wall are distinctive."""
+    rng = np.random.default_rng(3)
+    log = np.full((400, LASER.beams), 2.0) + rng.normal(0, 0.01, (400, LASER.beams))
+    log[100:110, 40:60] = 5.0 + rng.normal(0, 0.01, (10, 20))  # a doorway
+    log[200:210, 120:140] = np.nan  # a window
+    model = fit(
+        log.astype(np.float32), LASER, {"door": np.arange(100, 110), "window": np.arange(200, 210)}
+    )
+    common = commonness(model)
+    door, window = common[model.features.index("door")], common[model.features.index("window")]
+    # (the edge beams are smeared by the beam-shifted training copies)
+    assert door[41:59].max() < 0.1 and window[121:139].max() < 0.1
+    assert door[:38].min() > 0.5 and door[62:].min() > 0.5
+    assert window[:118].min() > 0.5 and window[142:].min() > 0.5
 
 
 def test_no_return_is_a_bernoulli_not_a_number() -> None:
@@ -99,7 +127,7 @@ def test_shifted_copies_mark_edges_missing_not_no_return() -> None:
     assert copies[0, 0] == scans[0, 1] and copies[4, 1] == scans[0, 0]
     # shifted-in edge beams hold no data: they do not count as no-returns
     wall = np.full((10, LASER.beams), 2.0)
-    _, _, p = beam_statistics(wall, LASER, Config(shifts=3))
+    _, _, p = beam_statistics(wall, LASER, Config(shifts=3, strict_returns=False))
     assert np.all(p > 0.98)
     # strict returns: the prior is over the 10 real scans, not the 70 copies
     _, _, p = beam_statistics(wall, LASER, Config(shifts=3, strict_returns=True))

@@ -46,11 +46,22 @@ def label_command(
         float | None,
         typer.Option(
             "--evidence-length",
-            help="m of path per scan's worth of evidence in the HMM (default 0.5; 0: every "
+            help="m of path per scan's worth of evidence in the HMM (default 0.5, 0.15 with "
+            "--none-model surroundings; 0: every "
             "scan counts fully, as if consecutive scans were independent); when learning "
             "(a --model keeps its own)",
         ),
     ] = None,
+    none_model: Annotated[
+        str,
+        typer.Option(
+            "--none-model",
+            help="what 'none' is: world (the default: the whole log's per-beam histogram) or "
+            "surroundings (each feature's own model where its reading is common in the log, "
+            "the world where it is distinctive; with strict returns and 0.15 m of evidence "
+            "length: calibrated on the simulator, see the README)",
+        ),
+    ] = "world",
     paper: Annotated[
         bool, typer.Option("--paper", help="the paper's literal per-scan model (for comparison)")
     ] = False,
@@ -64,22 +75,25 @@ def label_command(
     from dataclasses import replace
 
     from toolkit.errors import ToolkitError
-    from toolkit.features.model import PAPER, SMOOTHINGS, Config
+    from toolkit.features.model import NONE_MODELS, PAPER, SMOOTHINGS, SURROUNDINGS, Config
     from toolkit.features.run import label_run
 
-    config: Config | None = PAPER if paper else Config()
+    if none_model not in NONE_MODELS:
+        raise ToolkitError(f"--none-model {none_model!r}: use one of {', '.join(NONE_MODELS)}")
+    base = PAPER if paper else SURROUNDINGS if none_model == "surroundings" else Config()
+    config: Config | None = base
     if smoothing is not None:
         if smoothing not in SMOOTHINGS:
             raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
-        config = replace(PAPER if paper else Config(), smoothing=smoothing)
+        config = replace(base, smoothing=smoothing)
     if robust is not None:
         if not 0.0 <= robust < 1.0:
             raise ToolkitError(f"--robust {robust}: a weight in [0, 1)")
-        config = replace(config or Config(), robust=robust)
+        config = replace(config or base, robust=robust)
     if evidence_length is not None:
         if evidence_length < 0:
             raise ToolkitError(f"--evidence-length {evidence_length}: a distance >= 0 (m)")
-        config = replace(config or Config(), evidence_length=evidence_length or None)
+        config = replace(config or base, evidence_length=evidence_length or None)
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)

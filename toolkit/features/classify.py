@@ -33,6 +33,7 @@ from toolkit.features.model import (
     background_bins,
     beam_statistics,
     bin_table,
+    commonness,
 )
 
 CHUNK = 8192
@@ -166,8 +167,10 @@ def _robust_kernel(  # pragma: no cover - numba
     ret: np.ndarray,
     mix_hit: np.ndarray,
     miss_eps: float,
+    common: np.ndarray,
     out: np.ndarray,
     bg_out: np.ndarray,
+    none_out: np.ndarray,
 ) -> None:
     s_count, nb = ranges.shape
     nf = mean.shape[1]
@@ -175,6 +178,7 @@ def _robust_kernel(  # pragma: no cover - numba
     for s in numba.prange(s_count):
         for f in range(nf):
             out[s, f] = 0.0
+            none_out[s, f] = 0.0
         bg_sum = 0.0
         for b in range(nb):
             r = ranges[s, b]
@@ -184,13 +188,19 @@ def _robust_kernel(  # pragma: no cover - numba
                 mix = density + mix_hit[b] + log_eps
                 for f in range(nf):
                     d = r - mean[b, f]
-                    out[s, f] += _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], mix) + ret[b, f]
+                    term = _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], mix) + ret[b, f]
+                    out[s, f] += term
+                    none_out[s, f] += common[b, f] * (term - world)
             else:
                 world = bg_miss[b]
                 for f in range(nf):
-                    out[s, f] += _logaddexp(miss[b, f], world + miss_eps)
+                    term = _logaddexp(miss[b, f], world + miss_eps)
+                    out[s, f] += term
+                    none_out[s, f] += common[b, f] * (term - world)
             bg_sum += world
         bg_out[s] = bg_sum
+        for f in range(nf):
+            none_out[s, f] += bg_sum
 
 
 def _robust_params(model: FeatureModel) -> tuple[np.ndarray, ...]:
@@ -211,10 +221,13 @@ def _robust_params(model: FeatureModel) -> tuple[np.ndarray, ...]:
     return tuple(np.ascontiguousarray(a.T) for a in (mean, prec, hit, miss, ret))
 
 
-def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def robust_loglik(
+    model: FeatureModel, ranges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per scan: log-likelihood under each feature with robust beams (each beam a mixture of
-    the feature's model and, weight `robust`, the world's), (S, F); and under the
-    background, (S,)."""
+    the feature's model and, weight `robust`, the world's), (S, F); under the background,
+    (S,); and under each feature's surroundings (its own model on its common beams, the
+    world's on its distinctive ones, see `commonness`), (S, F)."""
     bg = model.background
     if bg is None:
         raise ValueError("robust beams need the background model")
@@ -224,6 +237,10 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
     bin_of = bin_table(bg.edges)
     out = np.empty((len(ranges), len(model.features)))
     bg_out = np.empty(len(ranges))
+    none_out = np.empty_like(out)
+    common = (
+        commonness(model) if model.config.none_model == "surroundings" else np.zeros(mean.T.shape)
+    )
     _robust_kernel(
         np.ascontiguousarray(ranges, dtype=np.float32),
         mean,
@@ -239,18 +256,27 @@ def robust_loglik(model: FeatureModel, ranges: np.ndarray) -> tuple[np.ndarray, 
         ret,
         np.zeros_like(q) if strict else np.log(q),
         -np.inf if strict else float(np.log(model.config.robust)),
+        np.ascontiguousarray(common.T),
         out,
         bg_out,
+        none_out,
     )
-    return out, bg_out
+    return out, bg_out, none_out
 
 
 def loglik(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
     """Untempered log-likelihood (S, C) per model row (component), then "none" if the model
     has it."""
     if model.config.robust > 0 and model.config.no_return:
-        ll, bg = robust_loglik(model, ranges)
-        return np.concatenate([ll, bg[:, None]], axis=1) if model.config.none_class else ll
+        ll, bg, around = robust_loglik(model, ranges)
+        if not model.config.none_class:
+            return ll
+        if model.config.none_model == "surroundings":  # an equal mixture of the features'
+            if model.none_offset is not None:
+                around -= model.none_offset
+            top = around.max(axis=1)
+            bg = top + np.log(np.exp(around - top[:, None]).mean(axis=1))
+        return np.concatenate([ll, bg[:, None]], axis=1)
     ll = feature_loglik(model, ranges, chunk)
     if model.config.none_class:
         ll = np.concatenate([ll, background_loglik(model, ranges, chunk)[:, None]], axis=1)
@@ -340,6 +366,40 @@ def _robust_beam_terms(
     return np.logaddexp(own, world + rho) - world
 
 
+def held_out_terms(model: FeatureModel, ranges: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Per-beam terms (n, B) of each training scan under its feature learnt without it."""
+    scans = ranges[idx].astype(np.float64)
+    terms = np.empty_like(scans)
+    for j in range(len(idx)):
+        rest = np.delete(scans, j, axis=0)
+        mean, var, p = beam_statistics(rest, model.laser, model.config)
+        terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
+    return terms
+
+
+NONE_QUANTILE = 0.1  # share of held-out training scans allowed to look like the surroundings
+NONE_MARGIN = 0.0  # nats (tempered) by which those scans must prefer their feature
+
+
+def fit_none_offset(
+    model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
+) -> np.ndarray:
+    """Per model row, how much to lower its surroundings' score so that its own training
+    scans, each held out, come out as the feature and not as "none" (all but
+    `NONE_QUANTILE` of them). The user taught these scans as the feature: where the feature
+    is loose (scans far apart, a cluttered room), its distinctive beams fit it no better
+    than the world, and the surroundings would otherwise claim its own examples."""
+    common = commonness(model)
+    offset = np.zeros(len(components))
+    for k, (_, idx) in enumerate(components):
+        if len(idx) < 3:
+            continue
+        own_vs_around = held_out_terms(model, ranges, idx) @ (1.0 - common[k])
+        margin = NONE_MARGIN / model.temperature  # in the untempered units of the terms
+        offset[k] = max(0.0, margin - float(np.quantile(own_vs_around, NONE_QUANTILE)))
+    return offset
+
+
 def fit_temperature(
     model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
 ) -> tuple[float, dict[str, Any]]:
@@ -355,12 +415,7 @@ def fit_temperature(
     for _, idx in components:
         if len(idx) < 3:
             continue
-        scans = ranges[idx].astype(np.float64)
-        terms = np.empty_like(scans)
-        for j in range(len(idx)):
-            rest = np.delete(scans, j, axis=0)
-            mean, var, p = beam_statistics(rest, model.laser, model.config)
-            terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
+        terms = held_out_terms(model, ranges, idx)
         centred_terms.append(terms - terms.mean(axis=0))
     if not centred_terms:
         return 1.0, {"temperature_note": "too few training scans for leave-one-out; 1"}

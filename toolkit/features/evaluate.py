@@ -23,12 +23,13 @@ from toolkit.features.metrics import (
     expected_calibration_error,
     per_class_recall,
 )
-from toolkit.features.model import PAPER, Config, fit
+from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
 from toolkit.features.regions import spans_from_frame, training_indices
 
 # The ablation: each row adds one decision to the one before; the default row is Config().
 FULL = Config()
 STREAM = dataclasses.replace(FULL, smoothing="forward", evidence_length=None)
+AROUND = dataclasses.replace(FULL, none_model="surroundings")
 ABLATION: list[tuple[str, Config]] = [
     ("paper: per-scan Gaussian, Eq. 8-9 literal", PAPER),
     ("+ no-return as a Bernoulli per beam", dataclasses.replace(PAPER, no_return=True)),
@@ -40,9 +41,11 @@ ABLATION: list[tuple[str, Config]] = [
     ("+ HMM forward filter along the path (Eq. 7): streaming", STREAM),
     ("+ forward-backward (offline: the whole log)", dataclasses.replace(STREAM, smoothing="forward-backward")),
     ("+ evidence length 0.5 m", FULL),
+    ("option: + none = the features' surroundings", AROUND),
+    ("option: + strict returns", dataclasses.replace(AROUND, strict_returns=True)),
+    ("option: + evidence length 0.15 m (--none-model surroundings)", SURROUNDINGS),
     ("alternative: forward filter with evidence length 0.5 m", dataclasses.replace(FULL, smoothing="forward")),
-    ("alternative: strict returns (implicit prior for none)", dataclasses.replace(FULL, strict_returns=True)),
-    ("alternative: robust weight 0.3, no smoothing", dataclasses.replace(STREAM, robust=0.3, smoothing="none")),
+    ("alternative: strict returns alone", dataclasses.replace(FULL, strict_returns=True)),
 ]  # fmt: skip
 DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
 
