@@ -12,9 +12,9 @@ reading included); `in_task_pairs_per_s`, a worker's rate while inside its tasks
 matching), to set beside the one-thread single process: the difference is what a worker
 loses to its task; `busy`, the share of the workers' wall time spent inside tasks (the rest
 is scheduling, shipping, gathering, and waiting for a core); the cluster's start-up and its
-first tiny task (each worker loads the numba kernels from the cache); and whether the poses
-equal the single-process ones bit for bit. On a shared machine the figures follow the free
-cores, not the worker count: quote the load.
+first tiny tasks (each worker loads the numba kernels from the cache, and the Parquet
+reader); and whether the poses equal the single-process ones bit for bit. On a shared
+machine the figures follow the free cores, not the worker count: quote the load.
 """
 
 from __future__ import annotations
@@ -90,15 +90,17 @@ def run(out: Path, quick: bool) -> list[dict[str, Any]]:
     rows[1]["equal_to_single_process"] = bool(np.array_equal(rows[1].pop("poses"), reference))
     rows[0]["equal_to_single_process"] = True
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "scans.parquet"
+        path, small = Path(tmp) / "scans.parquet", Path(tmp) / "small.parquet"
         write_scans(path, np.arange(scans, dtype=np.float64), ranges)
+        write_scans(small, np.arange(50, dtype=np.float64), ranges[:50])
         for scheduler in CLUSTERS:
             workers = int(scheduler.split(":")[1])
             t0 = time.perf_counter()
             with client_for(scheduler) as client:
                 started = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                match_pairs_on(client, ranges[:50], seeds[:49], laser, chunk=10)  # kernels
+                for warm in (None, small):  # the kernels, and the Parquet reader
+                    match_pairs_on(client, ranges[:50], seeds[:49], laser, chunk=10, scans=warm)
                 first = time.perf_counter() - t0
                 for mode, source in (("ship", None), ("read", path)):
                     walls, inside, busy = [], [], []
