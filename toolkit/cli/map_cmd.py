@@ -17,12 +17,15 @@ def map_command(
     datasets: Annotated[
         list[Path],
         typer.Argument(
-            metavar="DATASET...",
+            metavar="DATASET",
             help="a dataset directory; or several, a directory tree of them (a fleet), or a "
             "quoted glob: then OUT gets one run per dataset",
         ),
     ],
-    out: Annotated[Path, typer.Option("--out", "-o", help="run directory to write")],
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="run directory to write (many datasets: their parent)"),
+    ],
     method: Annotated[
         str,
         typer.Option(
@@ -37,8 +40,9 @@ def map_command(
     scheduler: Annotated[
         str,
         typer.Option(
-            help="where to match the scan pairs (gaussian): none (this process), local or local:N "
-            "(a Dask LocalCluster of N workers) or a Dask scheduler's address"
+            help="where the work runs: none (this process), local or local:N (a Dask "
+            "LocalCluster of N workers) or a Dask scheduler's address; one dataset: its scan "
+            "pairs (gaussian), many: one task per dataset"
         ),
     ] = "none",
     each: Annotated[
