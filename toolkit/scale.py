@@ -551,6 +551,6 @@ def map_many(
 def on_shared_storage(scheduler: str | None) -> bool:
     """Whether the workers of `scheduler` read a dataset's scans themselves: yes on a
     scheduler given by address (the cluster shares the paths; shipping the scans from this
-    process would make its network the limit), no on a LocalCluster (same machine: the scans
-    in memory are shipped, which costs less here than decoding them again, see bench_scale)."""
+    process would make its network the limit), no on a LocalCluster (same machine: shipping
+    the scans in memory costs about what decoding them again does, see bench_scale)."""
     return parse_scheduler(scheduler)[0] not in ("none", "local")
