@@ -22,6 +22,24 @@ def random_walk(n: int, seed: int) -> np.ndarray:
     return compose_steps(np.array([1.0, 2.0, 0.3]), steps)
 
 
+def drifted_radish(real: Path, tmp_path: Path, name: str) -> tuple[toolkit.Dataset, np.ndarray]:
+    """A corrected Radish log imported with its poses as ground truth, odometry drifted from
+    them (`with_drift`, seed 0); and the true poses at the scans."""
+    import importers
+    from importers.base import ImportOptions
+
+    out = importers.import_log(
+        "carmen",
+        [real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"],
+        tmp_path / name,
+        ImportOptions(extra={"poses": "groundtruth"}),
+    )
+    ds = with_drift(toolkit.load(out), seed=0)
+    truth = truth_poses(ds)
+    assert truth is not None
+    return ds, truth
+
+
 def test_compose_steps_matches_pose_by_pose_composition() -> None:
     rng = np.random.default_rng(0)
     steps = rng.normal(0, 0.3, (50, 3))
@@ -83,18 +101,7 @@ def test_simulated_logs_meet_the_accuracy_targets(scenario: str) -> None:
 
 @pytest.mark.real
 def test_real_intel_log_with_drift_beats_odometry_and_icp(real: Path, tmp_path: Path) -> None:
-    import importers
-    from importers.base import ImportOptions
-
-    out = importers.import_log(
-        "carmen",
-        [real / "carmen_radish_corrected" / "intel-corrected.log.gz"],
-        tmp_path / "intel",
-        ImportOptions(extra={"poses": "groundtruth"}),
-    )
-    ds = with_drift(toolkit.load(out), seed=0)
-    truth = truth_poses(ds)
-    assert truth is not None
+    ds, truth = drifted_radish(real, tmp_path, "intel")
     odo = evaluate(build(ds, "odometry").poses, truth)
     gauss = evaluate(build(ds, "gaussian").poses, truth)
     icp = evaluate(build(ds, "icp").poses, truth)
@@ -124,18 +131,7 @@ def test_real_acapulco_hall_heading_does_not_lean_on_the_odometry(
 ) -> None:
     # A convention hall, scans ~1 m apart: a tenth of the seed's heading error used to survive
     # each match, and the drift's bias piled up (ATE 14 m against odometry's 31 m).
-    import importers
-    from importers.base import ImportOptions
-
-    out = importers.import_log(
-        "carmen",
-        [real / "carmen_radish_corrected" / "acapulco-corrected.log.gz"],
-        tmp_path / "acapulco",
-        ImportOptions(extra={"poses": "groundtruth"}),
-    )
-    ds = with_drift(toolkit.load(out), seed=0)
-    truth = truth_poses(ds)
-    assert truth is not None
+    ds, truth = drifted_radish(real, tmp_path, "acapulco")
     steps = sc.laser_motion(sc.between(truth[:-1], truth[1:]), ds.laser)
     off = np.deg2rad(0.8)
 

@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -32,6 +33,13 @@ def sim_dirs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return dirs[0], dirs[1]
 
 
+def learn(cli: Cli, data: Path, run: Path, *options: object) -> dict[str, Any]:
+    """`toolkit label` with the log's own regions.csv; its labels-metrics.json."""
+    code, _, err = cli("label", data, "--regions", data / "regions.csv", "--out", run, *options)
+    assert code == 0, err
+    return dict(json.loads((run / "labels-metrics.json").read_text()))
+
+
 def test_label_writes_the_run(sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli) -> None:
     data, _ = sim_dirs
     run = tmp_path / "run"
@@ -54,17 +62,7 @@ def test_label_writes_the_run(sim_dirs: tuple[Path, Path], tmp_path: Path, cli: 
     metrics = json.loads((run / "labels-metrics.json").read_text())
     assert metrics["poses"] == "groundtruth"
     # the paper's model is scored alongside: the toolkit's must do better on the same log
-    code, _, err = cli(
-        "label",
-        data,
-        "--regions",
-        data / "regions.csv",
-        "--out",
-        tmp_path / "paper",
-        "--paper",
-    )
-    assert code == 0, err
-    paper = json.loads((tmp_path / "paper" / "labels-metrics.json").read_text())
+    paper = learn(cli, data, tmp_path / "paper", "--paper")
     assert metrics["truth"]["balanced_accuracy"] > paper["truth"]["balanced_accuracy"] + 0.2
     assert metrics["truth"]["ece"] < paper["truth"]["ece"] - 0.3
     assert (run / "membership.png").stat().st_size > 10_000
@@ -84,16 +82,10 @@ def test_surroundings_find_the_plain_corridor_calibrated(
     """--none-model surroundings: the plain corridor is "none" (not a door or a window whose
     ordinary beams it shares), and the probabilities are calibrated (the issue's ECE target)."""
     data, _ = sim_dirs
-    scores = {}
-    for none_model in ("world", "surroundings"):
-        run = tmp_path / none_model
-        code, _, err = cli(
-            "label", data, "--regions", data / "regions.csv", "--out", run,
-            "--none-model", none_model,
-        )  # fmt: skip
-        assert code == 0, err
-        scores[none_model] = json.loads((run / "labels-metrics.json").read_text())["truth"]
-    world, around = scores["world"], scores["surroundings"]
+    world, around = (
+        learn(cli, data, tmp_path / m, "--none-model", m)["truth"]
+        for m in ("world", "surroundings")
+    )
     assert around["recall"]["none"] > 0.9 > 0.5 > world["recall"]["none"]
     assert around["balanced_accuracy"] > world["balanced_accuracy"] + 0.05
     assert around["ece"] <= 0.05 < world["ece"]
@@ -109,15 +101,7 @@ def test_saved_model_applies_to_another_log(
     sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
 ) -> None:
     first, second = sim_dirs
-    code, _, err = cli(
-        "label",
-        first,
-        "--regions",
-        first / "regions.csv",
-        "--out",
-        tmp_path / "a",
-    )
-    assert code == 0, err
+    learnt = learn(cli, first, tmp_path / "a")
     code, _, err = cli(
         "label",
         second,
@@ -128,7 +112,6 @@ def test_saved_model_applies_to_another_log(
     )
     assert code == 0, err
     applied = json.loads((tmp_path / "b" / "labels-metrics.json").read_text())
-    learnt = json.loads((tmp_path / "a" / "labels-metrics.json").read_text())
     assert applied["model"].endswith("model.json")
     # a model from one log finds the places of another log of the same sensor about as well
     assert applied["truth"]["balanced_accuracy"] > learnt["truth"]["balanced_accuracy"] - 0.1
@@ -142,18 +125,7 @@ def test_trajectory_option_and_errors(
     data, _ = sim_dirs
     odo = pd.read_parquet(data / "odometry.parquet")
     odo.to_parquet(tmp_path / "trajectory.parquet")
-    code, _, err = cli(
-        "label",
-        data,
-        "--regions",
-        data / "regions.csv",
-        "--out",
-        tmp_path / "run",
-        "--trajectory",
-        tmp_path / "trajectory.parquet",
-    )
-    assert code == 0, err
-    metrics = json.loads((tmp_path / "run" / "labels-metrics.json").read_text())
+    metrics = learn(cli, data, tmp_path / "run", "--trajectory", tmp_path / "trajectory.parquet")
     assert metrics["poses"].startswith("trajectory")
 
     bad = tmp_path / "bad.csv"

@@ -25,6 +25,7 @@ from typing import Any
 import numba
 import numpy as np
 import pandas as pd
+from scipy.special import logsumexp
 
 from toolkit.features.model import (
     BIN_STEP,
@@ -274,8 +275,7 @@ def loglik(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.nd
         if model.config.none_model == "surroundings":  # an equal mixture of the features'
             if model.none_offset is not None:
                 around -= model.none_offset
-            top = around.max(axis=1)
-            bg = top + np.log(np.exp(around - top[:, None]).mean(axis=1))
+            bg = logsumexp(around, axis=1) - np.log(around.shape[1])
         return np.concatenate([ll, bg[:, None]], axis=1)
     ll = feature_loglik(model, ranges, chunk)
     if model.config.none_class:
@@ -292,8 +292,7 @@ def per_class(model: FeatureModel, scores: np.ndarray) -> np.ndarray:
     columns = []
     for name in model.names:
         mine = scores[:, [k for k, r in enumerate(rows) if r == name]]
-        top = mine.max(axis=1, keepdims=True)
-        columns.append(top[:, 0] + np.log(np.exp(mine - top).mean(axis=1)))
+        columns.append(logsumexp(mine, axis=1) - np.log(mine.shape[1]))
     if model.config.none_class:
         columns.append(scores[:, -1])
     return np.column_stack(columns)
@@ -366,15 +365,23 @@ def _robust_beam_terms(
     return np.logaddexp(own, world + rho) - world
 
 
-def held_out_terms(model: FeatureModel, ranges: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Per-beam terms (n, B) of each training scan under its feature learnt without it."""
-    scans = ranges[idx].astype(np.float64)
-    terms = np.empty_like(scans)
-    for j in range(len(idx)):
-        rest = np.delete(scans, j, axis=0)
-        mean, var, p = beam_statistics(rest, model.laser, model.config)
-        terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
-    return terms
+def held_out_terms(
+    model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
+) -> dict[int, np.ndarray]:
+    """Per model row with 3 or more training scans: the per-beam terms (n, B) of each of its
+    scans under the row learnt without it (leave-one-out)."""
+    held = {}
+    for k, (_, idx) in enumerate(components):
+        if len(idx) < 3:
+            continue
+        scans = ranges[idx].astype(np.float64)
+        terms = np.empty_like(scans)
+        for j in range(len(idx)):
+            rest = np.delete(scans, j, axis=0)
+            mean, var, p = beam_statistics(rest, model.laser, model.config)
+            terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
+        held[k] = terms
+    return held
 
 
 NONE_QUANTILE = 0.1  # share of held-out training scans allowed to look like the surroundings
@@ -382,26 +389,32 @@ NONE_MARGIN = 0.0  # nats (tempered) by which those scans must prefer their feat
 
 
 def fit_none_offset(
-    model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
+    model: FeatureModel,
+    ranges: np.ndarray,
+    components: list[tuple[str, np.ndarray]],
+    held: dict[int, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Per model row, how much to lower its surroundings' score so that its own training
     scans, each held out, come out as the feature and not as "none" (all but
     `NONE_QUANTILE` of them). The user taught these scans as the feature: where the feature
     is loose (scans far apart, a cluttered room), its distinctive beams fit it no better
     than the world, and the surroundings would otherwise claim its own examples."""
+    if held is None:
+        held = held_out_terms(model, ranges, components)
     common = commonness(model)
+    margin = NONE_MARGIN / model.temperature  # in the untempered units of the terms
     offset = np.zeros(len(components))
-    for k, (_, idx) in enumerate(components):
-        if len(idx) < 3:
-            continue
-        own_vs_around = held_out_terms(model, ranges, idx) @ (1.0 - common[k])
-        margin = NONE_MARGIN / model.temperature  # in the untempered units of the terms
+    for k, terms in held.items():
+        own_vs_around = terms @ (1.0 - common[k])
         offset[k] = max(0.0, margin - float(np.quantile(own_vs_around, NONE_QUANTILE)))
     return offset
 
 
 def fit_temperature(
-    model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
+    model: FeatureModel,
+    ranges: np.ndarray,
+    components: list[tuple[str, np.ndarray]],
+    held: dict[int, np.ndarray] | None = None,
 ) -> tuple[float, dict[str, Any]]:
     """Scale for the summed log-likelihood, for beams that are not independent.
 
@@ -411,12 +424,9 @@ def fit_temperature(
     (the design effect) is the effective share of independent beams, and tempering by it
     (a composite-likelihood magnitude adjustment) keeps posteriors from being overconfident.
     """
-    centred_terms = []
-    for _, idx in components:
-        if len(idx) < 3:
-            continue
-        terms = held_out_terms(model, ranges, idx)
-        centred_terms.append(terms - terms.mean(axis=0))
+    if held is None:
+        held = held_out_terms(model, ranges, components)
+    centred_terms = [terms - terms.mean(axis=0) for terms in held.values()]
     if not centred_terms:
         return 1.0, {"temperature_note": "too few training scans for leave-one-out; 1"}
     terms = np.concatenate(centred_terms)

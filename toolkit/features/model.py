@@ -373,7 +373,7 @@ def fit(
     per-beam statistics of its training scans (indices into `ranges`); the background from
     the whole log; the temperature by leave-one-out. With `spans` (those `training` came
     from), a feature's separate spans become separate components."""
-    from toolkit.features.classify import fit_temperature
+    from toolkit.features.classify import fit_none_offset, fit_temperature, held_out_terms
 
     config = config or Config()
     if not training:
@@ -405,15 +405,18 @@ def fit(
         else None,
         spans=[s.to_dict() for s in spans or []],
     )
-    if config.temperature == "loo":
-        model.temperature, report = fit_temperature(model, ranges, components)
-        model.fit_report.update(report)
-    elif config.temperature != "none":
+    offset = config.none_class and config.none_model == "surroundings" and config.robust > 0
+    if config.temperature not in ("loo", "none"):
         raise ToolkitError(f"temperature {config.temperature!r}: use loo or none")
-    if config.none_class and config.none_model == "surroundings" and config.robust > 0:
-        from toolkit.features.classify import fit_none_offset
-
-        model.none_offset = fit_none_offset(model, ranges, components)
+    # leave-one-out terms, computed once for both the temperature and the surroundings
+    held = (
+        held_out_terms(model, ranges, components) if config.temperature == "loo" or offset else {}
+    )
+    if config.temperature == "loo":
+        model.temperature, report = fit_temperature(model, ranges, components, held)
+        model.fit_report.update(report)
+    if offset:
+        model.none_offset = fit_none_offset(model, ranges, components, held)
         model.fit_report["none_offset"] = dict(
             zip(model.features, model.none_offset.round(2).tolist(), strict=True)
         )
