@@ -121,7 +121,7 @@ def make(out: Path, samples: list[Sample] = SAMPLES) -> list[dict[str, Any]]:
                 "params": sample.params,
                 "head": sample.head,
                 "writer_options": sample.options,
-                "features": sorted(r["feature"] for r in record["regions"]),
+                "features": sorted({r["feature"] for r in record["regions"]}),
             }
         )
     catalog = {

@@ -18,7 +18,8 @@ corridor (the paper's Fig. 1), 2.4 m wide, metres, robot driving +x then +y:
       "window_a"), a 12 m long window in the middle (x 34..46, "window_b");
       right wall (y = -1.2): four open doors, 0.9 m, into 4 x 3 m rooms (x = 16, 26, 56, 66,
       "door").
-    corner at (80, 0) ("corner": the laser within a 4 x 4 m box round it).
+    corner at (80, 0) ("corner": the laser from 0.8 m before the crossing until it leaves
+      the crossing along leg B, see `corner_zone`).
     leg B, x from 78.8 (left wall) to the right wall, which curves progressively outwards
       (x = 81.2 + 2 (y/79)^2), y up to 80; round columns r = 0.25 m on the left wall every
       8 m (y = 10 .. 74): landmarks, not places (no label: "none").
@@ -30,7 +31,8 @@ building (Rawseeds Bicocca-like), a ring of 2 m corridors around a 38 x 22 m blo
       tables ("hall"); east corridor (x = 40): a stairwell opening 3 m wide with a railing of
       balusters, one flight up, one down ("stairs"); north corridor (y = 24): windows in the
       outer wall, 1.5 m panes ("window"); west corridor (x = 0): three open doors into rooms
-      ("door"); the ring's corners ("corner"); elsewhere "corridor".
+      ("door"); the ring's corners ("corner", from 0.5 m before each crossing until the
+      laser leaves it); elsewhere "corridor".
     The path loops once round the ring and on into the hall again (144 m, loop closure),
     4000 scans at 0.6 m/s, turning at 0.3 rad/s (the median speed and a brisk turn of the real
     Bicocca ground truth, ../shared/data/real/rawseeds_bicocca_groundtruth): about 15 Hz.
@@ -154,7 +156,7 @@ def corridor() -> Scenario:
 
     # zones hold the laser while the feature is in its view, beside it: from a little before
     # the feature until its far end passes the scan plane (beams at -90..90° see nothing behind)
-    zones = [Zone("corner", 78.0, -2.0, 82.0, 2.0)]
+    zones = [corner_zone((80.0, 0.0), w, (1.0, 0.0), lead=0.8)]
     zones += [Zone("window_a", 2.5, -w, 10.0, w)]
     zones += [Zone("window_b", 33.5, -w, 45.8, w)]
     zones += [Zone("door", d - 0.9, -w, d + 0.3, w) for d in doors_a]
@@ -203,7 +205,9 @@ def building() -> Scenario:
     )
     b.polyline([(1.0, 1.0), (39.0, 1.0), (39.0, 23.0), (1.0, 23.0), (1.0, 1.0)])  # inner block
 
-    zones = [Zone("corner", cx - 1.5, cy - 1.5, cx + 1.5, cy + 1.5) for cx, cy in _ring()]
+    # driving round the ring: north into (0, 0), east into (40, 0), and so on
+    arrivals = [(0.0, -1.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0)]
+    zones = [corner_zone(c, 1.0, a, lead=0.5) for c, a in zip(_ring(), arrivals, strict=True)]
     zones += [Zone("hall", hall_x0 - 0.5, -1.0, hall_x1 - 0.2, 1.0)]  # driving +x
     zones += [Zone("stairs", 39.0, 7.5, 41.0, 10.8)]  # driving +y
     zones += [Zone("window", 8.2, 23.0, 32.0, 25.0)]  # driving -x
@@ -220,6 +224,19 @@ def building() -> Scenario:
         sections=0,
         laser={"mount_x": 0.08, "mount_z": 0.45},
     )
+
+
+def corner_zone(
+    centre: tuple[float, float], half_width: float, arriving: tuple[float, float], lead: float
+) -> Zone:
+    """The corner as a place: the laser within the crossing of two corridors (a square of
+    `half_width` round `centre`), and `lead` metres before it on the side the robot arrives
+    from. It ends where the crossing's far side passes the scan plane on the way out, as
+    every zone does: a metre further on the robot is in the next corridor and sees only it."""
+    (cx, cy), (ax, ay) = centre, arriving
+    x0, x1 = cx - half_width - lead * (ax > 0), cx + half_width + lead * (ax < 0)
+    y0, y1 = cy - half_width - lead * (ay > 0), cy + half_width + lead * (ay < 0)
+    return Zone("corner", x0, y0, x1, y1)
 
 
 def _ring() -> list[tuple[float, float]]:
