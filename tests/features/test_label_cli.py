@@ -97,6 +97,26 @@ def test_surroundings_find_the_plain_corridor_calibrated(
     assert code == 1 and "--none-model 'nothing'" in err
 
 
+def test_lateral_beams_place_the_robot_by_what_is_beside_it(
+    sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
+) -> None:
+    """--lateral 1: beams weighted by |sin(bearing)|, so a doorway or a window ahead no longer
+    claims the corridor before the robot is beside it; better than the surroundings alone."""
+    data, _ = sim_dirs
+    around, lateral = (
+        learn(cli, data, tmp_path / name, "--none-model", "surroundings", *extra)["truth"]
+        for name, extra in (("around", ()), ("lateral", ("--lateral", 1)))
+    )
+    assert lateral["balanced_accuracy"] > around["balanced_accuracy"] + 0.005
+    assert lateral["recall"]["window_a"] > around["recall"]["window_a"]
+    assert lateral["ece"] <= 0.06
+    saved = json.loads((tmp_path / "lateral" / "model.json").read_text())["config"]
+    assert saved["lateral_weight"] == 1.0
+    code, _, err = cli("label", data, "--regions", data / "regions.csv", "--out",
+                       tmp_path / "bad", "--lateral", -1)  # fmt: skip
+    assert code == 1 and "--lateral -1.0" in err and not (tmp_path / "bad").exists()
+
+
 def test_saved_model_applies_to_another_log(
     sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
 ) -> None:

@@ -14,7 +14,9 @@ from tests.features.world import LASER, cast, drive
 from toolkit.errors import ToolkitError
 from toolkit.features import PAPER, Config, FeatureModel, classify, fit, loglik
 from toolkit.features.classify import (
+    background_loglik,
     beam_terms,
+    beam_weights,
     feature_loglik,
     fit_temperature,
     robust_loglik,
@@ -42,9 +44,11 @@ def world() -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
 
 
 def reference_loglik(model: FeatureModel, ranges: np.ndarray) -> np.ndarray:
-    """Per feature, the sum over beams of each beam's term: the unvectorized definition."""
+    """Per feature, the (weighted) sum over beams of each beam's term: the unvectorized
+    definition."""
+    weight = beam_weights(model)
     cols = [
-        beam_terms(ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model).sum(axis=1)
+        beam_terms(ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model) @ weight
         for k in range(len(model.features))
     ]  # fmt: skip
     return np.column_stack(cols)
@@ -52,7 +56,12 @@ def reference_loglik(model: FeatureModel, ranges: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize(
     "config",
-    [PAPER, dataclasses.replace(PAPER, no_return=True), dataclasses.replace(Config(), robust=0.0)],
+    [
+        PAPER,
+        dataclasses.replace(PAPER, no_return=True),
+        dataclasses.replace(Config(), robust=0.0),
+        dataclasses.replace(Config(), robust=0.0, lateral_weight=1.0),
+    ],
 )
 def test_matrix_product_equals_the_per_beam_sum(world, config: Config) -> None:  # type: ignore[no-untyped-def]
     ranges, _, _, training = world
@@ -63,23 +72,35 @@ def test_matrix_product_equals_the_per_beam_sum(world, config: Config) -> None: 
     assert np.max(np.abs(fast - ref) / scale) < 1e-9
 
 
-@pytest.mark.parametrize("strict", [False, True])
-def test_robust_kernel_equals_the_mixture_per_beam(world, strict: bool) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize(("strict", "lateral"), [(False, 0.0), (True, 0.0), (True, 1.0)])
+def test_robust_kernel_equals_the_mixture_per_beam(world, strict: bool, lateral: float) -> None:  # type: ignore[no-untyped-def]
     ranges, _, _, training = world
-    config = Config(strict_returns=strict, none_model="surroundings")
+    config = Config(strict_returns=strict, none_model="surroundings", lateral_weight=lateral)
     model = fit(ranges, LASER, training, config)
     ll, bg, around = robust_loglik(model, ranges)
-    bg_terms = world_terms(ranges.astype(np.float64), model)
+    weight = beam_weights(model)
+    assert (weight == 1.0).all() if not lateral else weight.min() < 0.05 < 0.99 < weight.max()
+    bg_terms = world_terms(ranges.astype(np.float64), model) * weight
     assert np.allclose(bg, bg_terms.sum(axis=1), atol=1e-6)
     common = commonness(model)
     for k in range(len(model.features)):
-        ratio = beam_terms(
-            ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model
+        ratio = (
+            beam_terms(
+                ranges.astype(np.float64), model.mean[k], model.var[k], model.p_return[k], model
+            )
+            * weight
         )
         assert np.allclose(ll[:, k], (ratio + bg_terms).sum(axis=1), atol=1e-3)
         # the surroundings: the feature's own terms on common beams, the world's elsewhere
         surroundings = (common[k] * ratio + bg_terms).sum(axis=1)
         assert np.allclose(around[:, k], surroundings, atol=1e-3)
+
+
+def test_lateral_weights_scale_the_backgrounds_beams(world) -> None:  # type: ignore[no-untyped-def]
+    ranges, _, _, training = world
+    model = fit(ranges, LASER, training, Config(robust=0.0, lateral_weight=2.0))
+    expected = world_terms(ranges.astype(np.float64), model) @ beam_weights(model)
+    assert np.allclose(background_loglik(model, ranges, chunk=64), expected, atol=1e-6)
 
 
 def test_commonness_tells_distinctive_beams_from_ordinary_ones() -> None:

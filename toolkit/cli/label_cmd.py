@@ -52,6 +52,15 @@ def label_command(
             "(a --model keeps its own)",
         ),
     ] = None,
+    lateral: Annotated[
+        float | None,
+        typer.Option(
+            "--lateral",
+            help="weight each beam by |sin(bearing)|^K (default 0: all beams alike), so that "
+            "what is beside the robot decides its place, not what it drives towards; when "
+            "learning",
+        ),
+    ] = None,
     none_model: Annotated[
         str,
         typer.Option(
@@ -94,6 +103,10 @@ def label_command(
         if evidence_length < 0:
             raise ToolkitError(f"--evidence-length {evidence_length}: a distance >= 0 (m)")
         config = replace(config or base, evidence_length=evidence_length or None)
+    if lateral is not None:
+        if not 0.0 <= lateral <= 8.0:
+            raise ToolkitError(f"--lateral {lateral}: an exponent in [0, 8]")
+        config = replace(config or base, lateral_weight=lateral)
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)

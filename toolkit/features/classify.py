@@ -85,10 +85,11 @@ def _weights(model: FeatureModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if cfg.no_return:
         p = np.clip(p, 1e-9, 1 - 1e-9)
         c = c + np.log(p) - np.log1p(-p)
-        bias = np.log1p(-p).sum(axis=1)
+        bias = (np.log1p(-p) * beam_weights(model)).sum(axis=1)
     else:
         bias = np.zeros(len(model.features))
-    w = np.concatenate([a, b, c], axis=1).T  # (3B, F)
+    weight = beam_weights(model)
+    w = np.concatenate([a * weight, b * weight, c * weight], axis=1).T  # (3B, F)
     return centre, np.ascontiguousarray(w), bias
 
 
@@ -126,13 +127,14 @@ def background_loglik(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUN
     table = bg.log_density.reshape(-1)
     offsets = np.arange(nb) * k
     q = np.clip(bg.p_return, 1e-9, 1 - 1e-9)
-    ret_w, miss = np.log(q) - np.log1p(-q), np.log1p(-q).sum()
+    weight = beam_weights(model)
+    ret_w, miss = np.log(q) - np.log1p(-q), (np.log1p(-q) * weight).sum()
     out = np.empty(s, dtype=np.float64)
     for i in range(0, s, chunk):
         block = ranges[i : i + chunk]
         ok = np.isfinite(block)
         dens = table[background_bins(block, bg.edges) + offsets]
-        out[i : i + len(block)] = np.where(ok, dens + ret_w, 0.0).sum(axis=1) + miss
+        out[i : i + len(block)] = np.where(ok, dens + ret_w, 0.0) @ weight + miss
     return out
 
 
@@ -169,6 +171,7 @@ def _robust_kernel(  # pragma: no cover - numba
     mix_hit: np.ndarray,
     miss_eps: float,
     common: np.ndarray,
+    weight: np.ndarray,
     out: np.ndarray,
     bg_out: np.ndarray,
     none_out: np.ndarray,
@@ -190,15 +193,15 @@ def _robust_kernel(  # pragma: no cover - numba
                 for f in range(nf):
                     d = r - mean[b, f]
                     term = _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], mix) + ret[b, f]
-                    out[s, f] += term
-                    none_out[s, f] += common[b, f] * (term - world)
+                    out[s, f] += weight[b] * term
+                    none_out[s, f] += weight[b] * common[b, f] * (term - world)
             else:
                 world = bg_miss[b]
                 for f in range(nf):
                     term = _logaddexp(miss[b, f], world + miss_eps)
-                    out[s, f] += term
-                    none_out[s, f] += common[b, f] * (term - world)
-            bg_sum += world
+                    out[s, f] += weight[b] * term
+                    none_out[s, f] += weight[b] * common[b, f] * (term - world)
+            bg_sum += weight[b] * world
         bg_out[s] = bg_sum
         for f in range(nf):
             none_out[s, f] += bg_sum
@@ -258,11 +261,23 @@ def robust_loglik(
         np.zeros_like(q) if strict else np.log(q),
         -np.inf if strict else float(np.log(model.config.robust)),
         np.ascontiguousarray(common.T),
+        beam_weights(model),
         out,
         bg_out,
         none_out,
     )
     return out, bg_out, none_out
+
+
+def beam_weights(model: FeatureModel) -> np.ndarray:
+    """Per beam, the weight of its term in the summed log-likelihood (B,): 1, or with
+    `lateral_weight` k, |sin(bearing)|^k, so that what is beside the robot counts and what
+    lies ahead counts less (a place is where the robot is, not what it drives towards)."""
+    k = model.config.lateral_weight
+    if not k:
+        return np.ones(model.laser.beams)
+    bearing = model.laser.angles + model.laser.yaw  # in the robot's frame
+    return np.abs(np.sin(bearing)) ** k
 
 
 def loglik(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
@@ -380,7 +395,7 @@ def held_out_terms(
             rest = np.delete(scans, j, axis=0)
             mean, var, p = beam_statistics(rest, model.laser, model.config)
             terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
-        held[k] = terms
+        held[k] = terms * beam_weights(model)
     return held
 
 

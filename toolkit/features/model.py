@@ -34,6 +34,10 @@ What the paper leaves open, and is decided here (each switchable, for the ablati
   it is scaled by a factor fitted by leave-one-out on the training scans (see classify.py).
 - smoothing along the path (Eq. 7): an HMM over places, forward only (streaming: the map so
   far) or forward-backward (offline: a whole log, each scan also judged by the ones after).
+- lateral beams (`lateral_weight`): a place is where the robot is, beside it, and the beams
+  that look ahead see the next place a metre or more before the robot is in it; weighting
+  each beam's term by |sin(bearing)|^k lets the sides decide. Weighted terms are a weighted
+  composite likelihood, tempered the same way (the leave-one-out terms carry the weights).
 - evidence length: scans a few centimetres apart see nearly the same thing, so the HMM would
   count one view many times; with `evidence_length` each scan's tempered log-likelihood is
   scaled by the distance travelled since the previous scan over this length (one scan's
@@ -76,6 +80,7 @@ class Config:
     smoothing: str = "forward-backward"  # Eq. 7 offline; "forward": causal (streaming); "none"
     place_length: float = 1.0  # m travelled per expected change of place (HMM switching)
     evidence_length: float | None = 0.5  # m: in the HMM, one scan's evidence per this distance
+    lateral_weight: float = 0.0  # beams weighted by |sin(bearing)|^this (0: all alike)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
 
     def to_dict(self) -> dict[str, Any]:
