@@ -1,6 +1,8 @@
 """Scoring on the simulator's labelled logs, and the ablation table: the paper's literal
 per-scan model, then each improvement added in turn, every row measured the same way
-(train on the simulator's 10-scan regions, score all other scans against the true labels).
+(train on the simulator's regions: 10 scans per feature, 5 where the place begins and 5
+where it ends; score all other scans against the true labels). A last row scores the best
+option on the older protocol, one 10-scan burst at each place's middle.
 
     python -m toolkit.features.evaluate [--seed N [N ...]] [--recall] [--out table.md]
 """
@@ -25,11 +27,13 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
 from toolkit.features.regions import spans_from_frame, training_indices
+from toolkit.sim.truth import REGION_PARTS, training_regions
 
 # The ablation: each row adds one decision to the one before; the default row is Config().
 FULL = Config()
 STREAM = dataclasses.replace(FULL, smoothing="forward", evidence_length=None)
 AROUND = dataclasses.replace(FULL, none_model="surroundings")
+LATERAL = dataclasses.replace(SURROUNDINGS, lateral_weight=1.0)
 ABLATION: list[tuple[str, Config]] = [
     ("paper: per-scan Gaussian, Eq. 8-9 literal", PAPER),
     ("+ no-return as a Bernoulli per beam", dataclasses.replace(PAPER, no_return=True)),
@@ -44,9 +48,12 @@ ABLATION: list[tuple[str, Config]] = [
     ("option: + none = the features' surroundings", AROUND),
     ("option: + strict returns", dataclasses.replace(AROUND, strict_returns=True)),
     ("option: + evidence length 0.15 m (--none-model surroundings)", SURROUNDINGS),
+    ("option: + lateral beams, |sin(bearing)| (--lateral 1)", LATERAL),
     ("alternative: forward filter with evidence length 0.5 m", dataclasses.replace(FULL, smoothing="forward")),
     ("alternative: strict returns alone", dataclasses.replace(FULL, strict_returns=True)),
+    ("alternative: default + lateral beams", dataclasses.replace(FULL, lateral_weight=1.0)),
 ]  # fmt: skip
+BURST = "protocol: the lateral option, taught by one 10-scan burst per feature"
 DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
 
 
@@ -61,14 +68,18 @@ class Score:
     seconds: float
 
 
-def score(scenario: str, config: Config, seed: int = 0, sim: Any = None) -> Score:
-    """Train on the simulator's regions, classify the whole log, score the other scans."""
+def score(
+    scenario: str, config: Config, seed: int = 0, sim: Any = None, parts: int = REGION_PARTS
+) -> Score:
+    """Train on the simulator's regions (`parts` spans per feature), classify the whole log,
+    score the other scans."""
     if sim is None:
         from toolkit.sim import simulate
 
         sim = simulate(scenario, seed=seed)
     ds = sim.dataset
-    spans = spans_from_frame(sim.regions, ds.t)
+    regions = training_regions(ds.t, sim.labels, parts=parts)
+    spans = spans_from_frame(regions, ds.t)
     training = training_indices(spans)
     t0 = time.perf_counter()
     model = fit(ds.ranges, ds.laser, training, config, spans)
@@ -99,11 +110,11 @@ def ablation(
     seeds = (seed,) if isinstance(seed, int) else tuple(seed)
     sims = {(s, k): simulate(s, seed=k) for s in scenarios for k in seeds}
     rows = []
-    for name, config in ABLATION:
+    for name, config, parts in [*((n, c, REGION_PARTS) for n, c in ABLATION), (BURST, LATERAL, 1)]:
         row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
         for s in scenarios:
             for k in seeds:
-                r = score(s, config, k, sims[s, k])
+                r = score(s, config, k, sims[s, k], parts)
                 tag = s if len(seeds) == 1 else f"{s} s{k}"
                 row[f"{tag} BA"] = round(r.balanced_accuracy, 3)
                 row[f"{tag} ECE"] = round(r.ece, 3)
@@ -111,16 +122,23 @@ def ablation(
     return pd.DataFrame(rows)
 
 
+RECALL_ROWS = {"default": FULL, "--none-model surroundings": SURROUNDINGS, "--lateral 1": LATERAL}
+
+
 def recall_table(
-    config: Config | None = None,
+    configs: dict[str, Config] | None = None,
     seed: int = 0,
     scenarios: tuple[str, ...] = ("corridor", "building"),
 ) -> pd.DataFrame:
-    """Recall per true class of one configuration (the default), one row per scenario."""
+    """Recall per true class, one row per scenario and configuration (by default the
+    default, the surroundings option and the lateral option)."""
     rows = []
     for s in scenarios:
-        r = score(s, config or FULL, seed)
-        rows.append({"scenario": s, **{k: round(v, 3) for k, v in r.recall.items()}})
+        for name, config in (configs or RECALL_ROWS).items():
+            r = score(s, config, seed)
+            rows.append(
+                {"scenario": s, "model": name, **{k: round(v, 3) for k, v in r.recall.items()}}
+            )
     return pd.DataFrame(rows).astype(object).fillna("")
 
 
@@ -139,7 +157,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seed", type=int, nargs="+", default=[0], help="one or more seeds")
     parser.add_argument("--out", type=Path)
-    parser.add_argument("--recall", action="store_true", help="also recall per class (default)")
+    parser.add_argument("--recall", action="store_true", help="also recall per class")
     args = parser.parse_args()
     text = markdown(ablation(tuple(args.seed)))
     if args.recall:
