@@ -186,6 +186,7 @@ def _robust_kernel(  # pragma: no cover - numba
         bg_sum = 0.0
         for b in range(nb):
             r = ranges[s, b]
+            w = weight[b]
             if np.isfinite(r):
                 density = bg_table[b, bin_of[min(max(int(r * bin_scale), 0), last)]]
                 world = density + bg_hit[b]
@@ -193,15 +194,15 @@ def _robust_kernel(  # pragma: no cover - numba
                 for f in range(nf):
                     d = r - mean[b, f]
                     term = _logaddexp(hit[b, f] - 0.5 * d * d * prec[b, f], mix) + ret[b, f]
-                    out[s, f] += weight[b] * term
-                    none_out[s, f] += weight[b] * common[b, f] * (term - world)
+                    out[s, f] += w * term
+                    none_out[s, f] += common[b, f] * (term - world)
             else:
                 world = bg_miss[b]
                 for f in range(nf):
                     term = _logaddexp(miss[b, f], world + miss_eps)
-                    out[s, f] += weight[b] * term
-                    none_out[s, f] += weight[b] * common[b, f] * (term - world)
-            bg_sum += weight[b] * world
+                    out[s, f] += w * term
+                    none_out[s, f] += common[b, f] * (term - world)
+            bg_sum += w * world
         bg_out[s] = bg_sum
         for f in range(nf):
             none_out[s, f] += bg_sum
@@ -245,6 +246,7 @@ def robust_loglik(
     common = (
         commonness(model) if model.config.none_model == "surroundings" else np.zeros(mean.T.shape)
     )
+    weight = beam_weights(model)
     _robust_kernel(
         np.ascontiguousarray(ranges, dtype=np.float32),
         mean,
@@ -260,8 +262,8 @@ def robust_loglik(
         ret,
         np.zeros_like(q) if strict else np.log(q),
         -np.inf if strict else float(np.log(model.config.robust)),
-        np.ascontiguousarray(common.T),
-        beam_weights(model),
+        np.ascontiguousarray(common.T * weight[:, None]),  # weighted here, not per scan
+        weight,
         out,
         bg_out,
         none_out,
