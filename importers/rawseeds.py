@@ -387,6 +387,20 @@ def order_mask(t: np.ndarray, prev: float, nxt: float) -> np.ndarray:
     return keep & (t >= running)
 
 
+def kept_in_order(
+    t: np.ndarray, prev: float, nxt: float, report: ImportReport, prefix: str, path: Path
+) -> np.ndarray:
+    """`order_mask`, with the records it drops counted in the report (the first one named)."""
+    keep = order_mask(t, prev, nxt)
+    if not keep.all():
+        report.drop(
+            prefix + "timestamp out of order",
+            int((~keep).sum()),
+            f"{path.name} t={t[~keep][0]:.6f}",
+        )
+    return keep
+
+
 # ---------------------------------------------------------------- lasers, streamed
 
 
@@ -421,14 +435,7 @@ def stream_laser(
     def hand_over(parsed: Parsed, t: np.ndarray, ok: np.ndarray, nxt: float) -> None:
         nonlocal prev_t, future
         rows = np.flatnonzero(ok)
-        keep = order_mask(t[rows], prev_t, nxt)
-        if not keep.all():
-            report.drop(
-                prefix + "timestamp out of order",
-                int((~keep).sum()),
-                f"{path.name} t={t[rows[~keep][0]]:.6f}",
-            )
-            rows = rows[keep]
+        rows = rows[kept_in_order(t[rows], prev_t, nxt, report, prefix, path)]
         if len(rows):
             prev_t = float(t[rows[-1]])
         result.rows_kept += len(rows)
@@ -563,14 +570,7 @@ def read_pose_stream(
     """t, x, y, theta from the given column indices, records out of time order dropped."""
     rows = read_rows(path, ncols, report, prefix)
     rows = rows[np.isfinite(rows[:, 0])]
-    keep = order_mask(rows[:, 0], -math.inf, math.inf)
-    if not keep.all():
-        report.drop(
-            prefix + "timestamp out of order",
-            int((~keep).sum()),
-            f"{path.name} t={rows[~keep][0, 0]:.6f}",
-        )
-        rows = rows[keep]
+    rows = rows[kept_in_order(rows[:, 0], -math.inf, math.inf, report, prefix, path)]
     return pd.DataFrame(
         {name: rows[:, c] for name, c in zip(("t", "x", "y", "theta"), columns, strict=True)}
     )

@@ -22,6 +22,7 @@ import importers
 from importers.base import ImportOptions
 from importers.carmen import CODE_BAND, Carmen, in_order, longest_in_order
 from tests.conftest import Cli
+from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError
 
@@ -641,11 +642,7 @@ def test_cli_bad_input_is_one_line_and_no_output(
 ) -> None:
     src = tmp_path / "bad.log"
     src.write_text(content)
-    out = tmp_path / "ds"
-    code, _, err = cli("import", "carmen", str(src), "--out", str(out))
-    assert code == 1
-    assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
-    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.log"]
+    assert_bad_input_is_one_line(cli, "carmen", src, tmp_path)
 
 
 def test_cli_subprocess_auto_on_dpslam(real: Path, tmp_path: Path) -> None:

@@ -29,6 +29,7 @@ from importers.lms200 import (
     write,
 )
 from tests.conftest import Cli
+from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError, ToolkitError
 
@@ -445,8 +446,4 @@ def test_cli_bad_input_is_one_line_and_no_output(
 ) -> None:
     src = tmp_path / "bad.lms"
     src.write_bytes(content)
-    out = tmp_path / "ds"
-    code, _, err = cli("import", "lms200", str(src), "--out", str(out))
-    assert code == 1
-    assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
-    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.lms"]
+    assert_bad_input_is_one_line(cli, "lms200", src, tmp_path)

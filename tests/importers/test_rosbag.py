@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import importers
 from importers.base import ImportOptions
 from importers.rosbag.writer import TFMESSAGE, _Messages, _typestore
+from tests.importers.checks import DAMAGES, damaged
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
 
@@ -359,27 +360,18 @@ def clean_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
 )
 @given(
     kind=st.sampled_from(["ros1", "mcap", "db3"]),
-    damage=st.sampled_from(["truncate", "flip", "prefix", "empty", "huge"]),
+    damage=st.sampled_from(DAMAGES),
     where=st.floats(0, 1),
     bit=st.integers(0, 7),
 )
 def test_damaged_bags_give_a_dataset_or_one_clear_error(
     tmp_path: Path, clean_bags: dict[str, bytes], kind: str, damage: str, where: float, bit: int
 ) -> None:
-    data = bytearray(clean_bags[kind])
-    at = min(int(where * len(data)), len(data) - 4)
-    if damage == "truncate":
-        data = data[:at]
-    elif damage == "flip":
-        data[at] ^= 1 << bit
-    elif damage == "prefix":
-        data = bytearray(b"\x00garbage\xff" * (bit + 1)) + data
-    elif damage == "empty":
-        data = bytearray()
-    else:
-        data[at : at + 4] = b"\xff\xff\xff\x7f"
-    path = tmp_path / f"x{hash((damage, at, bit))}.{'bag' if kind == 'ros1' else kind}"
-    path.write_bytes(bytes(data))
+    data = damaged(
+        clean_bags[kind], damage, where, bit, b"\x00garbage\xff", b"\xff\xff\xff\x7f", insert=False
+    )
+    path = tmp_path / f"x{hash((damage, where, bit))}.{'bag' if kind == 'ros1' else kind}"
+    path.write_bytes(data)
     try:
         ds = ROSBAG.read([path], ImportOptions())
     except ToolkitError as e:

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 import importers
 from importers.base import ImportOptions
+from tests.importers.checks import DAMAGES, damaged
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
 
@@ -196,27 +197,24 @@ def clean_table(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(
-    damage=st.sampled_from(["truncate", "flip", "prefix", "empty", "huge"]),
+    damage=st.sampled_from(DAMAGES),
     where=st.floats(0, 1),
     bit=st.integers(0, 7),
 )
 def test_damaged_tables_give_a_dataset_or_one_clear_error(
     tmp_path: Path, clean_table: bytes, damage: str, where: float, bit: int
 ) -> None:
-    data = bytearray(clean_table)
-    at = min(int(where * len(data)), len(data) - 1)
-    if damage == "truncate":
-        data = data[:at]
-    elif damage == "flip":
-        data[at] ^= 1 << bit
-    elif damage == "prefix":
-        data = bytearray(b"\x00\xffgarbage 1 2\n" * (bit + 1)) + data
-    elif damage == "empty":
-        data = bytearray()
-    else:
-        data[at:at] = b" 99999999999999999999999 4294967295e300 "
-    path = tmp_path / f"x{hash((damage, at, bit))}.txt"
-    path.write_bytes(bytes(data))
+    data = damaged(
+        clean_table,
+        damage,
+        where,
+        bit,
+        b"\x00\xffgarbage 1 2\n",
+        b" 99999999999999999999999 4294967295e300 ",
+        insert=True,
+    )
+    path = tmp_path / f"x{hash((damage, where, bit))}.txt"
+    path.write_bytes(data)
     try:
         ds = TABLE.read([path], ImportOptions())
     except ToolkitError as e:

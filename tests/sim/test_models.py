@@ -11,6 +11,7 @@ from toolkit.errors import ToolkitError
 from toolkit.sim import LaserModel, OdometryModel, simulate
 from toolkit.sim.geometry import GLASS, WorldBuilder, cast
 from toolkit.sim.scenarios import sample_path
+from toolkit.sim.truth import runs
 
 NOISELESS: dict[str, Any] = dict(range_sigma=0.0, mixed_prob=0.0, glass_return_prob=0.0)
 
@@ -162,20 +163,10 @@ def test_labels_and_regions_are_consistent(scenario: str) -> None:
         taught.setdefault(row.feature, []).append(inside)
     assert "none" not in taught
     for feature, (early, late) in taught.items():
-        # in the two halves of the same occurrence of the place: one run of its label between
-        between = sim.labels[early[0] : late[-1] + 1]
-        assert (between == feature).all(), feature
-        run = _run_around(sim.labels, early[0])
-        middle = (run[0] + run[1]) / 2
-        assert early.mean() < middle < late.mean()
-
-
-def _run_around(labels: np.ndarray, i: int) -> tuple[int, int]:
-    """First and last index of the run of equal labels holding index i."""
-    same = labels == labels[i]
-    first = i - np.argmin(same[i::-1]) + 1 if not same[: i + 1].all() else 0
-    last = i + np.argmin(same[i:]) - 1 if not same[i:].all() else len(labels) - 1
-    return int(first), int(last)
+        # in the two halves of the same occurrence of the place, its first run of labels
+        first, last = next((a, b) for label, a, b in runs(sim.labels) if label == feature)
+        assert first <= early[0] and late[-1] <= last, feature
+        assert early.mean() < (first + last) / 2 < late.mean()
 
 
 def test_corridor_has_the_papers_sections_and_features() -> None:

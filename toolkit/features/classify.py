@@ -388,6 +388,7 @@ def held_out_terms(
     """Per model row with 3 or more training scans: the per-beam terms (n, B) of each of its
     scans under the row learnt without it (leave-one-out)."""
     held = {}
+    weight = beam_weights(model)
     for k, (_, idx) in enumerate(components):
         if len(idx) < 3:
             continue
@@ -397,7 +398,7 @@ def held_out_terms(
             rest = np.delete(scans, j, axis=0)
             mean, var, p = beam_statistics(rest, model.laser, model.config)
             terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
-        held[k] = terms * beam_weights(model)
+        held[k] = terms * weight
     return held
 
 

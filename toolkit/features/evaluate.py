@@ -132,10 +132,13 @@ def recall_table(
 ) -> pd.DataFrame:
     """Recall per true class, one row per scenario and configuration (by default the
     default, the surroundings option and the lateral option)."""
+    from toolkit.sim import simulate
+
     rows = []
     for s in scenarios:
+        sim = simulate(s, seed=seed)  # once per scenario, for every configuration
         for name, config in (configs or RECALL_ROWS).items():
-            r = score(s, config, seed)
+            r = score(s, config, seed, sim)
             rows.append(
                 {"scenario": s, "model": name, **{k: round(v, 3) for k, v in r.recall.items()}}
             )
