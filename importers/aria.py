@@ -18,7 +18,8 @@ Points become ranges per beam, vectorized over the whole log: the point minus th
 mounting position, projected on the beam's direction in the robot frame (beam angle from
 ``sick1conf`` plus the mounting yaw). Readings at or beyond ``range_max`` (``-O range_max=``,
 default 81.91 m, the LMS-200's largest) become NaN. Damaged lines (wrong value count,
-non-numbers) are dropped and counted in the import report; a file that is not an ARIA log,
+non-numbers, a last laser line without its line end: the write was cut) are dropped and
+counted in the import report; a file that is not an ARIA log,
 or has no scan, is a FormatError.
 """
 
@@ -220,7 +221,10 @@ def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]]
             report.drop("line without 'tag:'", where=f"line {number}")
             continue
         tag, rest = match.group(1), match.group(2)
-        if tag in LASER_TAGS:
+        if tag in LASER_TAGS and not line.endswith("\n"):  # the log's last write, cut short
+            report.records_read += 1
+            report.drop("truncated last line", where=f"line {number}")
+        elif tag in LASER_TAGS:
             report.records_read += 1
             if beams is None:
                 beams = _beams_from_header(header, tag, rest, path, number)

@@ -21,6 +21,7 @@ import importers
 from importers.aria import Aria, write
 from importers.base import ImportOptions
 from tests.conftest import Cli
+from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError, ToolkitError
 
@@ -331,6 +332,18 @@ def test_damaged_input_never_crashes_and_damage_stays_local(
     assert int(same.any(1).sum()) >= back.n_scans - may_alter
 
 
+def test_a_last_line_cut_mid_number_is_dropped_and_counted(tmp_path: Path) -> None:
+    """A log cut inside its last reading still parses (the number is only shorter): the line
+    without its line end is the cut write, and it is dropped, not kept with a wrong range."""
+    data, rows = _sample()
+    path = tmp_path / "cut.2d"
+    path.write_bytes(data[: len(data) - 3])
+    back = _read(path)
+    assert back.n_scans == len(rows) - 1
+    np.testing.assert_allclose(back.ranges, rows[:-1], atol=1e-3)
+    assert back.meta["import_report"]["dropped"] == {"truncated last line": 1}
+
+
 def test_fatal_input_leaves_no_partial_dataset(tmp_path: Path) -> None:
     path = tmp_path / "bad.2d"
     path.write_text("LaserOdometryLog\nversion: 4\n")
@@ -380,8 +393,4 @@ def test_cli_bad_input_is_one_line_and_no_output(
 ) -> None:
     src = tmp_path / "bad.2d"
     src.write_text(content)
-    out = tmp_path / "ds"
-    code, _, err = cli("import", "aria", str(src), "--out", str(out))
-    assert code == 1
-    assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and str(src) in err
-    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bad.2d"]
+    assert_bad_input_is_one_line(cli, "aria", src, tmp_path)
