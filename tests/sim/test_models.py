@@ -11,7 +11,7 @@ from toolkit.errors import ToolkitError
 from toolkit.sim import LaserModel, OdometryModel, simulate
 from toolkit.sim.geometry import GLASS, WorldBuilder, cast
 from toolkit.sim.scenarios import sample_path
-from toolkit.sim.truth import runs
+from toolkit.sim.truth import distance_driven, runs, training_regions
 
 NOISELESS: dict[str, Any] = dict(range_sigma=0.0, mixed_prob=0.0, glass_return_prob=0.0)
 
@@ -166,7 +166,29 @@ def test_labels_and_regions_are_consistent(scenario: str) -> None:
         # in the two halves of the same occurrence of the place, its first run of labels
         first, last = next((a, b) for label, a, b in runs(sim.labels) if label == feature)
         assert first <= early[0] and late[-1] <= last, feature
-        assert early.mean() < (first + last) / 2 < late.mean()
+        # a quarter and three quarters of the way by distance driven, not by scan count
+        gt = sim.dataset.groundtruth
+        way = distance_driven(gt)[first : last + 1] - distance_driven(gt)[first]
+        step = np.diff(way).max()
+        for span, share in ((early, 0.25), (late, 0.75)):
+            assert abs(way[span[2] - first] - share * way[-1]) <= step + 1e-9, feature
+        if feature == "corner":  # the robot turns on the spot between them: arriving, leaving
+            theta = gt.theta.to_numpy()
+            turned = np.remainder(theta[late[2]] - theta[early[2]] + np.pi, 2 * np.pi) - np.pi
+            assert abs(abs(turned) - np.pi / 2) < 0.05
+
+
+def test_regions_standing_still_fall_back_to_scan_order() -> None:
+    t = np.arange(40.0)
+    labels = np.array(["a"] * 40)
+    by_scan = training_regions(t, labels)
+    still = training_regions(t, labels, along=np.zeros(40))
+    moving = training_regions(t, labels, along=np.arange(40.0) ** 2)  # speeding up
+    assert by_scan.equals(still) and by_scan[["start", "end"]].values.tolist() == [
+        [8, 12],
+        [28, 32],
+    ]
+    assert moving[["start", "end"]].values.tolist() == [[18, 22], [32, 36]]  # sqrt(1/4, 3/4)*39
 
 
 def test_corridor_has_the_papers_sections_and_features() -> None:

@@ -29,8 +29,8 @@ from toolkit.sim.geometry import World
 from toolkit.sim.laser import LaserModel
 from toolkit.sim.odometry import OdometryModel
 from toolkit.sim.scenarios import SCENARIOS, Scenario, sample_path
+from toolkit.sim.truth import distance_driven, training_regions
 from toolkit.sim.truth import sections as _sections
-from toolkit.sim.truth import training_regions
 
 __all__ = [
     "SCENARIOS",
@@ -73,7 +73,7 @@ class Simulation:
             self,
             dataset=cut,
             labels=self.labels[:n],
-            regions=training_regions(t, self.labels[:n]),
+            regions=training_regions(t, self.labels[:n], along=distance_driven(cut.groundtruth)),
             sections=self.sections[:n],
             params={**self.params, "head": n},
         )
@@ -130,7 +130,7 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
     odo = odometry.integrate(truth, rng)
     labels = scn.labels(laser.origins(truth)[0])  # what the scanner has beside it
-    regions = training_regions(t, labels, skip=("none",))
+    regions = training_regions(t, labels, along=distance_driven(truth))
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
         **laser.to_dict(),

@@ -2,13 +2,18 @@
 
 A feature is taught by `REGION_SCANS` scans of its first occurrence (its first run of labels
 long enough to hold them), in `REGION_PARTS` spans of consecutive scans centred at equal
-steps along it: with two, one in the half where the place begins and one where it ends. A
-place looks different from its two ends (a doorway ahead, then beside; a corner arrived at,
-then turned), and ten scans in one burst at its middle, 0.4 m of path, show neither.
+steps of the distance driven through it: with two, a quarter and three quarters of the way,
+one where the place begins and one where it ends. A place looks different from its two ends
+(a doorway ahead, then beside; a corner arrived at, then left), and ten scans in one burst
+at its middle, 0.4 m of path, show neither. Steps are in metres driven, not in scans, as a
+user picks them on the map: in a corner the robot turns on the spot for half its scans, and
+by scan count both spans would fall in the crossing, none on the way in or out.
 `regions.csv` gives the spans by timestamp, inclusive, a row each.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -28,25 +33,39 @@ def runs(labels: np.ndarray) -> list[tuple[str, int, int]]:
     return [(str(labels[s]), int(s), int(e)) for s, e in zip(starts, ends, strict=True)]
 
 
+def distance_driven(poses: Any) -> np.ndarray:
+    """Per scan, the distance (m) the robot has driven since the first scan (turning on the
+    spot adds none), from poses whose first two columns are x, y (an array or a frame)."""
+    xy = np.asarray(poses[["x", "y"]] if isinstance(poses, pd.DataFrame) else poses)[:, :2]
+    step = np.hypot(*np.diff(xy.astype(np.float64), axis=0).T)
+    return np.concatenate([[0.0], np.cumsum(step)])
+
+
 def training_regions(
     t: np.ndarray,
     labels: np.ndarray,
     skip: tuple[str, ...] = ("none",),
     n: int = REGION_SCANS,
     parts: int = REGION_PARTS,
+    along: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """`n` training scans per label (except `skip`) in `parts` spans: feature, start, end."""
+    """`n` training scans per label (except `skip`) in `parts` spans: feature, start, end.
+    The spans are centred at equal steps of `along` (per scan, e.g. `distance_driven`; by
+    default the scan index)."""
+    along = np.arange(len(t), dtype=np.float64) if along is None else np.asarray(along)
     rows = []
     seen: set[str] = set()
     for label, first, last in runs(labels):
         if label in seen or label in skip or last - first + 1 < n:
             continue
         seen.add(label)
-        length = last - first + 1
+        way = along[first : last + 1] - along[first]
+        if not way[-1] > 0:  # standing still all along: by scan
+            way = np.arange(last - first + 1, dtype=np.float64)
         sizes = np.full(parts, n // parts) + (np.arange(parts) < n % parts)
         for k, size in enumerate(sizes):
-            start = first + (2 * k + 1) * length // (2 * parts) - size // 2
-            start = int(np.clip(start, first, last + 1 - size))
+            centre = first + int(np.searchsorted(way, (2 * k + 1) * way[-1] / (2 * parts)))
+            start = int(np.clip(centre - size // 2, first, last + 1 - size))
             rows.append((label, float(t[start]), float(t[start + size - 1])))
     return pd.DataFrame(rows, columns=["feature", "start", "end"])
 
