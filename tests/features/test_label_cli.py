@@ -100,18 +100,19 @@ def test_surroundings_find_the_plain_corridor_calibrated(
 def test_lateral_beams_place_the_robot_by_what_is_beside_it(
     sim_dirs: tuple[Path, Path], tmp_path: Path, cli: Cli
 ) -> None:
-    """--lateral 1: beams weighted by |sin(bearing)|, so a doorway or a window ahead no longer
-    claims the corridor before the robot is beside it; better than the surroundings alone."""
+    """--lateral 2: beams weighted by |sin(bearing)|^2, so a doorway or a window ahead no
+    longer claims the corridor before the robot is beside it; better than the surroundings
+    alone, and within the issue's targets (balanced accuracy 0.95, ECE 0.05)."""
     data, _ = sim_dirs
     around, lateral = (
         learn(cli, data, tmp_path / name, "--none-model", "surroundings", *extra)["truth"]
-        for name, extra in (("around", ()), ("lateral", ("--lateral", 1)))
+        for name, extra in (("around", ()), ("lateral", ("--lateral", 2)))
     )
-    assert lateral["balanced_accuracy"] > around["balanced_accuracy"] + 0.005
+    assert lateral["balanced_accuracy"] > around["balanced_accuracy"] + 0.01
     assert lateral["recall"]["window_a"] > around["recall"]["window_a"]
-    assert lateral["ece"] <= 0.06
+    assert lateral["balanced_accuracy"] >= 0.95 and lateral["ece"] <= 0.05
     saved = json.loads((tmp_path / "lateral" / "model.json").read_text())["config"]
-    assert saved["lateral_weight"] == 1.0
+    assert saved["lateral_weight"] == 2.0
     code, _, err = cli("label", data, "--regions", data / "regions.csv", "--out",
                        tmp_path / "bad", "--lateral", -1)  # fmt: skip
     assert code == 1 and "--lateral -1.0" in err and not (tmp_path / "bad").exists()

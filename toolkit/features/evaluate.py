@@ -27,13 +27,14 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
 from toolkit.features.regions import spans_from_frame, training_indices
-from toolkit.sim.truth import REGION_PARTS, training_regions
+from toolkit.sim.truth import REGION_PARTS, distance_driven, training_regions
 
 # The ablation: each row adds one decision to the one before; the default row is Config().
 FULL = Config()
 STREAM = dataclasses.replace(FULL, smoothing="forward", evidence_length=None)
 AROUND = dataclasses.replace(FULL, none_model="surroundings")
 LATERAL = dataclasses.replace(SURROUNDINGS, lateral_weight=1.0)
+LATERAL2 = dataclasses.replace(SURROUNDINGS, lateral_weight=2.0)
 ABLATION: list[tuple[str, Config]] = [
     ("paper: per-scan Gaussian, Eq. 8-9 literal", PAPER),
     ("+ no-return as a Bernoulli per beam", dataclasses.replace(PAPER, no_return=True)),
@@ -49,11 +50,12 @@ ABLATION: list[tuple[str, Config]] = [
     ("option: + strict returns", dataclasses.replace(AROUND, strict_returns=True)),
     ("option: + evidence length 0.15 m (--none-model surroundings)", SURROUNDINGS),
     ("option: + lateral beams, |sin(bearing)| (--lateral 1)", LATERAL),
+    ("option: lateral beams, |sin(bearing)|^2 (--lateral 2)", LATERAL2),
     ("alternative: forward filter with evidence length 0.5 m", dataclasses.replace(FULL, smoothing="forward")),
     ("alternative: strict returns alone", dataclasses.replace(FULL, strict_returns=True)),
     ("alternative: default + lateral beams", dataclasses.replace(FULL, lateral_weight=1.0)),
 ]  # fmt: skip
-BURST = "protocol: the lateral option, taught by one 10-scan burst per feature"
+BURST = "protocol: --lateral 2, taught by one 10-scan burst per feature"
 DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
 
 
@@ -78,7 +80,7 @@ def score(
 
         sim = simulate(scenario, seed=seed)
     ds = sim.dataset
-    regions = training_regions(ds.t, sim.labels, parts=parts)
+    regions = training_regions(ds.t, sim.labels, parts=parts, along=distance_driven(ds.groundtruth))
     spans = spans_from_frame(regions, ds.t)
     training = training_indices(spans)
     t0 = time.perf_counter()
@@ -110,7 +112,7 @@ def ablation(
     seeds = (seed,) if isinstance(seed, int) else tuple(seed)
     sims = {(s, k): simulate(s, seed=k) for s in scenarios for k in seeds}
     rows = []
-    for name, config, parts in [*((n, c, REGION_PARTS) for n, c in ABLATION), (BURST, LATERAL, 1)]:
+    for name, config, parts in [*((n, c, REGION_PARTS) for n, c in ABLATION), (BURST, LATERAL2, 1)]:
         row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
         for s in scenarios:
             for k in seeds:
@@ -122,7 +124,12 @@ def ablation(
     return pd.DataFrame(rows)
 
 
-RECALL_ROWS = {"default": FULL, "--none-model surroundings": SURROUNDINGS, "--lateral 1": LATERAL}
+RECALL_ROWS = {
+    "default": FULL,
+    "--none-model surroundings": SURROUNDINGS,
+    "--none-model surroundings --lateral 1": LATERAL,
+    "--none-model surroundings --lateral 2": LATERAL2,
+}
 
 
 def recall_table(
