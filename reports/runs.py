@@ -53,9 +53,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
         spans = features.read_regions(source.regions, ds.t)
         truth = truth_labels(source.truth or source.path, ds.t)
     training = features.training_indices(spans)
-    poses = None
-    if ds.odometry is not None and len(ds.odometry) == ds.n_scans:
-        poses = ds.odometry[["x", "y", "theta"]].to_numpy()
+    poses = None if ds.odometry is None else poses_at(ds.odometry, ds.t)  # at the scan times
     t0 = time.perf_counter()
     model = features.fit(ds.ranges, ds.laser, training, features.Config(), spans)
     labels = features.classify(model, ds.ranges, poses)
