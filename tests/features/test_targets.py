@@ -6,15 +6,17 @@ from __future__ import annotations
 
 import pytest
 
-from toolkit.features.evaluate import LATERAL2, score
-from toolkit.features.model import PAPER
+from toolkit.features.evaluate import score
+from toolkit.features.model import PAPER, SURROUNDINGS
 from toolkit.sim import simulate
 
 
 @pytest.mark.parametrize("scenario", ["corridor", "building"])
-def test_surroundings_and_lateral_beams_meet_the_targets(scenario: str) -> None:
+def test_surroundings_meet_the_targets(scenario: str) -> None:
+    """`--none-model surroundings`: the lateral weight its spans choose is 2 (beside the robot)."""
     sim = simulate(scenario, seed=0)
-    ours, paper = (score(scenario, config, sim=sim) for config in (LATERAL2, PAPER))
+    ours, paper = (score(scenario, config, sim=sim) for config in (SURROUNDINGS, PAPER))
+    assert ours.lateral_weight == 2.0
     assert ours.balanced_accuracy >= 0.95 and ours.ece <= 0.05
     assert min(ours.recall.values()) > 0.85  # no place given up for the others
     assert paper.balanced_accuracy < ours.balanced_accuracy - 0.3 and paper.ece > 0.5

@@ -53,12 +53,13 @@ def label_command(
         ),
     ] = None,
     lateral: Annotated[
-        float | None,
+        str | None,
         typer.Option(
             "--lateral",
-            help="weight each beam by |sin(bearing)|^K (default 0: all beams alike), so that "
-            "what is beside the robot decides its place, not what it drives towards; when "
-            "learning",
+            help="weight each beam by |sin(bearing)|^K, so that what is beside the robot "
+            "decides its place, not what it drives towards; 'auto': K of 0, 1 or 2, whichever "
+            "lets each training span, held out, be best predicted by the other spans of its "
+            "feature (default 0; auto with --none-model surroundings); when learning",
         ),
     ] = None,
     none_model: Annotated[
@@ -67,8 +68,8 @@ def label_command(
             "--none-model",
             help="what 'none' is: world (the default: the whole log's per-beam histogram) or "
             "surroundings (each feature's own model where its reading is common in the log, "
-            "the world where it is distinctive; with strict returns and 0.15 m of evidence "
-            "length: calibrated on the simulator, see the README)",
+            "the world where it is distinctive; with strict returns, 0.15 m of evidence "
+            "length and --lateral auto: calibrated on the simulator, see the README)",
         ),
     ] = "world",
     paper: Annotated[
@@ -104,9 +105,7 @@ def label_command(
             raise ToolkitError(f"--evidence-length {evidence_length}: a distance >= 0 (m)")
         config = replace(config or base, evidence_length=evidence_length or None)
     if lateral is not None:
-        if not 0.0 <= lateral <= 8.0:
-            raise ToolkitError(f"--lateral {lateral}: an exponent in [0, 8]")
-        config = replace(config or base, lateral_weight=lateral)
+        config = replace(config or base, lateral_weight=lateral_exponent(lateral))
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
@@ -119,3 +118,18 @@ def label_command(
             f"{t['balanced_accuracy']:.3f}, ECE {t['ece']:.3f}"
         )
     typer.echo(f"wrote {out}/ (labels.parquet, model.json, membership.png, labels-cloud.ply)")
+
+
+def lateral_exponent(text: str) -> float | None:
+    """--lateral: an exponent in [0, 8], or None for 'auto'."""
+    from toolkit.errors import ToolkitError
+
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= 8.0:
+        raise ToolkitError(f"--lateral {text}: an exponent in [0, 8] or auto")
+    return value

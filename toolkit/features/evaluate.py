@@ -33,6 +33,7 @@ from toolkit.sim.truth import REGION_PARTS, distance_driven, training_regions
 FULL = Config()
 STREAM = dataclasses.replace(FULL, smoothing="forward", evidence_length=None)
 AROUND = dataclasses.replace(FULL, none_model="surroundings")
+ALIKE = dataclasses.replace(SURROUNDINGS, lateral_weight=0.0)  # every beam alike
 LATERAL = dataclasses.replace(SURROUNDINGS, lateral_weight=1.0)
 LATERAL2 = dataclasses.replace(SURROUNDINGS, lateral_weight=2.0)
 ABLATION: list[tuple[str, Config]] = [
@@ -48,14 +49,15 @@ ABLATION: list[tuple[str, Config]] = [
     ("+ evidence length 0.5 m", FULL),
     ("option: + none = the features' surroundings", AROUND),
     ("option: + strict returns", dataclasses.replace(AROUND, strict_returns=True)),
-    ("option: + evidence length 0.15 m (--none-model surroundings)", SURROUNDINGS),
+    ("option: + evidence length 0.15 m (--lateral 0)", ALIKE),
     ("option: + lateral beams, |sin(bearing)| (--lateral 1)", LATERAL),
     ("option: lateral beams, |sin(bearing)|^2 (--lateral 2)", LATERAL2),
+    ("option: lateral weight by leave-one-span-out (--none-model surroundings)", SURROUNDINGS),
     ("alternative: forward filter with evidence length 0.5 m", dataclasses.replace(FULL, smoothing="forward")),
     ("alternative: strict returns alone", dataclasses.replace(FULL, strict_returns=True)),
     ("alternative: default + lateral beams", dataclasses.replace(FULL, lateral_weight=1.0)),
 ]  # fmt: skip
-BURST = "protocol: --lateral 2, taught by one 10-scan burst per feature"
+BURST = "protocol: --none-model surroundings, taught by one 10-scan burst per feature"
 DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
 
 
@@ -67,6 +69,7 @@ class Score:
     scans: int
     recall: dict[str, float]
     temperature: float
+    lateral_weight: float
     seconds: float
 
 
@@ -99,6 +102,7 @@ def score(
         scans=int(test.sum()),
         recall=per_class_recall(truth, predicted),
         temperature=model.temperature,
+        lateral_weight=float(model.config.lateral_weight or 0.0),
         seconds=seconds,
     )
 
@@ -112,7 +116,10 @@ def ablation(
     seeds = (seed,) if isinstance(seed, int) else tuple(seed)
     sims = {(s, k): simulate(s, seed=k) for s in scenarios for k in seeds}
     rows = []
-    for name, config, parts in [*((n, c, REGION_PARTS) for n, c in ABLATION), (BURST, LATERAL2, 1)]:
+    for name, config, parts in [
+        *((n, c, REGION_PARTS) for n, c in ABLATION),
+        (BURST, SURROUNDINGS, 1),
+    ]:
         row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
         for s in scenarios:
             for k in seeds:
@@ -126,9 +133,9 @@ def ablation(
 
 RECALL_ROWS = {
     "default": FULL,
-    "--none-model surroundings": SURROUNDINGS,
+    "--none-model surroundings --lateral 0": ALIKE,
     "--none-model surroundings --lateral 1": LATERAL,
-    "--none-model surroundings --lateral 2": LATERAL2,
+    "--none-model surroundings (lateral auto)": SURROUNDINGS,
 }
 
 

@@ -38,6 +38,11 @@ What the paper leaves open, and is decided here (each switchable, for the ablati
   that look ahead see the next place a metre or more before the robot is in it; weighting
   each beam's term by |sin(bearing)|^k lets the sides decide. Weighted terms are a weighted
   composite likelihood, tempered the same way (the leave-one-out terms carry the weights).
+  Whether that holds depends on the places: a door in a corridor is beside the robot, but a
+  corridor told from a room is told by its long view ahead. With `lateral_weight=None` (in
+  `SURROUNDINGS`) k is chosen among `LATERAL_CHOICES` by leave-one-span-out on the training
+  spans themselves (`choose_lateral`): the k under which each span, held out, is best
+  predicted by the feature's other spans.
 - evidence length: scans a few centimetres apart see nearly the same thing, so the HMM would
   count one view many times; with `evidence_length` each scan's tempered log-likelihood is
   scaled by the distance travelled since the previous scan over this length (one scan's
@@ -80,7 +85,8 @@ class Config:
     smoothing: str = "forward-backward"  # Eq. 7 offline; "forward": causal (streaming); "none"
     place_length: float = 1.0  # m travelled per expected change of place (HMM switching)
     evidence_length: float | None = 0.5  # m: in the HMM, one scan's evidence per this distance
-    lateral_weight: float = 0.0  # beams weighted by |sin(bearing)|^this (0: all alike)
+    lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
+    # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
 
     def to_dict(self) -> dict[str, Any]:
@@ -103,7 +109,10 @@ PAPER = Config(
     evidence_length=None,
 )
 # the option that meets the calibration target on the simulator (see the README's ablation)
-SURROUNDINGS = Config(none_model="surroundings", strict_returns=True, evidence_length=0.15)
+SURROUNDINGS = Config(
+    none_model="surroundings", strict_returns=True, evidence_length=0.15, lateral_weight=None
+)
+LATERAL_CHOICES = (0.0, 1.0, 2.0)
 SMOOTHINGS = ("none", "forward", "forward-backward")
 NONE_MODELS = ("surroundings", "world")
 
@@ -376,10 +385,9 @@ def fit(
 ) -> FeatureModel:
     """Learn a model: per feature (or per component: pairs of feature name and scan indices),
     per-beam statistics of its training scans (indices into `ranges`); the background from
-    the whole log; the temperature by leave-one-out. With `spans` (those `training` came
-    from), a feature's separate spans become separate components."""
-    from toolkit.features.classify import fit_none_offset, fit_temperature, held_out_terms
-
+    the whole log; the temperature by leave-one-out; the lateral weight, if the config leaves
+    it open, by leave-one-span-out. With `spans` (those `training` came from), a feature's
+    separate spans become separate components."""
     config = config or Config()
     if not training:
         raise ToolkitError("no features to learn")
@@ -396,6 +404,27 @@ def fit(
             np.array_equal(merged[f], training[f]) for f in merged
         ):
             components = training_components(spans)  # separate spans: separate components
+    background = fit_background(ranges, laser) if config.none_class or config.robust > 0 else None
+    choice: dict[str, Any] = {}
+    if config.lateral_weight is None:
+        config, choice = choose_lateral(ranges, laser, components, config, background)
+    model = _learn(ranges, laser, components, config, background)
+    model.spans = [s.to_dict() for s in spans or []]
+    model.fit_report.update(choice)
+    return model
+
+
+def _learn(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    components: list[tuple[str, np.ndarray]],
+    config: Config,
+    background: Background | None,
+) -> FeatureModel:
+    """The model of these components under this config (the lateral weight fixed), on a
+    background already fitted."""
+    from toolkit.features.classify import fit_none_offset, fit_temperature, held_out_terms
+
     stats = [beam_statistics(ranges[idx], laser, config) for _, idx in components]
     model = FeatureModel(
         features=[name for name, _ in components],
@@ -405,10 +434,7 @@ def fit(
         n_scans=np.array([len(idx) for _, idx in components]),
         laser=laser,
         config=config,
-        background=fit_background(ranges, laser)
-        if config.none_class or config.robust > 0
-        else None,
-        spans=[s.to_dict() for s in spans or []],
+        background=background,
     )
     offset = config.none_class and config.none_model == "surroundings" and config.robust > 0
     if config.temperature not in ("loo", "none"):
@@ -426,6 +452,45 @@ def fit(
             zip(model.features, model.none_offset.round(2).tolist(), strict=True)
         )
     return model
+
+
+def choose_lateral(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    components: list[tuple[str, np.ndarray]],
+    config: Config,
+    background: Background | None,
+) -> tuple[Config, dict[str, Any]]:
+    """The lateral weight among `LATERAL_CHOICES` under which the training spans best predict
+    each other: each span of a feature taught by several is held out, the model is learnt from
+    the others, and the held-out scans' mean log-probability of their own feature (tempered,
+    per scan) is averaged. Only the training spans are used. With no feature taught by two
+    spans or more there is nothing to hold out: 0 (all beams alike)."""
+    from toolkit.features.classify import loglik, per_class, softmax
+
+    names = [name for name, _ in components]
+    held = [k for k, name in enumerate(names) if names.count(name) > 1]
+    if not held:
+        note = "lateral weight 0: no feature has two spans to hold out"
+        return replace(config, lateral_weight=0.0), {"lateral_note": note}
+    scores = {}
+    for weight in LATERAL_CHOICES:
+        trial = replace(config, lateral_weight=weight)
+        logp = []
+        for k in held:
+            name, idx = components[k]
+            model = _learn(ranges, laser, components[:k] + components[k + 1 :], trial, background)
+            prob = softmax(per_class(model, loglik(model, ranges[idx]) * model.temperature))
+            logp.append(np.log(np.maximum(prob[:, model.classes.index(name)], 1e-12)).mean())
+        scores[weight] = float(np.mean(logp))
+    best = max(scores, key=lambda w: scores[w])  # the first of equals: the smaller weight
+    report = {
+        "lateral_method": "leave-one-span-out: mean log-probability of the held-out span's "
+        "own feature",
+        "lateral_scores": {f"{w:g}": round(v, 4) for w, v in scores.items()},
+        "lateral_weight": best,
+    }
+    return replace(config, lateral_weight=best), report
 
 
 def commonness(model: FeatureModel) -> np.ndarray:
