@@ -82,3 +82,16 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     assert labels.loc[corridor, "p_corridor"].mean() > labels.loc[room, "p_corridor"].mean()
     assert labels.loc[room, "p_room"].mean() > labels.loc[corridor, "p_room"].mean()
     assert (run / "membership.png").stat().st_size > 10_000
+
+    # --none-model surroundings lets the spans choose the lateral weight: on this lab, where a
+    # corridor is told from a room by its long view ahead, they keep all beams alike (the
+    # simulator's spans, where places are beside the robot, choose 2: test_targets.py)
+    import toolkit
+    from toolkit.features import fit, read_regions, training_indices
+    from toolkit.features.model import SURROUNDINGS
+
+    ds = toolkit.load(data)
+    spans_ = read_regions(REGIONS, ds.t)
+    chosen = fit(ds.ranges, ds.laser, training_indices(spans_), SURROUNDINGS, spans_)
+    scores = chosen.fit_report["lateral_scores"]
+    assert chosen.config.lateral_weight == 0.0 and scores["0"] > max(scores["1"], scores["2"])
