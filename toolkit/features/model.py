@@ -395,6 +395,8 @@ def fit(
         raise ToolkitError(f"none model {config.none_model!r}: use one of {', '.join(NONE_MODELS)}")
     if config.smoothing not in SMOOTHINGS:
         raise ToolkitError(f"smoothing {config.smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
+    if config.temperature not in ("loo", "none"):
+        raise ToolkitError(f"temperature {config.temperature!r}: use loo or none")
     components = list(training.items()) if isinstance(training, dict) else list(training)
     if spans and isinstance(training, dict):
         from toolkit.features.regions import training_components, training_indices
@@ -437,8 +439,6 @@ def _learn(
         background=background,
     )
     offset = config.none_class and config.none_model == "surroundings" and config.robust > 0
-    if config.temperature not in ("loo", "none"):
-        raise ToolkitError(f"temperature {config.temperature!r}: use loo or none")
     # leave-one-out terms, computed once for both the temperature and the surroundings
     held = (
         held_out_terms(model, ranges, components) if config.temperature == "loo" or offset else {}
