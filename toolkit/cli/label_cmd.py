@@ -56,6 +56,7 @@ def label_command(
         str | None,
         typer.Option(
             "--lateral",
+            metavar="K|auto",
             help="weight each beam by |sin(bearing)|^K, so that what is beside the robot "
             "decides its place, not what it drives towards; 'auto': K of 0, 1 or 2, whichever "
             "lets each training span, held out, be best predicted by the other spans of its "
