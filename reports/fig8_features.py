@@ -16,7 +16,8 @@ import pandas as pd
 
 from reports.base import NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import Context
-from reports.runs import LabelRun, path_distance, poses_at, safe_name, world_points
+from reports.runs import LabelRun, poses_at, safe_name, world_points
+from toolkit.dataset import path_distance
 
 KEY = "features"
 TITLE = "Fig. 8-10: learnt features"

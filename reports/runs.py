@@ -200,12 +200,6 @@ def safe_name(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
 
 
-def path_distance(xy: np.ndarray) -> np.ndarray:
-    """Distance travelled along a path (S x 2) up to each pose, from 0."""
-    steps = np.hypot(*np.diff(np.asarray(xy, dtype=np.float64), axis=0).T)
-    return np.concatenate([[0.0], np.cumsum(np.nan_to_num(steps))])
-
-
 def poses_at(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
     """Poses (S x 3) of a pose table at times `t` (the trajectory module's interpolation)."""
     return np.asarray(require("toolkit.poses", "poses_at").poses_at(frame, t))

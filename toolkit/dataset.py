@@ -317,6 +317,13 @@ def read_poses(path: Path) -> pd.DataFrame | None:
 # ---------------------------------------------------------------- provenance
 
 
+def path_distance(xy: np.ndarray) -> np.ndarray:
+    """Distance travelled along a path (S x 2 positions) up to each pose, from 0 (turning on
+    the spot adds none; a NaN step adds none)."""
+    steps = np.hypot(*np.diff(np.asarray(xy, dtype=np.float64), axis=0).T)
+    return np.concatenate([[0.0], np.cumsum(np.nan_to_num(steps))])
+
+
 def sha256(path: Path, chunk: int = 1 << 22) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:

@@ -11,7 +11,7 @@ from toolkit.errors import ToolkitError
 from toolkit.sim import LaserModel, OdometryModel, simulate
 from toolkit.sim.geometry import GLASS, WorldBuilder, cast
 from toolkit.sim.scenarios import sample_path
-from toolkit.sim.truth import distance_driven, runs, training_regions
+from toolkit.sim.truth import runs, training_regions
 
 NOISELESS: dict[str, Any] = dict(range_sigma=0.0, mixed_prob=0.0, glass_return_prob=0.0)
 
@@ -168,7 +168,8 @@ def test_labels_and_regions_are_consistent(scenario: str) -> None:
         assert first <= early[0] and late[-1] <= last, feature
         # a quarter and three quarters of the way by distance driven, not by scan count
         gt = sim.dataset.groundtruth
-        way = distance_driven(gt)[first : last + 1] - distance_driven(gt)[first]
+        driven = sim.distance()
+        way = driven[first : last + 1] - driven[first]
         step = np.diff(way).max()
         for span, share in ((early, 0.25), (late, 0.75)):
             assert abs(way[span[2] - first] - share * way[-1]) <= step + 1e-9, feature

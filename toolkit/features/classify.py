@@ -81,13 +81,13 @@ def _weights(model: FeatureModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         -np.log(model.laser.range_max),  # never returned in training: any range alike
     )
     c = log_norm - 0.5 * mu * mu * prec
+    weight = beam_weights(model)
     if cfg.no_return:
         p = np.clip(p, 1e-9, 1 - 1e-9)
         c = c + np.log(p) - np.log1p(-p)
-        bias = (np.log1p(-p) * beam_weights(model)).sum(axis=1)
+        bias = (np.log1p(-p) * weight).sum(axis=1)
     else:
         bias = np.zeros(len(model.features))
-    weight = beam_weights(model)
     w = np.concatenate([a * weight, b * weight, c * weight], axis=1).T  # (3B, F)
     return centre, np.ascontiguousarray(w), bias
 
@@ -417,9 +417,9 @@ def held_out_terms(
     model: FeatureModel, ranges: np.ndarray, components: list[tuple[str, np.ndarray]]
 ) -> dict[int, np.ndarray]:
     """Per model row with 3 or more training scans: the per-beam terms (n, B) of each of its
-    scans under the row learnt without it (leave-one-out)."""
+    scans under the row learnt without it (leave-one-out). Unweighted: they do not depend on
+    the lateral weight, which `fit_temperature` and `fit_none_offset` apply."""
     held = {}
-    weight = beam_weights(model)
     for k, (_, idx) in enumerate(components):
         if len(idx) < 3:
             continue
@@ -429,7 +429,7 @@ def held_out_terms(
             rest = np.delete(scans, j, axis=0)
             mean, var, p = beam_statistics(rest, model.laser, model.config)
             terms[j] = beam_terms(scans[j : j + 1], mean, var, p, model)[0]
-        held[k] = terms * weight
+        held[k] = terms
     return held
 
 
@@ -451,10 +451,11 @@ def fit_none_offset(
     if held is None:
         held = held_out_terms(model, ranges, components)
     common = commonness(model)
+    weight = beam_weights(model)
     margin = NONE_MARGIN / model.temperature  # in the untempered units of the terms
     offset = np.zeros(len(components))
     for k, terms in held.items():
-        own_vs_around = terms @ (1.0 - common[k])
+        own_vs_around = (terms * weight) @ (1.0 - common[k])
         offset[k] = max(0.0, margin - float(np.quantile(own_vs_around, NONE_QUANTILE)))
     return offset
 
@@ -475,7 +476,8 @@ def fit_temperature(
     """
     if held is None:
         held = held_out_terms(model, ranges, components)
-    centred_terms = [terms - terms.mean(axis=0) for terms in held.values()]
+    weighted = [terms * beam_weights(model) for terms in held.values()]
+    centred_terms = [terms - terms.mean(axis=0) for terms in weighted]
     if not centred_terms:
         return 1.0, {"temperature_note": "too few training scans for leave-one-out; 1"}
     terms = np.concatenate(centred_terms)

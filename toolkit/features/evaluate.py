@@ -27,7 +27,7 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
 from toolkit.features.regions import spans_from_frame, training_indices
-from toolkit.sim.truth import REGION_PARTS, distance_driven, training_regions
+from toolkit.sim.truth import REGION_PARTS, training_regions
 
 # The ablation: each row adds one decision to the one before; the default row is Config().
 FULL = Config()
@@ -58,7 +58,6 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: default + lateral beams", dataclasses.replace(FULL, lateral_weight=1.0)),
 ]  # fmt: skip
 BURST = "protocol: --none-model surroundings, taught by one 10-scan burst per feature"
-DEFAULT_ROW = next(name for name, config in ABLATION if config == FULL)
 
 
 @dataclass
@@ -83,7 +82,7 @@ def score(
 
         sim = simulate(scenario, seed=seed)
     ds = sim.dataset
-    regions = training_regions(ds.t, sim.labels, parts=parts, along=distance_driven(ds.groundtruth))
+    regions = training_regions(ds.t, sim.labels, parts=parts, along=sim.distance())
     spans = spans_from_frame(regions, ds.t)
     training = training_indices(spans)
     t0 = time.perf_counter()

@@ -388,6 +388,8 @@ def fit(
     the whole log; the temperature by leave-one-out; the lateral weight, if the config leaves
     it open, by leave-one-span-out. With `spans` (those `training` came from), a feature's
     separate spans become separate components."""
+    from toolkit.features.classify import held_out_terms
+
     config = config or Config()
     if not training:
         raise ToolkitError("no features to learn")
@@ -407,28 +409,30 @@ def fit(
         ):
             components = training_components(spans)  # separate spans: separate components
     background = fit_background(ranges, laser) if config.none_class or config.robust > 0 else None
+    model = _statistics(ranges, laser, components, config, background)
+    # leave-one-out terms: computed once, for the temperature, the surroundings' offsets and
+    # every trial of the lateral weight (they do not depend on it)
+    needed = config.temperature == "loo" or _has_offset(config)
+    held = held_out_terms(model, ranges, components) if needed else {}
     choice: dict[str, Any] = {}
     if config.lateral_weight is None:
-        config, choice = choose_lateral(ranges, laser, components, config, background)
-    model = _learn(ranges, laser, components, config, background)
+        model, choice = choose_lateral(model, ranges, components, held)
+    _calibrate(model, ranges, components, held)
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
     return model
 
 
-def _learn(
+def _statistics(
     ranges: np.ndarray,
     laser: LaserGeometry,
     components: list[tuple[str, np.ndarray]],
     config: Config,
     background: Background | None,
 ) -> FeatureModel:
-    """The model of these components under this config (the lateral weight fixed), on a
-    background already fitted."""
-    from toolkit.features.classify import fit_none_offset, fit_temperature, held_out_terms
-
+    """Per component, per-beam statistics of its training scans, on a background fitted."""
     stats = [beam_statistics(ranges[idx], laser, config) for _, idx in components]
-    model = FeatureModel(
+    return FeatureModel(
         features=[name for name, _ in components],
         mean=np.array([s[0] for s in stats]),
         var=np.array([s[1] for s in stats]),
@@ -438,50 +442,70 @@ def _learn(
         config=config,
         background=background,
     )
-    offset = config.none_class and config.none_model == "surroundings" and config.robust > 0
-    # leave-one-out terms, computed once for both the temperature and the surroundings
-    held = (
-        held_out_terms(model, ranges, components) if config.temperature == "loo" or offset else {}
-    )
-    if config.temperature == "loo":
+
+
+def _has_offset(config: Config) -> bool:
+    return config.none_class and config.none_model == "surroundings" and config.robust > 0
+
+
+def _calibrate(
+    model: FeatureModel,
+    ranges: np.ndarray,
+    components: list[tuple[str, np.ndarray]],
+    held: dict[int, np.ndarray],
+) -> None:
+    """The temperature and the surroundings' offsets, from the leave-one-out terms `held`."""
+    from toolkit.features.classify import fit_none_offset, fit_temperature
+
+    if model.config.temperature == "loo":
         model.temperature, report = fit_temperature(model, ranges, components, held)
         model.fit_report.update(report)
-    if offset:
+    if _has_offset(model.config):
         model.none_offset = fit_none_offset(model, ranges, components, held)
         model.fit_report["none_offset"] = dict(
             zip(model.features, model.none_offset.round(2).tolist(), strict=True)
         )
-    return model
 
 
 def choose_lateral(
+    model: FeatureModel,
     ranges: np.ndarray,
-    laser: LaserGeometry,
     components: list[tuple[str, np.ndarray]],
-    config: Config,
-    background: Background | None,
-) -> tuple[Config, dict[str, Any]]:
-    """The lateral weight among `LATERAL_CHOICES` under which the training spans best predict
-    each other: each span of a feature taught by several is held out, the model is learnt from
-    the others, and the held-out scans' mean log-probability of their own feature (tempered,
-    per scan) is averaged. Only the training spans are used. With no feature taught by two
-    spans or more there is nothing to hold out: 0 (all beams alike)."""
+    held: dict[int, np.ndarray],
+) -> tuple[FeatureModel, dict[str, Any]]:
+    """The model with the lateral weight among `LATERAL_CHOICES` under which the training
+    spans best predict each other: each span of a feature taught by several is held out, the
+    model is calibrated without its row, and the held-out scans' mean log-probability of
+    their own feature (tempered, per scan) is averaged. Only the training spans are used
+    (`held`: their leave-one-out terms). With no feature taught by two spans or more there is
+    nothing to hold out: 0 (all beams alike)."""
     from toolkit.features.classify import loglik, per_class, softmax
 
-    names = [name for name, _ in components]
-    held = [k for k, name in enumerate(names) if names.count(name) > 1]
-    if not held:
-        note = "lateral weight 0: no feature has two spans to hold out"
-        return replace(config, lateral_weight=0.0), {"lateral_note": note}
+    names = model.features
+    rows = [k for k, name in enumerate(names) if names.count(name) > 1]
+    if not rows:
+        alike = replace(model, config=replace(model.config, lateral_weight=0.0))
+        return alike, {"lateral_note": "lateral weight 0: no feature has two spans to hold out"}
     scores = {}
     for weight in LATERAL_CHOICES:
-        trial = replace(config, lateral_weight=weight)
         logp = []
-        for k in held:
-            name, idx = components[k]
-            model = _learn(ranges, laser, components[:k] + components[k + 1 :], trial, background)
-            prob = softmax(per_class(model, loglik(model, ranges[idx]) * model.temperature))
-            logp.append(np.log(np.maximum(prob[:, model.classes.index(name)], 1e-12)).mean())
+        for k in rows:
+            keep = [j for j in range(len(names)) if j != k]
+            rest = replace(
+                model,
+                features=[names[j] for j in keep],
+                mean=model.mean[keep],
+                var=model.var[keep],
+                p_return=model.p_return[keep],
+                n_scans=model.n_scans[keep],
+                config=replace(model.config, lateral_weight=weight),
+                fit_report={},
+            )
+            kept = [components[j] for j in keep]
+            _calibrate(rest, ranges, kept, {i: held[j] for i, j in enumerate(keep) if j in held})
+            idx = components[k][1]
+            prob = softmax(per_class(rest, loglik(rest, ranges[idx]) * rest.temperature))
+            logp.append(np.log(np.maximum(prob[:, rest.classes.index(names[k])], 1e-12)).mean())
         scores[weight] = float(np.mean(logp))
     best = max(scores, key=lambda w: scores[w])  # the first of equals: the smaller weight
     report = {
@@ -490,7 +514,7 @@ def choose_lateral(
         "lateral_scores": {f"{w:g}": round(v, 4) for w, v in scores.items()},
         "lateral_weight": best,
     }
-    return replace(config, lateral_weight=best), report
+    return replace(model, config=replace(model.config, lateral_weight=best)), report
 
 
 def commonness(model: FeatureModel) -> np.ndarray:

@@ -22,15 +22,15 @@ import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
-from toolkit.dataset import Dataset, ImportReport, make_meta
+from toolkit.dataset import Dataset, ImportReport, make_meta, path_distance
 from toolkit.errors import ToolkitError
 from toolkit.progress import task
 from toolkit.sim.geometry import World
 from toolkit.sim.laser import LaserModel
 from toolkit.sim.odometry import OdometryModel
 from toolkit.sim.scenarios import SCENARIOS, Scenario, sample_path
-from toolkit.sim.truth import distance_driven, training_regions
 from toolkit.sim.truth import sections as _sections
+from toolkit.sim.truth import training_regions
 
 __all__ = [
     "SCENARIOS",
@@ -73,10 +73,16 @@ class Simulation:
             self,
             dataset=cut,
             labels=self.labels[:n],
-            regions=training_regions(t, self.labels[:n], along=distance_driven(cut.groundtruth)),
+            regions=training_regions(t, self.labels[:n], along=self.distance()[:n]),
             sections=self.sections[:n],
             params={**self.params, "head": n},
         )
+
+    def distance(self) -> np.ndarray:
+        """Per scan, the true distance driven since the first scan (m)."""
+        gt = self.dataset.groundtruth
+        assert gt is not None
+        return path_distance(gt[["x", "y"]].to_numpy())
 
     def truth(self) -> pd.DataFrame:
         """Per scan: t, true x, y, theta, label, section (what truth.parquet holds)."""
@@ -130,7 +136,7 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
     odo = odometry.integrate(truth, rng)
     labels = scn.labels(laser.origins(truth)[0])  # what the scanner has beside it
-    regions = training_regions(t, labels, along=distance_driven(truth))
+    regions = training_regions(t, labels, along=path_distance(truth[:, :2]))
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
         **laser.to_dict(),

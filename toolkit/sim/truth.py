@@ -13,8 +13,6 @@ by scan count both spans would fall in the crossing, none on the way in or out.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pandas as pd
 
@@ -33,14 +31,6 @@ def runs(labels: np.ndarray) -> list[tuple[str, int, int]]:
     return [(str(labels[s]), int(s), int(e)) for s, e in zip(starts, ends, strict=True)]
 
 
-def distance_driven(poses: Any) -> np.ndarray:
-    """Per scan, the distance (m) the robot has driven since the first scan (turning on the
-    spot adds none), from poses whose first two columns are x, y (an array or a frame)."""
-    xy = np.asarray(poses[["x", "y"]] if isinstance(poses, pd.DataFrame) else poses)[:, :2]
-    step = np.hypot(*np.diff(xy.astype(np.float64), axis=0).T)
-    return np.concatenate([[0.0], np.cumsum(step)])
-
-
 def training_regions(
     t: np.ndarray,
     labels: np.ndarray,
@@ -50,7 +40,7 @@ def training_regions(
     along: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """`n` training scans per label (except `skip`) in `parts` spans: feature, start, end.
-    The spans are centred at equal steps of `along` (per scan, e.g. `distance_driven`; by
+    The spans are centred at equal steps of `along` (per scan, e.g. `toolkit.dataset.path_distance`; by
     default the scan index)."""
     along = np.arange(len(t), dtype=np.float64) if along is None else np.asarray(along)
     rows = []
