@@ -3,7 +3,7 @@
 Generates a SICK_FRONT CSV like Rawseeds writes it (t with microseconds, 181, 0, 181 ranges
 with 3 decimals: a corridor with noise, some no-return 81.910 codes) of ~100 MB and, unless
 quick, ~1 GB, in a temporary directory; each import runs in a child process that reports its
-own wall and CPU time and peak RSS (ru_maxrss). The 100 MB import is repeated 3 times
+own wall and CPU time and peak RSS (`bench.peak_rss_mb`). The 100 MB import is repeated 3 times
 (median); the full run adds the 100 MB file bz2-compressed (as Rawseeds ships it) and the
 1 GB file, once each. Every file is deleted afterwards.
 """
@@ -33,17 +33,16 @@ import json, sys, time
 from pathlib import Path
 from importers.rawseeds import Rawseeds
 from importers.base import ImportOptions
+from bench import peak_rss_mb
 src, out = Path(sys.argv[1]), Path(sys.argv[2])
 start, cpu = time.perf_counter(), time.process_time()
 Rawseeds().import_to([src], out, ImportOptions())
 seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
 meta = json.loads((out / "meta.json").read_text())
-# VmHWM, not ru_maxrss: Linux carries ru_maxrss over fork and exec, so a child of a big
-# parent would report the parent's peak; VmHWM belongs to this process's own address space.
-hwm = next(l for l in open("/proc/self/status") if l.startswith("VmHWM:"))
 print(json.dumps({"seconds": seconds, "cpu_seconds": cpu, "scans": meta["scans"],
-                  "peak_mb": int(hwm.split()[1]) / 1024}))
+                  "peak_mb": peak_rss_mb()}))
 """
+ROOT = Path(__file__).resolve().parents[1]  # the child imports `bench` from here
 
 
 def range_pool(seed: int = 0) -> list[str]:
@@ -85,6 +84,7 @@ def import_once(src: Path, out: Path) -> dict[str, float]:
         text=True,
         check=False,
         env={**os.environ, "TOOLKIT_NO_PROGRESS": "1"},
+        cwd=ROOT,
     )
     if res.returncode != 0:
         raise RuntimeError(f"import failed: {res.stderr.strip()[-500:]}")

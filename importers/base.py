@@ -97,8 +97,11 @@ def head_bytes(path: Path, n: int = 4096) -> bytes:
         return b""
 
 
+COMPRESSION_SUFFIXES = (".gz", ".bz2", ".xz")
+
+
 def strip_compression_suffix(name: str) -> str:
-    for suffix in (".gz", ".bz2", ".xz"):
-        if name.endswith(suffix):
-            return name[: -len(suffix)]
+    """`name` without its compression suffixes (any case, repeated: a.log.gz.bz2 -> a.log)."""
+    while Path(name).suffix.lower() in COMPRESSION_SUFFIXES:
+        name = Path(name).stem
     return name

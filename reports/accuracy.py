@@ -26,8 +26,7 @@ def generate(ctx: Context, section: Section) -> None:
     for name in ctx.map_logs():
         with ctx.part(section, f"accuracy on {name}"):
             ds = ctx.dataset(name)
-            methods = ("odometry", *ctx.matchers) if ds.odometry is not None else ctx.matchers
-            for method in methods:
+            for method in ctx.methods(name):
                 run = ctx.run(name, method)
                 rows.append(_row(name, ds.n_scans, method, run.metrics))
                 section.links += [(f"{name} {method} {Path(f).name}", f) for f in run.files]

@@ -140,6 +140,12 @@ class Context:
         """The scan matchers compared (quick mode leaves out the slow Open3D ICP)."""
         return QUICK_MATCHERS if self.quick else MATCHERS
 
+    def methods(self, name: str) -> tuple[str, ...]:
+        """The trajectories drawn for log `name`: odometry alone (when it has odometry), then
+        every scan matcher."""
+        odometry = ("odometry",) if self.dataset(name).odometry is not None else ()
+        return (*odometry, *self.matchers)
+
     # ------------------------------------------------------------ logs
 
     def cached(self, key: Any, make: Callable[[], Any]) -> Any:
@@ -303,6 +309,11 @@ class Context:
 
     def real_logs(self) -> list[str]:
         return ["dpslam_loop5", INTEL_DRIFT] if self.real_dir is not None else []
+
+    def sectioned_logs(self) -> list[str]:
+        """The logs of Table 1 and Fig. 3: the corridor, and the Intel lab with drift when the
+        real logs are there."""
+        return [CORRIDOR, *([INTEL_DRIFT] if self.real_dir is not None else [])]
 
     def given(self) -> list[str]:
         """Datasets named on the command line, else the bundled ones."""

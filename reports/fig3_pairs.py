@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from reports.base import NotAvailable, Section, new_figure, require, save_figure
-from reports.context import CORRIDOR, INTEL_DRIFT, Context
+from reports.context import CORRIDOR, Context
 from reports.runs import safe_name
 
 VIEW = 6.0  # m: the panels show the returns within this range of the laser
@@ -75,7 +75,7 @@ def _moved(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
 def generate(ctx: Context, section: Section) -> None:
     from reports.table1_sections import sections_of
 
-    for name in (CORRIDOR, *[n for n in ctx.real_logs() if n == INTEL_DRIFT]):
+    for name in ctx.sectioned_logs():
         with ctx.part(section, f"scan pairs of {name}"):
             ds = ctx.dataset(name)
             if ds.groundtruth is None:

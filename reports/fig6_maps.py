@@ -33,7 +33,7 @@ def generate(ctx: Context, section: Section) -> None:
 
 def _maps(ctx: Context, section: Section, name: str) -> dict[str, Any]:
     ds = ctx.dataset(name)
-    methods = ["odometry", *ctx.matchers] if ds.odometry is not None else list(ctx.matchers)
+    methods = list(ctx.methods(name))
     if ds.odometry is None:
         section.notes.append(f"{name} has no odometry: its scans are matched from standstill.")
     runs = {m: ctx.run(name, m) for m in methods}

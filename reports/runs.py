@@ -53,7 +53,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
         spans = features.read_regions(source.regions, ds.t)
         truth = truth_labels(source.truth or source.path, ds.t)
     training = features.training_indices(spans)
-    poses = None if ds.odometry is None else poses_at(ds.odometry, ds.t)  # at the scan times
+    poses = require("toolkit.poses", "odometry_poses").odometry_poses(ds)  # at the scan times
     t0 = time.perf_counter()
     model = features.fit(ds.ranges, ds.laser, training, features.Config(), spans)
     labels = features.classify(model, ds.ranges, poses)
@@ -105,22 +105,14 @@ def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
     folder = Path(RUNS) / safe_name(name) / method
     (ctx.out / folder).mkdir(parents=True, exist_ok=True)
     mapping.write_tum(ctx.out / folder / "trajectory.tum", ds.t, result.poses)
-    (ctx.out / folder / "metrics.json").write_text(
-        json.dumps(scores, indent=2, default=_plain) + "\n"
-    )
+    (ctx.out / folder / "metrics.json").write_text(json.dumps(scores, indent=2) + "\n")
     files = [str(folder / "trajectory.tum"), str(folder / "metrics.json")]
-    truth = traj.truth_poses(ds)
-    if truth is not None and not (ctx.out / folder.parent / "groundtruth.tum").exists():
-        mapping.write_tum(ctx.out / folder.parent / "groundtruth.tum", ds.t, truth)
-        files.append(str(folder.parent / "groundtruth.tum"))
+    truth_file = folder.parent / "groundtruth.tum"
+    truth = None if (ctx.out / truth_file).exists() else traj.truth_poses(ds)
+    if truth is not None:
+        mapping.write_tum(ctx.out / truth_file, ds.t, truth)
+        files.append(str(truth_file))
     return Run(name, method, result.frame, result.seconds, scores, files)
-
-
-def _plain(value: Any) -> Any:
-    """JSON for numpy scalars in metrics."""
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
 _warm: set[tuple[str, int]] = set()

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from reports.base import NotAvailable, Section, new_figure, require, save_figure, save_table
-from reports.context import CORRIDOR, INTEL_DRIFT, Context
+from reports.context import CORRIDOR, Context
 from reports.runs import safe_name, slice_scans, warm_up
 
 SECTIONS = 8  # the paper's
@@ -89,7 +89,7 @@ def wide(rows: pd.DataFrame, methods: tuple[str, ...]) -> pd.DataFrame:
 
 
 def generate(ctx: Context, section: Section) -> None:
-    for name in (CORRIDOR, *[n for n in ctx.real_logs() if n == INTEL_DRIFT]):
+    for name in ctx.sectioned_logs():
         with ctx.part(section, f"Table 1 on {name}"):
             section.data[name] = _table1(ctx, section, name)
 

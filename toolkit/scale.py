@@ -142,33 +142,21 @@ def _match_chunk(
     the pairs after `skip` and the seconds spent in the task (reading and matching)."""
     t0 = time.perf_counter()
     if threads:
-        import numba
-
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+        _cap_threads(threads)
     if isinstance(own, tuple):
         from toolkit.dataset import read_scan_rows
 
         path, start, stop = own
         own = read_scan_rows(Path(path), start, stop)
     out = sc.match_pairs(np.vstack([earlier, own]), seeds, laser, config, ref)
-    return _take(out, slice(skip, None)), time.perf_counter() - t0
+    return out.take(slice(skip, None)), time.perf_counter() - t0
 
 
-def _take(m: sc.PairMatches, part: slice) -> sc.PairMatches:
-    return sc.PairMatches(
-        m.pose[part],
-        m.covariance[part],
-        m.sigma[part],
-        m.used[part],
-        m.degenerate[part],
-        m.agreement[part],
-    )
+def _cap_threads(threads: int) -> None:
+    """At most `threads` numba threads in this process (a worker's share of its cores)."""
+    import numba
 
-
-def concat(parts: list[sc.PairMatches]) -> sc.PairMatches:
-    """The chunks' matches, in order, as one PairMatches."""
-    fields = ("pose", "covariance", "sigma", "used", "degenerate", "agreement")
-    return sc.PairMatches(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
 
 
 @dataclass
@@ -252,7 +240,7 @@ def match_pairs_on(
         times.wall = time.perf_counter() - t0
         times.inside = [seconds for _, seconds in parts]
         times.pairs = [len(m) for m, _ in parts]
-    return concat([m for m, _ in parts])
+    return sc.PairMatches.concat([m for m, _ in parts])
 
 
 def matcher_for(client: Client | None, chunk: int | None = None, scans: Path | None = None) -> Any:
@@ -273,7 +261,6 @@ def matcher_for(client: Client | None, chunk: int | None = None, scans: Path | N
 
 # ---------------------------------------------------------------- many logs, one task each
 
-SUFFIXES = (".gz", ".bz2", ".xz")
 PARTITION = "dataset"  # the fleet's hive partition key: FLEET/dataset=<name>/scans.parquet
 
 
@@ -290,10 +277,10 @@ class Outcome:
 def dataset_name(source: Path, root: Path | None) -> Path:
     """The dataset's name: the source's path below `root` (the directory it was found in)
     without its extensions, e.g. robotA/2024-05-01.log.gz -> robotA/2024-05-01."""
+    from importers.base import strip_compression_suffix
+
     rel = source.relative_to(root) if root is not None else Path(source.name)
-    name = rel.name
-    while Path(name).suffix.lower() in SUFFIXES:
-        name = Path(name).stem
+    name = strip_compression_suffix(rel.name)
     name = Path(name).stem or name
     return rel.with_name(name)
 
@@ -318,10 +305,10 @@ def _find(
     def walk(directory: Path, root: Path) -> list[tuple[Path, Path]]:
         found: list[tuple[Path, Path]] = []
         for child in sorted(directory.iterdir()):
-            if child.is_dir() and not claimed(child):
-                found += walk(child, root)
-            elif claimed(child):
+            if claimed(child):  # sniffed once: every importer's sniffer runs
                 found.append((child, name(child, root)))
+            elif child.is_dir():
+                found += walk(child, root)
         return found
 
     inputs: list[tuple[Path, Path]] = []
@@ -510,9 +497,7 @@ def _map_one(
         if not force and run_is_current(run, dataset, method, voxel):
             return "skipped"
         if threads:
-            import numba
-
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+            _cap_threads(threads)
         map_dataset(dataset, run, method, voxel, force=True, matcher=matcher)
         return "written"
 

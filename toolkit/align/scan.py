@@ -30,7 +30,7 @@ float32 kernel with constant working memory and gives the same poses.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
 import numba as nb
@@ -84,6 +84,16 @@ class PairMatches:
 
     def __len__(self) -> int:
         return len(self.pose)
+
+    def take(self, part: slice) -> PairMatches:
+        """The pairs in `part`."""
+        return PairMatches(*(getattr(self, f.name)[part] for f in fields(self)))
+
+    @classmethod
+    def concat(cls, parts: list[PairMatches]) -> PairMatches:
+        """`parts`' pairs, in order, as one PairMatches."""
+        names = [f.name for f in fields(cls)]
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in names))
 
     @classmethod
     def empty(cls, n: int) -> PairMatches:

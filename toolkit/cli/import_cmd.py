@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 
 from toolkit.cli import app
-from toolkit.cli.options import key_values
-
-if TYPE_CHECKING:
-    from toolkit.scale import Outcome
+from toolkit.cli.options import key_values, report_outcomes
 
 
 @app.command("import")
@@ -94,21 +91,6 @@ def _import_each(
     with client_for(scheduler) as client:
         outcomes = import_many(client, fmt, logs, out, options, force)
     report_outcomes(outcomes, out, "logs", quiet)
-
-
-def report_outcomes(outcomes: list[Outcome], out: Path, noun: str, quiet: bool) -> None:
-    """A line per failure on stderr (`failed: INPUT: why`), a count line, exit 1 if any failed."""
-    failed = [o for o in outcomes if o.status == "failed"]
-    for o in failed:
-        typer.echo(f"failed: {o.source}: {o.error}", err=True)
-    if not quiet:
-        counts = {s: sum(o.status == s for o in outcomes) for s in ("written", "skipped")}
-        typer.echo(
-            f"{out}: {counts['written']} written, {counts['skipped']} skipped (complete), "
-            f"{len(failed)} failed, of {len(outcomes)} {noun}"
-        )
-    if failed:
-        raise typer.Exit(1)
 
 
 @app.command("formats")

@@ -119,7 +119,7 @@ def _map_each(
     quiet: bool,
 ) -> None:
     """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
-    from toolkit.cli.import_cmd import report_outcomes
+    from toolkit.cli.options import report_outcomes
     from toolkit.errors import ToolkitError
     from toolkit.scale import client_for, find_datasets, map_many, on_shared_storage
 
