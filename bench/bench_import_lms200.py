@@ -141,7 +141,7 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         cli = [
             fresh(
                 "import sys",
-                "from toolkit.cli import main",
+                "from toolkit.app.cli import main",
                 f"sys.argv = ['toolkit', 'import', 'lms200', {str(capture)!r}, '--out', "
                 f"{str(target)!r}, '--force', '--quiet']",
                 "main()",

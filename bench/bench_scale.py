@@ -78,8 +78,8 @@ def _single(ranges: np.ndarray, seeds: np.ndarray, laser: Any, repeats: int) -> 
 
 
 def run(out: Path, quick: bool) -> list[dict[str, Any]]:
+    from toolkit.app.fleet import ChunkTimes, client_for, match_pairs_on
     from toolkit.dataset import write_scans
-    from toolkit.scale import ChunkTimes, client_for, match_pairs_on
 
     scans = 10_000 if quick else 50_000
     repeats = 2 if quick else 3

@@ -36,7 +36,7 @@ def cli(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> 
 
     Returns (exit status, stdout, stderr); faster than a subprocess, same error handling.
     """
-    from toolkit.cli import main
+    from toolkit.app.cli import main
 
     def run(*args: object) -> tuple[int, str, str]:
         capsys.readouterr()

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import ROOT, Cli, toolkit_process
-from toolkit.cli import app
+from toolkit.app.cli import app
 
 
 def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> None:

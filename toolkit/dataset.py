@@ -228,7 +228,7 @@ class ScansWriter:
     """Append scans batch by batch to a Parquet file: imports of huge logs in constant memory.
 
     Rows are buffered into row groups of `ROW_GROUP_SCANS` scans, whatever the batches, so that
-    row group k holds scans k*N .. (k+1)*N - 1 (the chunks `toolkit.scale` hands to workers)."""
+    row group k holds scans k*N .. (k+1)*N - 1 (the chunks `toolkit.app.fleet` hands to workers)."""
 
     def __init__(self, path: Path, beams: int, group: int = ROW_GROUP_SCANS) -> None:
         self.path = path

@@ -209,7 +209,7 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
 
 def _meta_digest(ds: Dataset) -> str | None:
     """sha256 of the dataset's meta.json (its identity: sources' sha256, import time), so a
-    re-run can tell an unchanged dataset (`toolkit.scale.run_is_current`)."""
+    re-run can tell an unchanged dataset (`toolkit.app.fleet.run_is_current`)."""
     from toolkit.dataset import META, sha256
 
     meta = ds.path / META if ds.path else None

@@ -126,7 +126,7 @@ def build(
     point-to-line), icp-point (Open3D point-to-point) or odometry (no matching).
 
     `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
-    runs the pairs on a Dask cluster (`toolkit.scale.matcher_for`)."""
+    runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`)."""
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     odo = odometry_poses(ds)

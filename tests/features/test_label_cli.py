@@ -21,8 +21,8 @@ from toolkit.features import FeatureModel
 def sim_dirs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """Two simulated corridor logs (seeds 0 and 1) as `toolkit simulate --format dataset`
     writes them: a dataset directory with regions.csv and truth.parquet."""
+    from toolkit.app.simulation import write_simulation
     from toolkit.sim import simulate
-    from toolkit.sim.output import write_simulation
 
     root = tmp_path_factory.mktemp("sim")
     dirs = []

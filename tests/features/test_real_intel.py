@@ -34,7 +34,7 @@ def place_by_position(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
-    from toolkit.cli import main
+    from toolkit.app.cli import main
 
     log = real / "carmen_radish_corrected" / "intel-corrected.log.gz"
     data, run = tmp_path / "intel", tmp_path / "run"

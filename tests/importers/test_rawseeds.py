@@ -446,7 +446,7 @@ def test_sniff(session: tuple[Path, Dataset], real: Path, tmp_path: Path) -> Non
 
 def toolkit_cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-c", "from toolkit.cli import main; main()", *args],
+        [sys.executable, "-c", "from toolkit.app.cli import main; main()", *args],
         capture_output=True,
         text=True,
         timeout=120,

@@ -393,7 +393,7 @@ def test_not_a_bag_is_one_clear_error(tmp_path: Path) -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    code = "from toolkit.cli import main; main()"
+    code = "from toolkit.app.cli import main; main()"
     return subprocess.run(
         [sys.executable, "-c", code, *args], capture_output=True, text=True, check=False
     )

@@ -230,7 +230,7 @@ def test_cli_bad_table_is_one_line(tmp_path: Path) -> None:
     with pytest.raises(FormatError):
         TABLE.read([path], ImportOptions())
     done = subprocess.run(
-        [sys.executable, "-c", "from toolkit.cli import main; main()", "import", "table",
+        [sys.executable, "-c", "from toolkit.app.cli import main; main()", "import", "table",
          str(path), "--out", str(tmp_path / "d")],
         capture_output=True, text=True, check=False,
     )  # fmt: skip

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import Cli
+from toolkit.app.fleet import dataset_name, find_logs, partition_dir
 from toolkit.dataset import load
-from toolkit.scale import dataset_name, find_logs, partition_dir
 
 pytestmark = [pytest.mark.real, pytest.mark.xdist_group("dask")]
 

@@ -47,7 +47,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three simulated CARMEN logs in a tree (robotA/, robotB/), imported with --each."""
     from typer.testing import CliRunner
 
-    from toolkit.cli import app
+    from toolkit.app.cli import app
 
     root = tmp_path_factory.mktemp("fleet")
     logs = root / "logs"

@@ -16,9 +16,7 @@ import pandas as pd
 import pytest
 
 from tests.conftest import Cli
-from toolkit.dataset import Dataset, load, save
-from toolkit.poses import build
-from toolkit.scale import (
+from toolkit.app.fleet import (
     chunk_plan,
     client_for,
     match_pairs_on,
@@ -26,6 +24,8 @@ from toolkit.scale import (
     pair_chunks,
     parse_scheduler,
 )
+from toolkit.dataset import Dataset, load, save
+from toolkit.poses import build
 from toolkit.sim import simulate
 
 pytestmark = pytest.mark.xdist_group("dask")  # one cluster at a time under --dist loadgroup
@@ -223,7 +223,7 @@ def test_map_fleet_damaged_dataset_by_name_cluster_same_runs_rerun_skips(
 def test_map_cli_unreachable_scheduler_is_one_line(
     single: tuple[Path, pd.DataFrame], tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("toolkit.scale.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("toolkit.app.fleet.CONNECT_TIMEOUT", "1s")
     data, _ = single
     port = _free_port()
     code, _, err = cli(

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import toolkit.sim.output
+import toolkit.app.simulation
 from tests.conftest import Cli
 from toolkit.dataset import load
 
@@ -82,7 +82,7 @@ def test_interrupted_write_leaves_nothing(
     def broken(*args: object) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(toolkit.sim.output, "write_truth", broken)
+    monkeypatch.setattr(toolkit.app.simulation, "write_truth", broken)
     out = tmp_path / "sim"
     code, _, _ = cli("simulate", "corridor", "--out", str(out), "-f", "aria", "--scans", "200")
     assert code == 1

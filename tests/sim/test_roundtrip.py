@@ -13,9 +13,9 @@ import pytest
 
 import importers
 from importers.base import Importer
+from toolkit.app.simulation import write_simulation
 from toolkit.dataset import Dataset, load
 from toolkit.sim import Simulation, simulate
-from toolkit.sim.output import write_simulation
 
 # format -> writer option sets worth a round trip each (any other writer: its defaults)
 VARIANTS: dict[str, list[dict[str, Any]]] = {

@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 
 import importers
+from toolkit.app.samples import SAMPLES, make
 from toolkit.dataset import load
-from toolkit.sim.samples import SAMPLES, make
 
 DATASETS = Path(__file__).resolve().parents[2] / "datasets"
 CATALOG = json.loads((DATASETS / "catalog.json").read_text())

@@ -8,8 +8,8 @@ from typing import Annotated, Any
 
 import typer
 
-from toolkit.cli import app
-from toolkit.cli.options import key_values
+from toolkit.app.cli import app
+from toolkit.app.cli.options import key_values
 
 
 def _value(text: str) -> Any:
@@ -100,9 +100,9 @@ def simulate_command(
     DIR gets the format's files, truth.parquet (t, x, y, theta, label, section), regions.csv
     (feature,start,end) and simulation.json (scenario, seed, every model parameter).
     """
+    from toolkit.app.simulation import write_simulation
     from toolkit.atomic import check_output
     from toolkit.sim import simulate
-    from toolkit.sim.output import write_simulation
 
     check_output(out, force)
     params = _config(config)

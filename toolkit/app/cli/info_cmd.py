@@ -8,7 +8,7 @@ from typing import Annotated, Any
 
 import typer
 
-from toolkit.cli import app
+from toolkit.app.cli import app
 
 
 def print_summary(s: dict[str, Any]) -> None:

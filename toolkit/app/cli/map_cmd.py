@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from toolkit.cli import app
+from toolkit.app.cli import app
 
 
 @app.command("map")
@@ -60,11 +60,11 @@ def map_command(
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
     metrics.json; atomically. With many datasets, OUT/<name>/ for each.
     """
+    from toolkit.app.fleet import client_for, matcher_for, on_shared_storage
     from toolkit.dataset import SCANS
     from toolkit.errors import ToolkitError
     from toolkit.mapping import map_dataset
     from toolkit.poses import METHODS
-    from toolkit.scale import client_for, matcher_for, on_shared_storage
 
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
@@ -99,7 +99,7 @@ def _many(datasets: list[Path]) -> bool:
     """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
     import glob
 
-    from toolkit.scale import is_dataset_dir
+    from toolkit.app.fleet import is_dataset_dir
 
     if len(datasets) != 1:
         return True
@@ -119,9 +119,9 @@ def _map_each(
     quiet: bool,
 ) -> None:
     """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
-    from toolkit.cli.options import report_outcomes
+    from toolkit.app.cli.options import report_outcomes
+    from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage
     from toolkit.errors import ToolkitError
-    from toolkit.scale import client_for, find_datasets, map_many, on_shared_storage
 
     found = find_datasets(datasets)
     if not found:

@@ -10,7 +10,7 @@ import typer
 from toolkit.errors import ToolkitError
 
 if TYPE_CHECKING:
-    from toolkit.scale import Outcome
+    from toolkit.app.fleet import Outcome
 
 
 def key_values(pairs: list[str] | None, flag: str) -> dict[str, str]:

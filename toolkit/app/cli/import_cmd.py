@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 
-from toolkit.cli import app
-from toolkit.cli.options import key_values, report_outcomes
+from toolkit.app.cli import app
+from toolkit.app.cli.options import key_values, report_outcomes
 
 
 @app.command("import")
@@ -53,7 +53,7 @@ def import_command(
     """Import a log into a dataset directory (Parquet + meta.json), atomically; or, with
     --each, many logs into one dataset each."""
     import importers
-    from toolkit.cli.info_cmd import print_summary
+    from toolkit.app.cli.info_cmd import print_summary
     from toolkit.dataset import load
     from toolkit.info import summary
 
@@ -82,8 +82,8 @@ def _import_each(
     quiet: bool,
 ) -> None:
     """One dataset per log; a line per failure on stderr and exit 1 if any failed."""
+    from toolkit.app.fleet import client_for, find_logs, import_many
     from toolkit.errors import ToolkitError
-    from toolkit.scale import client_for, find_logs, import_many
 
     logs = find_logs(fmt, sources)
     if not logs:

@@ -21,12 +21,12 @@ app = typer.Typer(
 )
 
 # Command modules register themselves on `app` when imported.
-from toolkit.cli import import_cmd as _import_cmd  # noqa: E402,F401
-from toolkit.cli import info_cmd as _info_cmd  # noqa: E402,F401
-from toolkit.cli import label_cmd as _label_cmd  # noqa: E402,F401
-from toolkit.cli import map_cmd as _map_cmd  # noqa: E402,F401
-from toolkit.cli import report_cmd as _report_cmd  # noqa: E402,F401
-from toolkit.cli import simulate_cmd as _simulate_cmd  # noqa: E402,F401
+from toolkit.app.cli import import_cmd as _import_cmd  # noqa: E402,F401
+from toolkit.app.cli import info_cmd as _info_cmd  # noqa: E402,F401
+from toolkit.app.cli import label_cmd as _label_cmd  # noqa: E402,F401
+from toolkit.app.cli import map_cmd as _map_cmd  # noqa: E402,F401
+from toolkit.app.cli import report_cmd as _report_cmd  # noqa: E402,F401
+from toolkit.app.cli import simulate_cmd as _simulate_cmd  # noqa: E402,F401
 
 
 def fail(message: str) -> None:

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from toolkit.cli import app
+from toolkit.app.cli import app
 
 
 @app.command("label")
