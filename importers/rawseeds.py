@@ -461,7 +461,7 @@ def stream_laser(
             future.result()
     finally:
         pool.shutdown(wait=True)
-        writer.close()
+        writer.close(_with_offset(spec, result), {"format": "rawseeds", "file": path.name})
     for note in notes:
         report.note(note)
     if not saw_text:

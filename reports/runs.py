@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from reports.base import NotAvailable, require
-from toolkit.dataset import Dataset
+from toolkit.dataset import Dataset, write_described
 
 RUNS = "runs"  # the report's folder of run outputs (trajectories, metrics, labels)
 
@@ -62,7 +62,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
     folder = Path(RUNS) / safe_name(name) / "labels"
     (ctx.out / folder).mkdir(parents=True, exist_ok=True)
     model.save(ctx.out / folder / "model.json")
-    labels.frame(ds.t).to_parquet(ctx.out / folder / "labels.parquet", index=False)
+    write_described(ctx.out / folder / "labels.parquet", labels.frame(ds.t), "labels")
     files = [str(folder / "model.json"), str(folder / "labels.parquet")]
     return LabelRun(name, spans, training, model, labels, seconds, truth, files)
 

@@ -12,6 +12,7 @@ Everything in memory is the same: `Dataset.ranges` is an S x B float32 array.
 
 from __future__ import annotations
 
+import base64
 import datetime as _dt
 import hashlib
 import json
@@ -208,6 +209,101 @@ def _poses_frame(frame: pd.DataFrame | None) -> pd.DataFrame | None:
     return out.reset_index(drop=True)
 
 
+# ---------------------------------------------------------------- self-describing Parquet
+
+_ROBOT_AXES = "robot frame: x forward, y left"
+#: the frame of each kind of pose table (schema metadata "frame")
+FRAMES = {
+    "odometry": "odometry frame: the robot's pose as its wheel odometry integrates it, from the "
+    f"log's start ({_ROBOT_AXES}, theta counter-clockwise)",
+    "groundtruth": "the ground truth's world frame, as the source defines it (see meta.json)",
+    "poses": "the source's frame for this pose stream (see meta.json)",
+    "trajectory": "the odometry's frame: the corrected trajectory starts at the odometry's "
+    "first pose (the origin without odometry)",
+    "labels": "",
+    "truth": "the simulated world's frame",
+}
+#: per column: (unit, meaning), stored as Arrow field metadata "unit" and "description"
+COLUMNS: dict[str, tuple[str, str]] = {
+    "t": ("s", "time, in the dataset's time base (meta.json time_source)"),
+    "ranges": (
+        "m",
+        "range per beam, beam i at angle_min + i * angle_increment (schema metadata); "
+        "NaN = no return",
+    ),
+    "x": ("m", f"position of the robot, x in the table's frame ({_ROBOT_AXES})"),
+    "y": ("m", "position of the robot, y in the table's frame"),
+    "theta": ("rad", "heading of the robot, counter-clockwise from the frame's x axis"),
+    "label": ("", "the place with the highest posterior; 'none' when no feature fits"),
+    "section": ("", "Table 1 section of the simulated log (0..7), -1 if none"),
+}
+
+
+def _column_doc(name: str) -> tuple[str, str] | None:
+    if name.startswith("p_"):
+        return "1", f"posterior probability that the robot is at {name[2:]!r}"
+    return COLUMNS.get(name)
+
+
+def describe(table: pa.Table, kind: str, **schema_meta: Any) -> pa.Table:
+    """`table` with each known column's unit and meaning as Arrow field metadata, and `kind`,
+    its frame and `schema_meta` (JSON unless a string) as schema metadata, so that
+    `pyarrow.parquet.read_schema` of the file says what meta.json says. No data is copied."""
+    return pa.Table.from_arrays(
+        table.columns, schema=describe_schema(table.schema, kind, **schema_meta)
+    )
+
+
+def describe_schema(schema: pa.Schema, kind: str, **schema_meta: Any) -> pa.Schema:
+    """The schema `describe` gives a table of `schema`."""
+    fields, units = [], {}
+    for f in schema:
+        doc = _column_doc(f.name)
+        if doc is not None:
+            units[f.name] = doc[0]
+            meta = {**(f.metadata or {}), b"unit": doc[0].encode(), b"description": doc[1].encode()}
+            f = f.with_metadata(meta)
+        fields.append(f)
+    extra = {"toolkit_table": kind, "units": units}
+    if FRAMES.get(kind):
+        extra["frame"] = FRAMES[kind]
+    extra.update(schema_meta)
+    meta = dict(schema.metadata or {})
+    meta.update(
+        {
+            k.encode(): (v if isinstance(v, str) else json.dumps(v)).encode()
+            for k, v in extra.items()
+        }
+    )
+    return pa.schema(fields, metadata=meta)
+
+
+def scans_metadata(laser: LaserGeometry, source: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Schema metadata of a scans table: the beam angles and mounting (meta.json's laser)."""
+    out: dict[str, Any] = {
+        "beams": str(laser.beams),
+        "angle_min": repr(float(laser.angle_min)),
+        "angle_increment": repr(float(laser.angle_increment)),
+        "range_min": repr(float(laser.range_min)),
+        "range_max": repr(float(laser.range_max)),
+        "laser": laser.to_dict(),
+        "frame": "laser frame: beam angles in rad counter-clockwise from the laser's x axis "
+        "(forward), beam 0 at angle_min; the laser is mounted on the robot at laser x, y, z "
+        f"(m), yaw (rad) ({_ROBOT_AXES})",
+    }
+    if source is not None:
+        out["source"] = dict(source)
+    return out
+
+
+def write_described(
+    path: Path, data: pd.DataFrame | pa.Table, kind: str, **schema_meta: Any
+) -> None:
+    """Write a table to Parquet with its units, meaning and frame (`describe`); zstd."""
+    table = data if isinstance(data, pa.Table) else pa.Table.from_pandas(data, preserve_index=False)
+    pq.write_table(describe(table, kind, **schema_meta), path, compression="zstd")
+
+
 # ---------------------------------------------------------------- Parquet tables
 
 
@@ -220,8 +316,13 @@ def scans_table(t: np.ndarray, ranges: np.ndarray) -> pa.Table:
     return pa.table({"t": pa.array(np.asarray(t, dtype=np.float64)), "ranges": lists})
 
 
-def scans_schema(beams: int) -> pa.Schema:
-    return pa.schema([("t", pa.float64()), ("ranges", pa.list_(pa.float32(), beams))])
+def scans_schema(
+    beams: int, laser: LaserGeometry | None = None, source: Mapping[str, Any] | None = None
+) -> pa.Schema:
+    """The scans table's schema: units per column, and with `laser` the beam angles."""
+    plain = pa.schema([("t", pa.float64()), ("ranges", pa.list_(pa.float32(), beams))])
+    extra = scans_metadata(laser, source) if laser is not None else {}
+    return describe_schema(plain, "scans", **extra)
 
 
 class ScansWriter:
@@ -230,14 +331,22 @@ class ScansWriter:
     Rows are buffered into row groups of `ROW_GROUP_SCANS` scans, whatever the batches, so that
     row group k holds scans k*N .. (k+1)*N - 1 (the chunks `toolkit.app.fleet` hands to workers)."""
 
-    def __init__(self, path: Path, beams: int, group: int = ROW_GROUP_SCANS) -> None:
+    def __init__(
+        self,
+        path: Path,
+        beams: int,
+        group: int = ROW_GROUP_SCANS,
+        laser: LaserGeometry | None = None,
+        source: Mapping[str, Any] | None = None,
+    ) -> None:
         self.path = path
         self.beams = beams
         self.group = group
         self.rows = 0
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []
         self._buffered = 0
-        self._writer = pq.ParquetWriter(path, scans_schema(beams), compression="zstd")
+        self._schema = scans_schema(beams, laser, source)
+        self._writer = pq.ParquetWriter(path, self._schema, compression="zstd")
 
     def write(self, t: np.ndarray, ranges: np.ndarray) -> None:
         if len(t):
@@ -254,13 +363,21 @@ class ScansWriter:
         ranges = np.concatenate([p[1] for p in self._pending])
         whole = len(t) if final else len(t) - len(t) % self.group
         if whole:
-            table = scans_table(t[:whole], ranges[:whole])
+            table = scans_table(t[:whole], ranges[:whole]).cast(self._schema)
             self._writer.write_table(table, row_group_size=self.group)
         self._pending = [(t[whole:], ranges[whole:])] if whole < len(t) else []
         self._buffered = len(t) - whole
 
-    def close(self) -> None:
+    def close(
+        self, laser: LaserGeometry | None = None, source: Mapping[str, Any] | None = None
+    ) -> None:
+        """Finish the file; `laser` (and `source`), when only known at the end (a geometry
+        decided by the whole log), become the schema metadata read_schema returns."""
         self._flush(final=True)
+        if laser is not None:
+            schema = scans_schema(self.beams, laser, source)
+            serialized = base64.b64encode(schema.serialize().to_pybytes()).decode()
+            self._writer.add_key_value_metadata({"ARROW:schema": serialized})
         self._writer.close()
 
     def __enter__(self) -> ScansWriter:
@@ -301,13 +418,23 @@ def _ranges(table: pa.Table, path: Path) -> np.ndarray:
     return flat.to_numpy(zero_copy_only=False).reshape(len(table), beams)
 
 
-def write_scans(path: Path, t: np.ndarray, ranges: np.ndarray) -> None:
-    """A scans table in row groups of `ROW_GROUP_SCANS` scans."""
-    pq.write_table(scans_table(t, ranges), path, row_group_size=ROW_GROUP_SCANS, compression="zstd")
+def write_scans(
+    path: Path,
+    t: np.ndarray,
+    ranges: np.ndarray,
+    laser: LaserGeometry | None = None,
+    source: Mapping[str, Any] | None = None,
+) -> None:
+    """A scans table in row groups of `ROW_GROUP_SCANS` scans, self-described (`describe`)."""
+    table = scans_table(t, ranges)
+    table = table.cast(scans_schema(table.column("ranges").type.list_size, laser, source))
+    pq.write_table(table, path, row_group_size=ROW_GROUP_SCANS, compression="zstd")
 
 
 def write_poses(path: Path, frame: pd.DataFrame) -> None:
-    pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), path, compression="zstd")
+    """A pose table (t, x, y, theta); its kind (odometry, groundtruth, poses) from its name."""
+    kind = {ODOMETRY: "odometry", GROUNDTRUTH: "groundtruth"}.get(Path(path).name, "poses")
+    write_described(path, frame, kind)
 
 
 def read_poses(path: Path) -> pd.DataFrame | None:
@@ -371,10 +498,11 @@ def make_meta(
 
 def write_dataset_files(ds: Dataset, directory: Path, *, scans_written: bool = False) -> None:
     """Write every table and meta.json of `ds` into an existing directory."""
+    source = ds.meta.get("source")
     if not scans_written:
-        write_scans(directory / SCANS, ds.t, ds.ranges)
+        write_scans(directory / SCANS, ds.t, ds.ranges, ds.laser, source)
     for name, extra in ds.lasers.items():
-        write_scans(directory / f"scans-{name}.parquet", extra.t, extra.ranges)
+        write_scans(directory / f"scans-{name}.parquet", extra.t, extra.ranges, extra.laser, source)
     if ds.odometry is not None:
         write_poses(directory / ODOMETRY, ds.odometry)
     if ds.groundtruth is not None:

@@ -29,7 +29,7 @@ import pandas as pd
 
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
-from toolkit.dataset import Dataset, LaserGeometry, load
+from toolkit.dataset import Dataset, LaserGeometry, load, write_described
 from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 
@@ -248,7 +248,7 @@ def write_run(
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }
             (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
-            result.frame.to_parquet(tmp / "trajectory.parquet", index=False)
+            write_described(tmp / "trajectory.parquet", result.frame, "trajectory", method=method)
             write_tum(tmp / "trajectory.tum", ds.t, robot)
             if truth is not None:
                 write_tum(tmp / "groundtruth.tum", ds.t, truth)
@@ -278,5 +278,7 @@ def map_dataset(
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:
-    """A run's trajectory.parquet."""
-    return pd.read_parquet(path)
+    """A trajectory t, x, y, theta: a run's trajectory.parquet or .tum (`toolkit.trajio`)."""
+    from toolkit.trajio import read_trajectory as read
+
+    return read(path)

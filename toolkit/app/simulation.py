@@ -16,12 +16,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from importers.base import Importer
 from toolkit.atomic import atomic_dir
-from toolkit.dataset import write_dataset_files
+from toolkit.dataset import write_dataset_files, write_described
 from toolkit.errors import ToolkitError
 from toolkit.sim import Simulation
 
@@ -34,9 +32,7 @@ DATASET_FORMAT = "dataset"
 def write_truth(sim: Simulation, directory: Path) -> list[Path]:
     """truth.parquet, regions.csv and simulation.json (without the file list) in `directory`."""
     truth = directory / TRUTH
-    pq.write_table(
-        pa.Table.from_pandas(sim.truth(), preserve_index=False), truth, compression="zstd"
-    )
+    write_described(truth, sim.truth(), "truth")
     regions = directory / REGIONS
     sim.regions.to_csv(regions, index=False, float_format="%.6f")
     return [truth, regions]

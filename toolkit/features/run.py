@@ -19,11 +19,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from toolkit.atomic import atomic_file
-from toolkit.dataset import Dataset, load
+from toolkit.dataset import Dataset, load, write_described
 from toolkit.errors import ToolkitError
 from toolkit.features.classify import Labels, classify
 from toolkit.features.metrics import (
@@ -33,6 +31,7 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import Config, FeatureModel, fit
 from toolkit.features.regions import read_regions, training_components, training_indices
+from toolkit.trajio import read_trajectory
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
 
@@ -41,13 +40,7 @@ def scan_poses(ds: Dataset, trajectory: Path | None = None) -> tuple[np.ndarray 
     """Poses (S x 3) at the scan times: the given trajectory, else ground truth, else odometry."""
     frame: pd.DataFrame | None
     if trajectory is not None:
-        try:
-            frame = pd.read_parquet(trajectory)
-        except (OSError, ValueError) as e:
-            raise ToolkitError(f"cannot read trajectory: {e}", file=trajectory) from None
-        missing = [c for c in ("t", "x", "y", "theta") if c not in frame.columns]
-        if missing:
-            raise ToolkitError(f"trajectory lacks columns {missing}", file=trajectory)
+        frame = read_trajectory(trajectory)  # Parquet, TUM or CSV
         source = f"trajectory {trajectory}"
     elif ds.groundtruth is not None and len(ds.groundtruth):
         frame, source = ds.groundtruth, "groundtruth"
@@ -144,7 +137,7 @@ def label_run(
 
 def _write_labels(path: Path, t: np.ndarray, labels: Labels) -> None:
     with atomic_file(path) as tmp:
-        pq.write_table(pa.Table.from_pandas(labels.frame(t), preserve_index=False), tmp)
+        write_described(tmp, labels.frame(t), "labels")
 
 
 def _metrics(
