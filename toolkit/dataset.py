@@ -231,10 +231,17 @@ COLUMNS: dict[str, tuple[str, str]] = {
         "range per beam, beam i at angle_min + i * angle_increment (schema metadata); "
         "NaN = no return",
     ),
-    "x": ("m", f"position of the robot, x in the table's frame ({_ROBOT_AXES})"),
-    "y": ("m", "position of the robot, y in the table's frame"),
-    "theta": ("rad", "heading of the robot, counter-clockwise from the frame's x axis"),
-    "label": ("", "the place with the highest posterior; 'none' when no feature fits"),
+    "x": ("m", "position of the robot along the x axis of the table's frame (schema metadata)"),
+    "y": ("m", "position of the robot along the y axis of the table's frame (schema metadata)"),
+    "theta": (
+        "rad",
+        "heading of the robot (its x axis, forward), counter-clockwise from the frame's x axis",
+    ),
+    "label": (
+        "",
+        "place: the true one (truth.parquet) or the one with the highest posterior "
+        "(labels.parquet; 'none' when no feature fits)",
+    ),
     "section": ("", "Table 1 section of the simulated log (0..7), -1 if none"),
 }
 
