@@ -39,7 +39,9 @@ def check_scans_match_meta(dataset: Path) -> None:
     assert float(got["range_max"]) == laser["range_max"]
     assert json.loads(got["laser"]) == laser
     assert json.loads(got["source"])["format"] == meta["source"]["format"]
-    assert "NaN = no return" in pq.read_schema(scans).field("ranges").metadata[b"description"].decode()
+    assert (
+        "NaN = no return" in pq.read_schema(scans).field("ranges").metadata[b"description"].decode()
+    )
     assert json.loads(got["units"]) == {"t": "s", "ranges": "m"}
 
 
