@@ -5,7 +5,9 @@
   two datasets of different beam counts under `out/datasets/` (the corridor imported from the
   bundled CARMEN log, as `make demo` does, and a simulated 361-beam building); a first line
   `# needs: ITEM, ITEM (remark)` runs the block only when every item is an existing path
-  there (globs allowed), else it is only compiled;
+  there (globs allowed), else it is only compiled; without it, a block that uses names it
+  does not define or relative paths (out/..., datasets/..., ../...) the folder lacks is
+  only compiled too;
 - ```sql blocks run in DuckDB in that folder, under the same rule (`-- needs: ...`);
 - in ```sh, ```console and unlabelled blocks, each `toolkit CMD ...` line names a command
   that exists and only flags it has, each `make TARGET` a target of the Makefile;
@@ -17,6 +19,8 @@ Pages added later are picked up by the glob.
 
 from __future__ import annotations
 
+import ast
+import builtins
 import contextlib
 import glob
 import io
@@ -123,6 +127,34 @@ def satisfied(block: Block, where: Path) -> bool:
     return needs is None or all(glob.glob(str(where / item)) for item in needs)
 
 
+def missing(block: Block, where: Path) -> list[str]:
+    """What a Python block uses that the scratch folder lacks: names it never defines (`cur`,
+    `ds` from an earlier block) and relative paths in its strings (`out/datasets/intel`,
+    `../shared/...`). Such a block is compiled, not run, even without `# needs:`."""
+    tree = ast.parse(block.code)
+    defined = set(dir(builtins)) | {"__name__", "__file__"}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store | ast.Del):
+            defined.add(node.id)
+        elif isinstance(node, ast.Import | ast.ImportFrom):
+            defined.update((a.asname or a.name).split(".")[0] for a in node.names)
+        elif isinstance(node, ast.FunctionDef | ast.ClassDef | ast.AsyncFunctionDef):
+            defined.add(node.name)
+            defined.update(a.arg for a in ast.walk(node.args) if isinstance(a, ast.arg))
+        elif isinstance(node, ast.Lambda):
+            defined.update(a.arg for a in ast.walk(node.args) if isinstance(a, ast.arg))
+    free = sorted({n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and n.id not in defined})
+    paths = [
+        n.value
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Constant)
+        and isinstance(n.value, str)
+        and re.match(r"^(\.\./|out/|datasets/)[^\s'\"]*$", n.value)
+        and not glob.glob(str(where / n.value))
+    ]
+    return free + paths
+
+
 def run_python(block: Block, where: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, object]:
     """Execute the block as a script in `where`; its namespace."""
     code = compile(block.code, block.where, "exec")
@@ -139,6 +171,8 @@ def test_python_block_runs(block: Block, workdir: Path, monkeypatch: pytest.Monk
     compile(block.code, block.where, "exec")  # a syntax error fails even a block that needs data
     if not satisfied(block, workdir):
         pytest.skip(f"compiled only: needs {block.needs()}")
+    if block.needs() is None and (lacks := missing(block, workdir)):
+        pytest.skip(f"compiled only: uses {lacks}, not in the scratch folder")
     run_python(block, workdir, monkeypatch)
 
 
