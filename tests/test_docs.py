@@ -342,3 +342,13 @@ def test_relative_links_resolve(page: Path, target: str) -> None:
     if anchor and dest.suffix == ".md":
         headings = re.findall(r"^#+\s+(.*)$", dest.read_text(), re.M)
         assert anchor in {slug(h) for h in headings}, f"{page.name}: no heading #{anchor}"
+
+
+def test_every_page_is_listed_in_the_index_and_the_readme() -> None:
+    """A page added to docs/ is reachable: docs/index.md and the README link it."""
+    pages = {p.name for p in PAGES if p.parent == ROOT / "docs" and p.name != "index.md"}
+    index = set(re.findall(r"\]\(([\w.-]+\.md)", (ROOT / "docs/index.md").read_text()))
+    readme = set(re.findall(r"\]\(docs/([\w.-]+\.md)", (ROOT / "README.md").read_text()))
+    assert pages - index == set(), "not in docs/index.md"
+    assert pages - readme == set(), "not linked from the README"
+    assert index >= PENDING and readme >= PENDING  # the other branches' pages are announced
