@@ -1,4 +1,4 @@
-"""The dataset on disk: a directory of Parquet tables and a meta.json (see DESIGN.md).
+"""The dataset on disk: a directory of Parquet tables and a meta.json (docs/dataset.md).
 
     scans.parquet         t float64, ranges fixed_size_list<float32>[B]; NaN = no return
     scans-<name>.parquet  further lasers, geometry under meta["lasers"][name]
@@ -7,6 +7,8 @@
     poses-<name>.parquet  further pose streams (e.g. ARIA's robotGlobal)
     meta.json             laser geometry, source files with sha256, import report
 
+Every Parquet file the toolkit writes describes itself (`describe`): units and meaning per
+column as Arrow field metadata, and a scans file's beam geometry as schema metadata.
 Everything in memory is the same: `Dataset.ranges` is an S x B float32 array.
 """
 
