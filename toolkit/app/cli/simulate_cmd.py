@@ -12,21 +12,9 @@ from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values
 
 
-def _value(text: str) -> Any:
-    """A KEY=VALUE value as the number or boolean it spells, else the string."""
-    low = text.lower()
-    if low in ("true", "false"):
-        return low == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def _pairs(pairs: list[str] | None, flag: str) -> dict[str, Any]:
-    return {k.replace("-", "_"): _value(v) for k, v in key_values(pairs, flag).items()}
+    """KEY=VALUE text; the simulator and the writer convert each to its field's type."""
+    return {k.replace("-", "_"): v for k, v in key_values(pairs, flag).items()}
 
 
 def _config(path: Path | None) -> dict[str, Any]:
