@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from importers.base import FLAGS, FormatOptions, Importer, ImportOptions
+from importers.base import FLAGS, FormatOptions, Importer, ImportOptions, not_a_log
 from toolkit.errors import ToolkitError
 
 __all__ = [
@@ -24,6 +24,7 @@ __all__ = [
     "get",
     "import_log",
     "names",
+    "not_a_log",
     "read_options",
     "register",
     "resolve",
@@ -121,7 +122,7 @@ def _claims(path: Path) -> list[AnyImporter]:
 def _logs_in(directory: Path, importer: AnyImporter | None) -> list[tuple[AnyImporter, Path]]:
     """The files directly in `directory` that an importer (the given one, or any) claims."""
     candidates = [importer] if importer else [cls() for cls in _REGISTRY.values()]
-    files = [child for child in sorted(directory.iterdir()) if child.is_file()]
+    files = [c for c in sorted(directory.iterdir()) if c.is_file() and not not_a_log(c)]
     return [(imp, f) for f in files for imp in candidates if imp.sniff(f)]
 
 
@@ -136,6 +137,8 @@ def resolve(fmt: str, sources: Sequence[Path]) -> tuple[AnyImporter, list[Path]]
         raise ToolkitError("no such file or directory", file=first)
     importer = get(fmt) if fmt != "auto" else None
     if importer is None:
+        if why := not_a_log(first):
+            raise ToolkitError(f"{why}, not a laser log; nothing to import", file=first)
         hits = _claims(first)
         if len(hits) > 1:
             raise ToolkitError(

@@ -69,19 +69,28 @@ class FormatOptions:
         return build(cls, values, cls.what)
 
     @classmethod
-    def specs(cls) -> list[OptionSpec]:
-        """Each option: name, type in words, choices, default and help (`toolkit formats`)."""
+    def specs(cls, flags: bool = True) -> list[OptionSpec]:
+        """Each option: name, type in words, choices, default and help (`toolkit formats`);
+        `flags`: name the command-line flag that sets an option too (reading only)."""
         kinds = field_types(cls)
         out = []
         for f in dataclasses.fields(cls):
-            default = f.metadata.get("shown") or ("-" if f.default is None else str(f.default))
+            default = f.metadata.get("shown") or _text(f.default)
+            flag = FLAGS.get(f.name) if flags else None
+            help_ = f.metadata.get("help", "")
             out.append(
                 OptionSpec(
-                    f.name, words(kinds[f.name]), choices(kinds[f.name]), default,
-                    f.metadata.get("help", ""), FLAGS.get(f.name),
+                    f.name, words(kinds[f.name]), choices(kinds[f.name]), default, help_, flag
                 )
-            )  # fmt: skip
+            )
         return out
+
+
+def _text(value: object) -> str:
+    """A default as the text that sets it: true/false, none as '-'."""
+    if value is None:
+        return "-"
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
 
 @dataclass(frozen=True)
@@ -170,6 +179,46 @@ def head_bytes(path: Path, n: int = 4096) -> bytes:
             return f.read(n)
     except (OSError, EOFError, ToolkitError):
         return b""
+
+
+def looks_like_tum(head: bytes) -> bool:
+    """True if the text is a TUM trajectory (`t x y z qx qy qz qw` lines, unit quaternions):
+    what `toolkit map` writes and evo reads, a trajectory and not a laser log."""
+    rows = []
+    for line in head.split(b"\n")[:-1][:50]:
+        line = line.strip()
+        if not line or line.startswith(b"#"):
+            continue
+        try:
+            rows.append([float(tok) for tok in line.split()])
+        except ValueError:
+            return False
+    if not rows or any(len(r) != 8 for r in rows):
+        return False
+    return all(abs(sum(q * q for q in r[4:]) - 1.0) < 1e-3 for r in rows)
+
+
+#: what a file's first bytes say it is, when it is no laser log of any format
+NOT_A_LOG = (
+    (b"PAR1", "a Parquet file (a dataset's or a run's: `toolkit info`, `toolkit map` read them)"),
+    (b"ply", "a PLY point cloud"),
+    (b"\x89PNG", "a PNG image"),
+    (b"{", "a JSON file"),
+)
+
+
+def not_a_log(path: Path) -> str | None:
+    """Why `path` is no laser log (the toolkit's own outputs: Parquet, JSON, PLY, PNG, a TUM
+    trajectory), or None. Auto-detection and directory walks refuse these."""
+    if not path.is_file():
+        return None
+    head = head_bytes(path, 8192)
+    for magic, what in NOT_A_LOG:
+        if head.lstrip().startswith(magic):
+            return what
+    if looks_like_tum(head):
+        return "a TUM trajectory (t x y z qx qy qz qw)"
+    return None
 
 
 COMPRESSION_SUFFIXES = (".gz", ".bz2", ".xz")

@@ -42,7 +42,14 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from importers import register
-from importers.base import FormatOptions, Importer, head_bytes, open_binary, option
+from importers.base import (
+    FormatOptions,
+    Importer,
+    head_bytes,
+    looks_like_tum,
+    open_binary,
+    option,
+)
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
@@ -340,7 +347,7 @@ class TableImporter(Importer[TableOptions, TableWriteOptions]):
         if not path.is_file() or RAWSEEDS_NAME.search(path.name):
             return False
         head = head_bytes(path, 65536)
-        if not head or b"\0" in head:
+        if not head or b"\0" in head or looks_like_tum(head):
             return False
         lines = [ln.strip() for ln in head.split(b"\n")[:-1] if ln.strip()]
         lines = [ln for ln in lines if not ln.startswith(b"#")][:20]
