@@ -46,7 +46,9 @@ def register(cls: type[AnyImporter]) -> type[AnyImporter]:
     return cls
 
 
-def read_options(importer: AnyImporter, given: ImportOptions | FormatOptions | None) -> Any:
+def read_options(
+    importer: AnyImporter, given: ImportOptions | FormatOptions | None
+) -> FormatOptions:
     """The importer's typed options from what the user gave: parsed here, once. A `-O` key
     the format does not have, or a flag (--scan-topic) it does not take, is an error."""
     if isinstance(given, importer.Options):
@@ -70,7 +72,9 @@ def read_options(importer: AnyImporter, given: ImportOptions | FormatOptions | N
     return importer.Options.parse(values)
 
 
-def write_options(importer: AnyImporter, given: Mapping[str, object] | FormatOptions | None) -> Any:
+def write_options(
+    importer: AnyImporter, given: Mapping[str, object] | FormatOptions | None
+) -> FormatOptions:
     """The writer's typed options from `KEY=VALUE` text or plain values (unknown keys: error)."""
     if importer.WriteOptions is None:
         raise ToolkitError(f"format {importer.name!r} has no writer")

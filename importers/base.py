@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, ClassVar, Generic, Self, TypeVar
+from typing import IO, ClassVar, Generic, Self, TypeVar
 
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import Dataset, write_dataset_files
@@ -33,17 +33,18 @@ class ImportOptions:
     extra: dict[str, str] = field(default_factory=dict)  # -O key=value, format specific
 
 
+T = TypeVar("T")
+
 #: the command line's flags that set a format option of the same name
 FLAGS = {"rate": "--rate", "scan_topic": "--scan-topic", "odom_topic": "--odom-topic",
          "laser": "--laser"}  # fmt: skip
 
 
-def option(
-    default: Any = None, help: str = "", *, shown: str | None = None, positive: bool = False
-) -> Any:
+def option(default: T, help: str = "", *, shown: str | None = None, positive: bool = False) -> T:
     """A field of a format's options: its default, its help line, and (when the default is
     None because the reader decides) the default to show; `positive`: must be > 0."""
-    return field(default=default, metadata={"help": help, "shown": shown, "positive": positive})
+    meta = {"help": help, "shown": shown, "positive": positive}
+    return field(default=default, metadata=meta)
 
 
 @dataclass(frozen=True)

@@ -322,9 +322,9 @@ class _Options:
         self.values = replace(base, **given)
         self.rate = self.values.rate
 
-    def get(self, key: str, default: str | None = None) -> Any:
+    def get(self, key: str, default: str | None = None) -> str | None:
         value = getattr(self.values, key)
-        return default if value is None else value
+        return default if value is None else str(value)
 
     def number(self, key: str, default: float | None = None) -> float | None:
         value = getattr(self.values, key)

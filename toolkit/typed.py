@@ -13,7 +13,6 @@ import math
 import types
 import typing
 from collections.abc import Mapping
-from functools import cache
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
@@ -25,14 +24,18 @@ _TRUE = frozenset({"true", "yes", "on", "1"})
 _FALSE = frozenset({"false", "no", "off", "0"})
 
 
-@cache
+_FIELD_TYPES: dict[type, dict[str, Any]] = {}
+
+
 def field_types(cls: type) -> dict[str, Any]:
-    """The resolved annotation of each dataclass field of `cls`, by name."""
-    hints = typing.get_type_hints(cls)
-    return {f.name: hints[f.name] for f in dataclasses.fields(cls) if f.init}
+    """The resolved annotation of each dataclass field of `cls`, by name (cached)."""
+    if cls not in _FIELD_TYPES:
+        hints = typing.get_type_hints(cls)
+        _FIELD_TYPES[cls] = {f.name: hints[f.name] for f in dataclasses.fields(cls) if f.init}
+    return _FIELD_TYPES[cls]
 
 
-def _members(kind: Any) -> list[Any]:
+def _members(kind: object) -> list[Any]:
     """A union's members (Literal choices first, None last), or [kind]."""
     if get_origin(kind) in (Union, types.UnionType):
         members = list(get_args(kind))
@@ -41,7 +44,7 @@ def _members(kind: Any) -> list[Any]:
     return sorted(members, key=lambda m: (m is type(None), get_origin(m) is not Literal))
 
 
-def choices(kind: Any) -> tuple[object, ...]:
+def choices(kind: object) -> tuple[object, ...]:
     """The Literal choices a field's type allows (empty if it allows more than choices)."""
     out: list[object] = []
     for m in _members(kind):
@@ -52,7 +55,7 @@ def choices(kind: Any) -> tuple[object, ...]:
     return tuple(out)
 
 
-def words(kind: Any) -> str:
+def words(kind: object) -> str:
     """A type in plain words, short: number, integer, text, path, true|false, a|b|c. (None,
     "not given", is left out: the default says what happens then.)"""
     names = {float: "number", int: "integer", str: "text", bool: "true|false", Path: "path"}
@@ -65,7 +68,7 @@ def words(kind: Any) -> str:
     return "|".join(parts)
 
 
-def convert(value: object, kind: Any, key: str, owner: str) -> Any:
+def convert(value: object, kind: object, key: str, owner: str) -> object:
     """`value` (text, or a value from JSON or Python) as the type `kind`; `key` and `owner`
     name it in the one-line error ("range_max=abc for carmen: expected none|number")."""
     for m in _members(kind):
@@ -79,7 +82,7 @@ def _show(value: object) -> str:
     return value if isinstance(value, str) else repr(value)
 
 
-def _try(value: object, kind: Any) -> tuple[bool, Any]:
+def _try(value: object, kind: object) -> tuple[bool, object]:
     if kind is type(None):
         if value is None or (isinstance(value, str) and value.strip().lower() in ("", "none")):
             return True, None
@@ -121,7 +124,9 @@ def _try(value: object, kind: Any) -> tuple[bool, Any]:
         if isinstance(value, Path):
             return True, value
         return (True, Path(text)) if text else (False, None)
-    return (True, value) if isinstance(value, kind) else (False, None)
+    if isinstance(kind, type):
+        return (True, value) if isinstance(value, kind) else (False, None)
+    return False, None
 
 
 def build(cls: type[T], values: Mapping[str, object], what: str) -> T:

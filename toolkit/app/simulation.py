@@ -20,7 +20,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from importers.base import Importer
+from importers.base import FormatOptions, Importer
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import write_dataset_files
 from toolkit.errors import ToolkitError
@@ -44,7 +44,7 @@ def write_truth(sim: Simulation, directory: Path) -> list[Path]:
 
 
 def write_simulation(
-    sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: Any
+    sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: object
 ) -> list[Path]:
     """Write `sim` in format `fmt` under the directory `out`, atomically; the files (in `out`).
 
@@ -111,7 +111,7 @@ def _counts(sim: Simulation) -> dict[str, int]:
     return {str(k): int(v) for k, v in zip(labels, counts, strict=True)}
 
 
-def _plain_fields(options: Any) -> dict[str, Any]:
+def _plain_fields(options: FormatOptions) -> dict[str, Any]:
     """A typed options object as JSON values."""
     plain = (str, int, float, bool, type(None))
     fields = dataclasses.asdict(options)

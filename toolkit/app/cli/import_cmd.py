@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values, report_outcomes
+
+if TYPE_CHECKING:
+    from importers.base import OptionSpec
 
 
 @app.command("import", short_help="Import a log (or, with --each, many) into a dataset.")
@@ -140,7 +143,7 @@ def formats_command(
             _print_options(imp.WriteOptions.specs(flags=False))
 
 
-def _print_options(specs: list[Any]) -> None:
+def _print_options(specs: list[OptionSpec]) -> None:
     """Per option: KEY=TYPE (default), the flag that sets it too, then its help, wrapped."""
     import shutil
     import textwrap
