@@ -11,8 +11,8 @@ DIR is written to a temporary directory and renamed into place (toolkit.atomic.a
 
 from __future__ import annotations
 
-import dataclasses
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +70,7 @@ def write_simulation(
             "scenario": sim.scenario,
             "seed": sim.seed,
             "format": fmt,
-            "writer_options": {} if typed is None else _plain_fields(typed),
+            "writer_options": {} if typed is None else _plain_fields(typed, options),
             "scans": sim.dataset.n_scans,
             "beams": sim.dataset.n_beams,
             "params": sim.params,
@@ -111,8 +111,8 @@ def _counts(sim: Simulation) -> dict[str, int]:
     return {str(k): int(v) for k, v in zip(labels, counts, strict=True)}
 
 
-def _plain_fields(options: FormatOptions) -> dict[str, Any]:
-    """A typed options object as JSON values."""
+def _plain_fields(options: FormatOptions, given: Iterable[str]) -> dict[str, Any]:
+    """The options given, as parsed (typed), in JSON values."""
     plain = (str, int, float, bool, type(None))
-    fields = dataclasses.asdict(options)
-    return {k: v if isinstance(v, plain) else str(v) for k, v in fields.items()}
+    values = {k: getattr(options, k) for k in given}
+    return {k: v if isinstance(v, plain) else str(v) for k, v in values.items()}
