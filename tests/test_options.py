@@ -272,3 +272,15 @@ def test_formats_lists_read_write_and_every_option(cli: Cli) -> None:
     code, out, _ = cli("formats", "carmen")
     assert code == 0 and "poses=odometry|groundtruth  (default odometry)" in out
     assert "rosbag" not in out
+
+
+def test_the_docs_page_lists_what_toolkit_formats_prints(
+    monkeypatch: pytest.MonkeyPatch, cli: Cli
+) -> None:
+    """docs/formats.md ends with `COLUMNS=100 toolkit formats`; regenerate it when this fails."""
+    monkeypatch.setenv("COLUMNS", "100")
+    code, out, err = cli("formats")
+    assert code == 0, err
+    page = (ROOT / "docs" / "formats.md").read_text()
+    block = page.split("<!-- generated: COLUMNS=100 toolkit formats")[1].split("```\n")[1]
+    assert block == out
