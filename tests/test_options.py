@@ -9,16 +9,20 @@ import re
 import shutil
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import importers
-from importers.base import looks_like_tum
+from importers.base import FormatOptions, looks_like_tum
 from importers.carmen import CarmenOptions
 from tests.conftest import ROOT, Cli
 from toolkit.app.cli import app
 from toolkit.errors import ToolkitError
+from toolkit.typed import choices, field_types
 
 CARMEN_LOG = ROOT / "datasets" / "corridor-carmen"
 
@@ -284,3 +288,42 @@ def test_the_docs_page_lists_what_toolkit_formats_prints(
     page = (ROOT / "docs" / "formats.md").read_text()
     block = page.split("<!-- generated: COLUMNS=100 toolkit formats")[1].split("```\n")[1]
     assert block == out
+
+
+OPTION_CLASSES = [
+    cls
+    for name in importers.names()
+    for cls in (importers.get(name).Options, importers.get(name).WriteOptions)
+    if cls is not None
+]
+FIELDS = [(cls, f.name) for cls in OPTION_CLASSES for f in dataclasses.fields(cls)]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    field=st.sampled_from(FIELDS),
+    text=st.one_of(
+        st.text(max_size=12),
+        st.sampled_from(["none", "NaN", "inf", "-1", "0", "1e400", "true", "3.5", " 7 "]),
+    ),
+)
+def test_any_text_gives_the_options_type_or_one_error(
+    field: tuple[type[FormatOptions], str], text: str
+) -> None:
+    """Whatever follows `-O KEY=`, the result is a value of the option's declared type (one of
+    its choices), or a ToolkitError naming the key; never another exception."""
+    cls, key = field
+    try:
+        options = cls.parse({key: text})
+    except ToolkitError as e:
+        assert key in str(e) and "\n" not in str(e)
+        return
+    value = getattr(options, key)
+    kind = field_types(cls)[key]
+    allowed = choices(kind)
+    if allowed:
+        assert value in allowed or value is None
+    else:
+        members = [m for m in typing.get_args(kind) or (kind,) if typing.get_origin(m) is None]
+        literals = [c for m in typing.get_args(kind) if typing.get_origin(m) is typing.Literal for c in typing.get_args(m)]  # fmt: skip
+        assert value in literals or isinstance(value, tuple(members)), (key, text, value)

@@ -79,7 +79,8 @@ def convert(value: object, kind: object, key: str, owner: str) -> object:
 
 
 def _show(value: object) -> str:
-    return value if isinstance(value, str) else repr(value)
+    """Text as typed, unless it holds line breaks or control characters (then quoted)."""
+    return value if isinstance(value, str) and value.isprintable() else repr(value)
 
 
 def _try(value: object, kind: object) -> tuple[bool, object]:
@@ -113,10 +114,13 @@ def _try(value: object, kind: object) -> tuple[bool, object]:
     if kind is float:
         if isinstance(value, bool):
             return False, None
-        try:
-            number = float(text) if text is not None else float(value)  # type: ignore[arg-type]
-        except (TypeError, ValueError):
-            return False, None
+        if isinstance(value, int | float):
+            number = float(value)
+        else:
+            try:
+                number = float(text) if text is not None else math.nan
+            except ValueError:
+                return False, None
         return (True, number) if not math.isnan(number) else (False, None)
     if kind is str:
         return (True, value) if isinstance(value, str) else (False, None)

@@ -90,6 +90,8 @@ def import_command(
         laser=laser,
         extra=key_values(option, "-O"),
     )
+    if fmt != "auto":  # a bad option fails once, up front, not once per log
+        importers.read_options(importers.get(fmt), options)
     if each or scheduler != "none":
         _import_each(fmt, sources, out, options, force, scheduler, quiet)
         return
