@@ -151,6 +151,12 @@ def resolve(fmt: str, sources: Sequence[Path]) -> tuple[AnyImporter, list[Path]]
         importer = hits[0] if hits else None
     if importer is not None and (not first.is_dir() or importer.sniff(first)):
         return importer, list(sources)
+    if first.is_dir() and fmt == "auto" and (first / "meta.json").is_file():
+        raise ToolkitError(
+            "a dataset directory (already imported: `toolkit info`, `toolkit map` read it), "
+            "not a laser log; nothing to import",
+            file=first,
+        )
     if not first.is_dir():  # a file no importer claims
         raise ToolkitError(
             f"cannot tell the format; name it (one of {', '.join(names())})", file=first

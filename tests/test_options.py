@@ -180,6 +180,14 @@ def test_auto_refuses_the_toolkits_own_outputs(
     assert not (tmp_path / "d").exists()
 
 
+def test_auto_refuses_a_dataset_directory(
+    outputs: dict[str, Path], tmp_path: Path, cli: Cli
+) -> None:
+    dataset = outputs["scans.parquet"].parent
+    code, _, err = cli("import", "auto", dataset, "--out", tmp_path / "d")
+    one_line_error(code, err, "a dataset directory (already imported", "not a laser log")
+
+
 def test_auto_refuses_a_tum_file_whatever_its_name(
     outputs: dict[str, Path], tmp_path: Path, cli: Cli
 ) -> None:
@@ -265,7 +273,7 @@ def test_formats_lists_read_write_and_every_option(cli: Cli) -> None:
     assert code == 0, err
     table = out.split("\n\n")[0].splitlines()
     assert table[0].split() == ["FORMAT", "READ", "WRITE", "SOURCES"]
-    rows = {line.split()[0]: line.split()[1:3] for line in table[1:]}
+    rows = {line.split()[0]: line.split()[1:3] for line in table[1:] if line[:1] != " "}
     for name in importers.names():
         imp = importers.get(name)
         assert rows[name] == ["yes", "yes" if imp.writes else "no"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -133,10 +135,11 @@ def formats_command(
     import importers
 
     chosen = [importers.get(name)] if name else [importers.get(n) for n in importers.names()]
+    width = _width()
     typer.echo(f"{'FORMAT':9s} {'READ':5s} {'WRITE':5s} SOURCES")
     for imp in chosen:
-        writes = "yes" if imp.writes else "no"
-        typer.echo(f"{imp.name:9s} {'yes':5s} {writes:5s} {imp.summary}")
+        row = f"{imp.name:9s} {'yes':5s} {'yes' if imp.writes else 'no':5s} {imp.summary}"
+        typer.echo(textwrap.fill(row, width, subsequent_indent=" " * 22))
     for imp in chosen:
         typer.echo(f"\n{imp.name}: toolkit import {imp.name} SOURCE --out DIR -O KEY=VALUE ...")
         _print_options(imp.Options.specs())
@@ -147,11 +150,13 @@ def formats_command(
 
 def _print_options(specs: list[OptionSpec]) -> None:
     """Per option: KEY=TYPE (default), the flag that sets it too, then its help, wrapped."""
-    import shutil
-    import textwrap
-
-    width = max(60, min(shutil.get_terminal_size().columns, 100))
+    width = _width()
     for s in specs:
         flag = f"; also {s.flag}" if s.flag else ""
         typer.echo(f"  {s.name}={s.type}  (default {s.default}{flag})")
         typer.echo(textwrap.fill(s.help, width, initial_indent=" " * 6, subsequent_indent=" " * 6))
+
+
+def _width() -> int:
+    """The terminal's width for wrapped listings, within 60-100 columns."""
+    return max(60, min(shutil.get_terminal_size().columns, 100))
