@@ -335,3 +335,9 @@ def test_any_text_gives_the_options_type_or_one_error(
         members = [m for m in typing.get_args(kind) or (kind,) if typing.get_origin(m) is None]
         literals = [c for m in typing.get_args(kind) if typing.get_origin(m) is typing.Literal for c in typing.get_args(m)]  # fmt: skip
         assert value in literals or isinstance(value, tuple(members)), (key, text, value)
+
+
+def test_toolkit_alone_prints_the_help(cli: Cli) -> None:
+    code, out, err = cli()
+    assert code == 0 and err == ""
+    assert out.startswith("Usage: toolkit [OPTIONS] COMMAND") and "formats" in out

@@ -100,6 +100,9 @@ def main() -> None:
         sys.exit(130)
     except Exception as e:  # a usage error, or a bug: still one line
         show = getattr(e, "format_message", None)
+        if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
+            typer.echo(show())  # `toolkit` alone: the help, as `--help` prints it
+            sys.exit(0)
         if show is not None:  # click's exceptions (typer bundles its own click)
             typer.echo(f"error: {show()} (see --help)", err=True)
             sys.exit(1)
