@@ -90,6 +90,14 @@ def test_a_value_of_the_wrong_type_names_the_type(
     one_line_error(code, err, needle)
 
 
+def test_an_option_given_twice_is_an_error(tmp_path: Path, cli: Cli) -> None:
+    code, _, err = cli(
+        "import", "carmen", CARMEN_LOG, "--out", tmp_path / "d",
+        "-O", "poses=groundtruth", "-O", "poses=odometry",
+    )  # fmt: skip
+    one_line_error(code, err, "-O poses= given twice")
+
+
 def test_options_are_parsed_once_into_the_typed_object() -> None:
     given = importers.ImportOptions(rate=5.0, extra={"poses": "GroundTruth", "range_max": "30"})
     typed = importers.read_options(importers.get("carmen"), given)
