@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from importers.base import ImportOptions, open_text
-from importers.carmen import Carmen
+from importers.base import open_text
+from importers.carmen import Carmen, CarmenOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
@@ -62,10 +62,10 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         opener = gzip.open if path.suffix == ".gz" else open
         with opener(path, "rb") as f:
             size = len(f.read())
-        ds = carmen.read([path], ImportOptions())
+        ds = carmen.read([path], CarmenOptions())
         with tempfile.TemporaryDirectory() as tmp:
             sources, target = [path], Path(tmp)
-            t_read = _median(partial(carmen.read, sources, ImportOptions()), repeats)
+            t_read = _median(partial(carmen.read, sources, CarmenOptions()), repeats)
             t_base = _median(partial(_per_token, path), repeats)
             t_write = _median(partial(carmen.write, ds, target), repeats)
         rows.append(

@@ -35,8 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from importers import ImportOptions
-from importers.lms200 import LMS200, _candidates, crc_frames_numba, crc_frames_numpy, write
+from importers.lms200 import (
+    LMS200,
+    LMS200Options,
+    _candidates,
+    crc_frames_numba,
+    crc_frames_numpy,
+    write,
+)
 from toolkit.dataset import Dataset, LaserGeometry
 
 REPEATS = 3
@@ -109,7 +115,7 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         for method in ("numpy", "numba"):
 
             def read(method: str = method) -> Dataset:
-                return LMS200().read([capture], ImportOptions(extra={"crc": method}))
+                return LMS200().read([capture], LMS200Options.parse({"crc": method}))
 
             seconds, ds = _median(read)
             assert ds.n_scans == len(intact), (ds.n_scans, len(intact))

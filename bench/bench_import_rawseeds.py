@@ -32,11 +32,11 @@ CHILD = """
 import json, sys, time
 from pathlib import Path
 from importers.rawseeds import Rawseeds
-from importers.base import ImportOptions
+from importers.rawseeds import RawseedsOptions
 from bench import peak_rss_mb
 src, out = Path(sys.argv[1]), Path(sys.argv[2])
 start, cpu = time.perf_counter(), time.process_time()
-Rawseeds().import_to([src], out, ImportOptions())
+Rawseeds().import_to([src], out, RawseedsOptions())
 seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
 meta = json.loads((out / "meta.json").read_text())
 print(json.dumps({"seconds": seconds, "cpu_seconds": cpu, "scans": meta["scans"],

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 import importers
-from importers.base import ImportOptions
+from importers.rosbag.importer import RosbagOptions, RosbagWriteOptions
 from importers.rosbag.source import open_bag
 from toolkit.dataset import Dataset, LaserGeometry
 
@@ -59,19 +59,19 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
             ds = _dataset(scans, beams)
             for version in ("ros1", "ros2", "mcap"):
                 start = time.perf_counter()
-                (bag,) = rosbag.write(ds, work / f"{version}-{beams}", version=version)
+                (bag,) = rosbag.write(
+                    ds, work / f"{version}-{beams}", RosbagWriteOptions(version=version)
+                )
                 write_s = time.perf_counter() - start
                 size = sum(f.stat().st_size for f in ([bag] if bag.is_file() else bag.iterdir()))
                 figures = {
                     "iterate": _median_seconds(lambda bag=bag: _iterate(bag)),
-                    "raw": _median_seconds(lambda bag=bag: rosbag.read([bag], ImportOptions())),
+                    "raw": _median_seconds(lambda bag=bag: rosbag.read([bag], RosbagOptions())),
                     "rosbags": _median_seconds(
-                        lambda bag=bag: rosbag.read(
-                            [bag], ImportOptions(extra={"decode": "rosbags"})
-                        )
+                        lambda bag=bag: rosbag.read([bag], RosbagOptions(decode="rosbags"))
                     ),
                 }
-                check = rosbag.read([bag], ImportOptions())
+                check = rosbag.read([bag], RosbagOptions())
                 assert check.ranges.shape == (scans, beams)
                 for how, seconds in figures.items():
                     rows.append(

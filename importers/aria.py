@@ -31,15 +31,16 @@ import lzma
 import math
 import re
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Literal
 
 import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import Importer, ImportOptions, head_bytes, open_text
+from importers.base import FormatOptions, Importer, head_bytes, open_text, option
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
@@ -68,13 +69,33 @@ class _Scans:
         self.global_: list[tuple[float, float, float] | None] = []
 
 
+@dataclass(frozen=True)
+class AriaOptions(FormatOptions):
+    """Reading an ARIA log."""
+
+    range_max: float = option(
+        DEFAULT_RANGE_MAX, "readings at or beyond this (m) become NaN", positive=True
+    )
+    rate: float | None = option(
+        None, "scans per second for a log without logTime:/time:", shown="1", positive=True
+    )
+
+
+@dataclass(frozen=True)
+class AriaWriteOptions(FormatOptions):
+    """Writing an ARIA log."""
+
+    version: Literal[2, 3, 4] = option(4, "log version: 2 (time:) or 3/4 (logTime:)")
+    points: bool = option(True, "scan1: points (true) or the older sick1: ranges (false)")
+    name: str = option("log", "file name: NAME.2d")
+
+
 @register
-class Aria(Importer):
+class Aria(Importer[AriaOptions, AriaWriteOptions]):
     name = "aria"
     summary = "ARIA ArLaserLogger laser log (.2d): scan1 points or sick1 ranges, robot poses"
-    options: ClassVar[dict[str, str]] = {
-        "range_max": f"readings at or beyond this (m) become NaN (default {DEFAULT_RANGE_MAX})",
-    }
+    Options = AriaOptions
+    WriteOptions = AriaWriteOptions
 
     def sniff(self, path: Path) -> bool:
         log = _find_log(path) if path.is_dir() else path
@@ -91,7 +112,7 @@ class Aria(Importer):
             or re.search(r"^\s*(sick1conf|scan1conf)\s*:", text, re.M) is not None
         )
 
-    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+    def read(self, sources: Sequence[Path], options: AriaOptions) -> Dataset:
         paths = [Path(p) for p in sources]
         if len(paths) == 1 and paths[0].is_dir():
             found = _find_log(paths[0])
@@ -101,33 +122,18 @@ class Aria(Importer):
         if len(paths) != 1:
             raise ToolkitError("aria takes one .2d log")
         path = paths[0]
-        range_max = _float_option(options, "range_max", DEFAULT_RANGE_MAX)
-        if options.rate is not None and not options.rate > 0:
-            raise ToolkitError(f"--rate must be positive, got {options.rate}")
         report = ImportReport()
         header, scans = _parse(path, report)
-        return _build(path, header, scans, report, range_max, self.name, options.rate)
+        return _build(path, header, scans, report, options.range_max, self.name, options.rate)
 
-    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
-        return [write(ds, out, **options)]  # type: ignore[arg-type]
+    def write(self, ds: Dataset, out: Path, options: AriaWriteOptions | None = None) -> list[Path]:
+        o = options or AriaWriteOptions()
+        return [write(ds, out, version=o.version, points=o.points, name=o.name)]
 
 
 def _find_log(directory: Path) -> Path | None:
     logs = sorted(p for p in directory.iterdir() if p.name.lower().endswith(SUFFIXES))
     return logs[0] if len(logs) == 1 else None
-
-
-def _float_option(options: ImportOptions, key: str, default: float) -> float:
-    text = options.get(key)
-    if text is None:
-        return default
-    try:
-        value = float(text)
-    except ValueError:
-        raise ToolkitError(f"-O {key}={text}: not a number") from None
-    if not value > 0:
-        raise ToolkitError(f"-O {key}={text}: must be positive")
-    return value
 
 
 def _numbers(text: str, count: int | None = None) -> list[float] | None:

@@ -49,14 +49,14 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import Importer, ImportOptions, head_bytes, open_text
+from importers.base import FormatOptions, Importer, head_bytes, open_text, option
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, Scans, make_meta
 from toolkit.errors import FormatError, ToolkitError
@@ -407,7 +407,7 @@ class _Built:
 class _Reader:
     """Turns the parsed lines of one log into a Dataset, recording each decision."""
 
-    def __init__(self, path: Path, options: ImportOptions) -> None:
+    def __init__(self, path: Path, options: CarmenOptions) -> None:
         self.path = path
         self.options = options
         self.report = ImportReport()
@@ -537,18 +537,15 @@ class _Reader:
             if n not in OLD_LAYOUTS:
                 self.report.note(f"{s.name}: {n} beams is no known layout; assumed 180° from -90°")
             start, res, max_range = math.radians(first), math.radians(step), math.nan
-        explicit = (self.options.get("range_max") or "").strip().lower()
+        explicit = self.options.range_max
         param = _param_float(self.lines, RANGE_PARAM, self.report)
         given = float(max_range) if math.isfinite(max_range) and max_range > 0 else None
         range_max: float | None = None
         code: float | None = None  # ranges at or above it become NaN
         if explicit == "none":
             range_max, how = given, "detection off (-O range_max=none)"
-        elif explicit:
-            try:
-                range_max = code = float(explicit)
-            except ValueError:
-                raise ToolkitError(f"-O range_max={explicit!r} is not a number") from None
+        elif explicit is not None:
+            range_max = code = explicit
             how = "-O range_max"
         elif given is not None or param is not None:
             range_max = given if given is not None else param
@@ -582,12 +579,8 @@ class _Reader:
         rear = s.name in REAR
         param_name = "robot_rearlaser_offset" if rear else "robot_frontlaser_offset"
         offset = _param_float(self.lines, param_name, self.report)
-        extra = self.options.get("laser_x")
-        if extra is not None:
-            try:
-                x, source = float(extra), "-O laser_x"
-            except ValueError:
-                raise ToolkitError(f"-O laser_x={extra!r} is not a number") from None
+        if self.options.laser_x is not None:
+            x, source = self.options.laser_x, "-O laser_x"
         elif offset is not None:
             x, source = offset, f"PARAM {param_name}"
             if abs(offset - dx) > 0.01 and ok.any():
@@ -610,9 +603,7 @@ class _Reader:
     ) -> tuple[pd.DataFrame | None, pd.DataFrame | None, dict[str, pd.DataFrame]]:
         report = self.report
         scan_poses = _pose_frame(main.t, main.stream.robot_pose)
-        which = (self.options.get("poses") or "odometry").lower()
-        if which not in ("odometry", "groundtruth"):
-            raise ToolkitError(f"-O poses={which!r}: expected odometry or groundtruth")
+        which = self.options.poses
         clock = main.time_source == "log"
         odometry: pd.DataFrame | None = None
         if self.lines.odom:
@@ -824,18 +815,50 @@ def _sniff_lines(path: Path) -> list[list[str]]:
     return [t for t in tokens if t and not t[0].startswith("#")][:5]
 
 
+@dataclass(frozen=True)
+class CarmenOptions(FormatOptions):
+    """Reading a CARMEN log."""
+
+    poses: Literal["odometry", "groundtruth"] = option(
+        "odometry",
+        "groundtruth: store the laser lines' robot poses as ground truth (the Radish "
+        "'corrected' logs)",
+    )
+    range_max: float | Literal["none"] | None = option(
+        None,
+        "the no-return code in m (values at or above it -> NaN), or none",
+        shown="detected per log",
+    )
+    laser_x: float | None = option(
+        None,
+        "laser mounting x in m, over PARAM robot_frontlaser_offset and the poses (DP-SLAM's "
+        "README gives 0.40)",
+        shown="PARAM, else the poses",
+    )
+    rate: float | None = option(
+        None, "scans per second when the log's clock is missing or broken", shown="1", positive=True
+    )
+    laser: str | None = option(
+        None,
+        "the primary laser: flaser, robotlaser1, laser, rlaser or robotlaser2",
+        shown="the first of those present",
+    )
+
+
+@dataclass(frozen=True)
+class CarmenWriteOptions(FormatOptions):
+    """Writing a CARMEN log."""
+
+    name: str = option("sim.log", "file name of the log")
+    host: str = option("toolkit", "host name in every line")
+
+
 @register
-class Carmen(Importer):
+class Carmen(Importer[CarmenOptions, CarmenWriteOptions]):
     name = "carmen"
     summary = "CARMEN logs (FLASER/RLASER, ROBOTLASER1, ODOM, TRUEPOS, PARAM), DP-SLAM logs; gz/bz2"
-    options: ClassVar[dict[str, str]] = {
-        "poses": "odometry (default) or groundtruth: store the laser lines' robot poses as "
-        "ground truth (the Radish 'corrected' logs)",
-        "range_max": "the no-return code in m (values at or above it -> NaN), or none; "
-        "default: detected per log",
-        "laser_x": "laser mounting x in m, over PARAM robot_frontlaser_offset and the poses "
-        "(DP-SLAM's README gives 0.40)",
-    }
+    Options = CarmenOptions
+    WriteOptions = CarmenWriteOptions
 
     def sniff(self, path: Path) -> bool:
         if not path.is_file():
@@ -852,19 +875,20 @@ class Carmen(Importer):
             return False
         return True
 
-    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+    def read(self, sources: Sequence[Path], options: CarmenOptions) -> Dataset:
         if len(sources) != 1:
             raise ToolkitError(f"carmen reads one log file, got {len(sources)}")
         path = Path(sources[0])
         return _Reader(path, options).dataset()
 
-    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
+    def write(
+        self, ds: Dataset, out: Path, options: CarmenWriteOptions | None = None
+    ) -> list[Path]:
         """Write `ds` as the CARMEN log `out/name` (name="sim.log"), atomically; [that path]."""
-        name = str(options.get("name", "sim.log"))
+        options = options or CarmenWriteOptions()
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        target = out / name
-        host = str(options.get("host", "toolkit"))
+        target = out / options.name
         with atomic_file(target) as tmp:
-            write_log(ds, tmp, host=host)
+            write_log(ds, tmp, host=options.host)
         return [target]

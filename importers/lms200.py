@@ -46,15 +46,23 @@ import lzma
 import sys
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Literal
 
 import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import Importer, ImportOptions, head_bytes, open_binary, open_text
+from importers.base import (
+    FormatOptions,
+    Importer,
+    head_bytes,
+    open_binary,
+    open_text,
+    option,
+)
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
@@ -329,15 +337,44 @@ def geometry(count: int, units: str, **mount: float) -> LaserGeometry:
 # ---------------------------------------------------------------- the importer
 
 
+@dataclass(frozen=True)
+class LMS200Options(FormatOptions):
+    """Reading an LMS-2xx capture."""
+
+    baud: float = option(
+        DEFAULT_BAUD, "line speed for times without a side file or --rate", positive=True
+    )
+    times: Path | None = option(
+        None, "side file of 'OFFSET T' lines", shown="<capture>.times if present"
+    )
+    crc: Literal["numpy", "numba"] | None = option(
+        None, "how the candidates' CRCs are computed", shown="numba from 1 GB"
+    )
+    rate: float | None = option(
+        None, "scans per second (times from the telegrams' order, not the baud)", positive=True
+    )
+
+
+@dataclass(frozen=True)
+class LMS200WriteOptions(FormatOptions):
+    """Writing an LMS-2xx capture (with optional line damage)."""
+
+    baud: int = option(DEFAULT_BAUD, "line speed (the side file's times)", positive=True)
+    units: Literal["cm", "mm"] = option("mm", "cm (80 m, 1 cm) or mm (8 m, 1 mm) mode")
+    noise_bytes: float = option(0.0, "mean random bytes between telegrams (Poisson)")
+    bit_error_rate: float = option(0.0, "chance of each bit of the stream flipping")
+    truncate_last: bool = option(False, "cut the last telegram short")
+    seed: int = option(0, "seed of the damage")
+    start_mid_frame: bool = option(False, "begin with the tail of a telegram")
+    name: str = option("capture", "file name: NAME.lms, NAME.lms.times, NAME.truth.json")
+
+
 @register
-class LMS200(Importer):
+class LMS200(Importer[LMS200Options, LMS200WriteOptions]):
     name = "lms200"
     summary = "SICK LMS-2xx raw serial capture (.lms/.bin/.raw): telegrams with CRC"
-    options: ClassVar[dict[str, str]] = {
-        "baud": f"line speed for times without a side file or --rate (default {DEFAULT_BAUD})",
-        "times": "side file of 'OFFSET T' lines (default: <capture>.times if present)",
-        "crc": "numpy or numba (default: numba from 1 GB): how the candidates' CRCs are computed",
-    }
+    Options = LMS200Options
+    WriteOptions = LMS200WriteOptions
 
     def sniff(self, path: Path) -> bool:
         capture = _find_capture(path) if path.is_dir() else path
@@ -350,13 +387,11 @@ class LMS200(Importer):
         hinted = capture.name.lower().endswith(CAPTURE_SUFFIXES)
         return found.start.size >= (1 if hinted else 2) and bool(found.start[0] < 1024)
 
-    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+    def read(self, sources: Sequence[Path], options: LMS200Options) -> Dataset:
         capture, times_file = _sources(sources, options)
         report = ImportReport()
         buf = _read_capture(capture, report)
-        crc = options.get("crc") or default_crc_method(buf.size)
-        if crc not in CRC_METHODS:
-            raise ToolkitError(f"-O crc={crc}: expected one of {', '.join(CRC_METHODS)}")
+        crc = options.crc or default_crc_method(buf.size)
         with task(f"searching {capture.name}", total=1) as (bar, job):
             tg = Telegrams(buf, crc)
             bar.advance(TaskID(job))
@@ -440,8 +475,15 @@ class LMS200(Importer):
         )
         return Dataset(t=t, ranges=ranges, laser=laser, meta=meta)
 
-    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
-        return write(ds, out, **options)  # type: ignore[arg-type]
+    def write(
+        self, ds: Dataset, out: Path, options: LMS200WriteOptions | None = None
+    ) -> list[Path]:
+        o = options or LMS200WriteOptions()
+        return write(
+            ds, out, baud=o.baud, units=o.units, noise_bytes=o.noise_bytes,
+            bit_error_rate=o.bit_error_rate, truncate_last=o.truncate_last, seed=o.seed,
+            start_mid_frame=o.start_mid_frame, name=o.name,
+        )  # fmt: skip
 
 
 def _read_capture(path: Path, report: ImportReport) -> np.ndarray:
@@ -483,7 +525,7 @@ def _find_capture(directory: Path) -> Path | None:
     return files[0] if len(files) == 1 else None
 
 
-def _sources(sources: Sequence[Path], options: ImportOptions) -> tuple[Path, Path | None]:
+def _sources(sources: Sequence[Path], options: LMS200Options) -> tuple[Path, Path | None]:
     """The capture file and its side file of timestamps (if any)."""
     paths = [Path(p) for p in sources]
     if len(paths) == 1 and paths[0].is_dir():
@@ -500,9 +542,8 @@ def _sources(sources: Sequence[Path], options: ImportOptions) -> tuple[Path, Pat
     if len(captures) != 1 or len(times) > 1:
         raise ToolkitError("lms200 takes one capture and at most one .times side file")
     capture = captures[0]
-    explicit = options.get("times")
-    if explicit:
-        return capture, Path(explicit)
+    if options.times is not None:
+        return capture, options.times
     if times:
         return capture, times[0]
     for candidate in (
@@ -538,7 +579,7 @@ def read_times(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _times(
-    offsets: np.ndarray, times_file: Path | None, options: ImportOptions, capture: Path
+    offsets: np.ndarray, times_file: Path | None, options: LMS200Options, capture: Path
 ) -> tuple[np.ndarray, str]:
     off = offsets.astype(np.float64)
     if times_file is not None:
@@ -550,18 +591,10 @@ def _times(
             t[hi] = fp[-1] + (off[hi] - xp[-1]) * (fp[-1] - fp[-2]) / (xp[-1] - xp[-2])
         return t, f"side file {times_file.name} (byte offset -> time, interpolated)"
     if options.rate:
-        if options.rate <= 0:
-            raise ToolkitError(f"--rate must be positive, got {options.rate}")
         spacing = float(np.median(np.diff(off))) if off.size > 1 else 1.0
         slots = np.rint((off - off[0]) / spacing)
         return slots / options.rate, f"rate {options.rate:g} Hz (stated, --rate)"
-    baud_text = options.get("baud", str(DEFAULT_BAUD)) or str(DEFAULT_BAUD)
-    try:
-        baud = float(baud_text)
-    except ValueError:
-        raise ToolkitError(f"-O baud={baud_text}: not a number") from None
-    if baud <= 0:
-        raise ToolkitError(f"-O baud={baud_text}: must be positive")
+    baud = options.baud
     return off * BITS_PER_BYTE / baud, f"baud {baud:g} (byte offset x {BITS_PER_BYTE} bits / baud)"
 
 

@@ -55,7 +55,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, ClassVar
+from typing import IO, Any, ClassVar, Literal
 
 import numpy as np
 import pandas as pd
@@ -66,7 +66,7 @@ import pyarrow.parquet as pq
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import Importer, ImportOptions, head_bytes, open_binary
+from importers.base import FormatOptions, Importer, head_bytes, open_binary, option
 from toolkit.atomic import atomic_dir, atomic_file
 from toolkit.dataset import (
     GROUNDTRUTH,
@@ -640,16 +640,37 @@ def strip_name(path: Path) -> str:
     return name
 
 
+@dataclass(frozen=True)
+class RawseedsOptions(FormatOptions):
+    """Reading a Rawseeds session."""
+
+    groundtruth: Literal["floor", "extended", "none"] = option(
+        "floor",
+        "floor: GROUNDTRUTH.csv (external, partial path); extended: GT-extended.csv (whole "
+        "path, from scan matching); none",
+    )
+    laser: Literal["sick_front", "sick_rear", "hokuyo_front", "hokuyo_rear"] = option(
+        "sick_front", "the primary laser (the others are kept beside it)"
+    )
+
+
+@dataclass(frozen=True)
+class RawseedsWriteOptions(FormatOptions):
+    """Writing a Rawseeds session."""
+
+    session: str = option("Sim_2026-01-01a", "session name: the files' prefix")
+    odometry_decimals: int = option(3, "decimals of odometry x, y, theta")
+    chunk: int = option(20000, "scans formatted per block", positive=True)
+
+
 @register
-class Rawseeds(Importer):
+class Rawseeds(Importer[RawseedsOptions, RawseedsWriteOptions]):
     name: ClassVar[str] = "rawseeds"
     summary: ClassVar[str] = (
         "Rawseeds session dir or files: <session>-SICK_FRONT.csv(.bz2), -ODOMETRY_XYT, -GROUNDTRUTH ..."
     )
-    options: ClassVar[dict[str, str]] = {
-        "groundtruth": "floor (GROUNDTRUTH.csv, external, partial path; default) | extended "
-        "(GT-extended.csv, whole path, from scan matching) | none",
-    }
+    Options = RawseedsOptions
+    WriteOptions = RawseedsWriteOptions
 
     def sniff(self, path: Path) -> bool:
         path = Path(path)
@@ -663,7 +684,7 @@ class Rawseeds(Importer):
         line = head_bytes(path, 8192).split(b"\n", 1)[0].strip()
         return _looks_like_sick_line(line)
 
-    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+    def read(self, sources: Sequence[Path], options: RawseedsOptions) -> Dataset:
         """Import into a temporary dataset and load it (for small inputs and round trips)."""
         with tempfile.TemporaryDirectory(prefix="rawseeds-") as tmp:
             out = Path(tmp) / "ds"
@@ -673,18 +694,11 @@ class Rawseeds(Importer):
         return ds
 
     def import_to(
-        self, sources: Sequence[Path], out: Path, options: ImportOptions, force: bool = False
+        self, sources: Sequence[Path], out: Path, options: RawseedsOptions, force: bool = False
     ) -> Path:
         session = find_session([Path(s) for s in sources])
-        primary = (options.laser or "sick_front").lower()
-        if primary not in LASERS:
-            raise ToolkitError(f"unknown laser {options.laser!r}; one of {', '.join(LASERS)}")
-        gt_choice = (options.get("groundtruth") or "floor").lower()
-        if gt_choice not in GT_CHOICES:
-            raise ToolkitError(
-                f"-O groundtruth={gt_choice}: expected one of {', '.join(GT_CHOICES)}"
-            )
-        spec = LASERS[primary]
+        gt_choice = options.groundtruth
+        spec = LASERS[options.laser]
         if spec.stream not in session.files:
             raise FormatError(f"no {spec.stream} csv in {session.where}")
         with atomic_dir(out, force=force) as tmp:
@@ -809,8 +823,13 @@ class Rawseeds(Importer):
         meta["source"]["files"] = hashes.result()
         return meta
 
-    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
-        return write(ds, out, **options)  # type: ignore[arg-type]
+    def write(
+        self, ds: Dataset, out: Path, options: RawseedsWriteOptions | None = None
+    ) -> list[Path]:
+        o = options or RawseedsWriteOptions()
+        return write(
+            ds, out, session=o.session, odometry_decimals=o.odometry_decimals, chunk=o.chunk
+        )
 
 
 def _source_entries(paths: Sequence[Path], stop: threading.Event) -> list[dict[str, Any]]:

@@ -32,9 +32,9 @@ import io
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
@@ -42,7 +42,14 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from importers import register
-from importers.base import Importer, ImportOptions, head_bytes, open_binary
+from importers.base import (
+    FormatOptions,
+    Importer,
+    head_bytes,
+    looks_like_tum,
+    open_binary,
+    option,
+)
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
@@ -246,70 +253,101 @@ def _to_float(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
 # ---------------------------------------------------------------- the importer
 
 
-class _Options:
-    """-O options: explicit ones, over the file's own `# table:` line, over a preset."""
+Sep = Literal["comma", "whitespace", "tab", "semicolon"]
 
-    def __init__(self, options: ImportOptions, header: dict[str, str]) -> None:
-        preset_name = options.get("preset") or header.get("preset")
-        preset = {}
-        if preset_name:
-            if preset_name not in PRESETS:
-                raise ToolkitError(f"-O preset={preset_name!r}: known presets {', '.join(PRESETS)}")
-            preset = PRESETS[preset_name]
-        self.values = {**preset, **header, **options.extra}
-        self.rate = options.rate
+
+@dataclass(frozen=True)
+class TableOptions(FormatOptions):
+    """Reading a table. Every option left out (None) comes from the file's own `# table:`
+    line, else the preset, else the default shown."""
+
+    columns: str | None = option(
+        None, "column layout, e.g. t,_,ranges*361,_*2", shown="t,x,y,theta,ranges"
+    )
+    odo_columns: str | None = option(
+        None, "two files: layout of the odometry file", shown="x,y,theta or t,x,y,theta"
+    )
+    odometry: Literal["absolute", "increments", "ticks", "none"] | None = option(
+        None, "what the pose columns hold", shown="absolute (one file), increments (two)"
+    )
+    sep: Sep | None = option(None, "column separator", shown="comma if the first row has one")
+    odo_sep: Sep | None = option(None, "two files: the odometry file's separator", shown="as sep")
+    time_unit: Literal["s", "ms", "us", "ns"] | None = option(None, "unit of t", shown="s")
+    range_unit: Literal["m", "cm", "mm"] | None = option(None, "unit of the ranges", shown="m")
+    angle_unit: Literal["rad", "deg"] | None = option(
+        None, "unit of theta and the angle options", shown="rad"
+    )
+    fov: float | None = option(None, "field of view; beams spread evenly over it")
+    angle_min: float | None = option(None, "angle of beam 0", shown="-fov/2; SICK 180°: -90°")
+    angle_increment: float | None = option(
+        None, "angle between beams", shown="fov/(beams-1), or SICK 180°"
+    )
+    no_return: str | None = option(None, "reading(s) meaning no return, comma separated", shown="0")
+    range_min: float | None = option(None, "readings below it are NaN (range unit)", shown="0")
+    range_max: float | None = option(
+        None, "readings at or above it are NaN (range unit)", shown="no limit"
+    )
+    wheel_radius: float | None = option(None, "odometry=ticks: wheel radius, m")
+    half_axle: float | None = option(None, "odometry=ticks: half the wheel distance, m")
+    ticks_per_rev: float | None = option(None, "odometry=ticks: encoder ticks per revolution")
+    laser_x: float | None = option(None, "laser mounting x, m", shown="0")
+    laser_y: float | None = option(None, "laser mounting y, m", shown="0")
+    laser_z: float | None = option(None, "laser mounting z, m", shown="0")
+    laser_yaw: float | None = option(None, "laser mounting yaw (angle unit)", shown="0")
+    preset: Literal["mines"] | None = option(
+        None, "mines: the BreezySLAM / Paris Mines logs (exp1.dat, exp2.dat)"
+    )
+    rate: float | None = option(None, "scans per second, for a table without t", positive=True)
+
+
+@dataclass(frozen=True)
+class TableWriteOptions(FormatOptions):
+    """Writing a table."""
+
+    sep: Sep = option("comma", "column separator (comma: NAME.csv, else NAME.txt)")
+    name: str = option("log", "file name without suffix")
+
+
+class _Options:
+    """The options in force: explicit ones, over the file's own `# table:` line, over a preset."""
+
+    def __init__(self, options: TableOptions, header: dict[str, str], where: Path) -> None:
+        preset_name = options.preset or header.get("preset")
+        preset = PRESETS.get(preset_name or "", {})
+        try:
+            base = TableOptions.parse({**preset, **header})
+        except ToolkitError as e:
+            raise ToolkitError(f"# table: line: {e.what}", file=where) from None
+        given = {f.name: v for f in fields(options) if (v := getattr(options, f.name)) is not None}
+        self.values = replace(base, **given)
+        self.rate = self.values.rate
 
     def get(self, key: str, default: str | None = None) -> str | None:
-        return self.values.get(key, default)
+        value = getattr(self.values, key)
+        return default if value is None else str(value)
 
     def number(self, key: str, default: float | None = None) -> float | None:
-        raw = self.values.get(key)
-        if raw is None or raw == "":
-            return default
-        try:
-            return float(raw)
-        except ValueError:
-            raise ToolkitError(f"-O {key}={raw!r} is not a number") from None
+        value = getattr(self.values, key)
+        return default if value is None else float(value)
 
     def unit(self, key: str, table: dict[str, float], default: str) -> float:
-        raw = self.values.get(key, default)
-        if raw not in table:
-            raise ToolkitError(f"-O {key}={raw!r}: one of {', '.join(table)}")
-        return table[raw]
+        return table[getattr(self.values, key) or default]
 
 
 @register
-class TableImporter(Importer):
+class TableImporter(Importer[TableOptions, TableWriteOptions]):
     name = "table"
     summary = (
         "numeric tables, one scan per row (t x y theta r1..rn; CSV or text; MRPT *_LASER/*_ODO)"
     )
-    options: ClassVar[dict[str, str]] = {
-        "columns": "column layout, e.g. t,x,y,theta,ranges (default) or t,_,ranges*361,_*2",
-        "odo_columns": "two files: layout of the odometry file (default x,y,theta or t,x,y,theta)",
-        "odometry": "absolute (one file) | increments (two files) | ticks | none",
-        "sep": "comma | whitespace | tab | semicolon (default: comma if the first row has one)",
-        "time_unit": "s (default) | ms | us | ns",
-        "range_unit": "m (default) | cm | mm",
-        "angle_unit": "rad (default) | deg: theta and the angle options",
-        "fov": "field of view; beams spread evenly over it",
-        "angle_min": "angle of beam 0 (default -fov/2; SICK 180°: -90°)",
-        "angle_increment": "angle between beams (default fov/(beams-1), or SICK 180° layouts)",
-        "no_return": "reading(s) meaning no return, comma separated (default 0)",
-        "range_min": "readings below it are NaN (range unit; default 0)",
-        "range_max": "readings at or above it are NaN (range unit; default: no limit)",
-        "wheel_radius": "odometry=ticks: wheel radius, m",
-        "half_axle": "odometry=ticks: half the distance between the wheels, m",
-        "ticks_per_rev": "odometry=ticks: encoder ticks per wheel revolution",
-        "laser_x": "laser mounting x, m (also laser_y, laser_z, laser_yaw)",
-        "preset": "mines: the BreezySLAM / Paris Mines logs (exp1.dat, exp2.dat)",
-    }
+    Options = TableOptions
+    WriteOptions = TableWriteOptions
 
     def sniff(self, path: Path) -> bool:
         if not path.is_file() or RAWSEEDS_NAME.search(path.name):
             return False
         head = head_bytes(path, 65536)
-        if not head or b"\0" in head:
+        if not head or b"\0" in head or looks_like_tum(head):
             return False
         lines = [ln.strip() for ln in head.split(b"\n")[:-1] if ln.strip()]
         lines = [ln for ln in lines if not ln.startswith(b"#")][:20]
@@ -329,13 +367,13 @@ class TableImporter(Importer):
         rawseeds_sick = sep == b"," and ncols == 184 and lines[0].split(b",")[1].strip() == b"181"
         return (ncols >= 8 or mrpt) and not rawseeds_sick
 
-    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+    def read(self, sources: Sequence[Path], options: TableOptions) -> Dataset:
         paths = [Path(p) for p in sources]
         if len(paths) > 2:
             raise ToolkitError("table: give one file, or a ranges file and an odometry file")
         laser_path, odo_path = _split_sources(paths)
-        scans = read_numbers(laser_path, options.get("sep"))
-        opts = _Options(options, scans.header_options)
+        scans = read_numbers(laser_path, options.sep)
+        opts = _Options(options, scans.header_options, laser_path)
         report = ImportReport()
         if scans.header_skipped:
             report.note(f"{laser_path.name}: first line is a header of names; skipped")
@@ -395,13 +433,13 @@ class TableImporter(Importer):
         )
         return Dataset(t, ranges, laser, odometry=odometry, meta=meta)
 
-    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
+    def write(self, ds: Dataset, out: Path, options: TableWriteOptions | None = None) -> list[Path]:
         """Write `out/log.csv` (sep ",") or `out/log.txt` (other separators): one scan per row,
         t, x, y, theta (odometry interpolated at the scan times, when there is odometry), ranges
         in m with 0 for no return, after a `# table:` line carrying the geometry.
         Ground truth is not written (a table has one pose per scan)."""
-        sep = str(options.get("sep", ","))
-        name = str(options.get("name", "log"))
+        o = options or TableWriteOptions()
+        sep, name = SEPARATORS[o.sep], o.name
         path = Path(out) / f"{name}{'.csv' if sep == ',' else '.txt'}"
         laser = ds.laser
         columns: dict[str, np.ndarray] = {"t": ds.t}
@@ -411,9 +449,7 @@ class TableImporter(Importer):
         ranges = np.where(np.isnan(ds.ranges), np.float32(0), ds.ranges)
         for j in range(ds.n_beams):
             columns[f"r{j}"] = ranges[:, j]
-        sep_name = {",": "comma", " ": "whitespace", "\t": "tab", ";": "semicolon"}.get(sep)
-        if sep_name is None:
-            raise ToolkitError(f"table writer: sep {sep!r} is not one of , ; tab space")
+        sep_name = o.sep
         header = (
             f"# table: columns={layout} sep={sep_name} range_unit=m angle_unit=rad no_return=0 "
             f"angle_min={laser.angle_min!r} angle_increment={laser.angle_increment!r} "
@@ -448,7 +484,7 @@ def _times(
     scale = opts.unit("time_unit", TIME_UNITS, "s")
     if "t" in layout.index:
         return values[:, layout.index["t"]] * scale
-    rate = opts.rate or opts.number("rate")
+    rate = opts.rate
     if not rate or rate <= 0:
         raise ToolkitError("the table has no t column: give the scan rate with --rate", file=where)
     report.note(f"no time column; times from the stated rate {rate} Hz")

@@ -27,14 +27,14 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import Importer, ImportOptions
+from importers.base import FormatOptions, Importer, option
 from importers.rosbag.decode import PARAMS, BeamCountChanged, decode_scans, decode_with_typestore
 from importers.rosbag.source import BagSource, Topic, describe, open_bag, open_recovery
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
@@ -90,23 +90,55 @@ class _Collected:
     tf: list[tuple[int, Any]] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class RosbagOptions(FormatOptions):
+    """Reading a ROS bag."""
+
+    scan_topic: str | None = option(
+        None, "the sensor_msgs/LaserScan topic", shown="the only one, else name it"
+    )
+    odom_topic: str | None = option(
+        None, "the nav_msgs/Odometry topic (or a tf frame)", shown="the only one, else tf"
+    )
+    gt_topic: str | None = option(
+        None, "nav_msgs/Odometry topic with ground truth", shown="one named ground_truth"
+    )
+    odom_frame: str = option("odom", "tf parent frame of the odometry")
+    base_frame: str | None = option(
+        None, "tf child frame of the odometry", shown="base_link or base_footprint"
+    )
+    decode: Literal["raw", "rosbags"] = option(
+        "raw", "raw: LaserScan bytes decoded in bulk; rosbags: per message"
+    )
+
+
+@dataclass(frozen=True)
+class RosbagWriteOptions(FormatOptions):
+    """Writing a ROS bag."""
+
+    version: Literal["ros1", "ros2", "mcap"] = option(
+        "ros1", "ros1 (NAME.bag), ros2 (sqlite3, NAME/) or mcap (NAME/)"
+    )
+    scan_topic: str = option("/scan", "LaserScan topic")
+    odom_topic: str = option("/odom", "Odometry topic")
+    gt_topic: str = option("/ground_truth", "ground-truth Odometry topic")
+    frame_id: str = option("laser", "the scans' frame")
+    name: str = option("log", "bag name")
+
+
 @register
-class RosbagImporter(Importer):
+class RosbagImporter(Importer[RosbagOptions, RosbagWriteOptions]):
     name = "rosbag"
     summary = "ROS1 .bag (v2.0, pre-2010 V1.2), ROS2 sqlite3/mcap: LaserScan, Odometry or tf"
-    options: ClassVar[dict[str, str]] = {
-        "gt_topic": "nav_msgs/Odometry topic with ground truth (default: one named ground_truth)",
-        "odom_frame": "tf parent frame of the odometry (default odom)",
-        "base_frame": "tf child frame of the odometry (default base_link or base_footprint)",
-        "decode": "raw (default: LaserScan bytes decoded in bulk) or rosbags (per message)",
-    }
+    Options = RosbagOptions
+    WriteOptions = RosbagWriteOptions
 
     def sniff(self, path: Path) -> bool:
         from importers.rosbag.source import bag_kind
 
         return bag_kind(path) is not None
 
-    def read(self, sources: Sequence[Path], options: ImportOptions) -> Dataset:
+    def read(self, sources: Sequence[Path], options: RosbagOptions) -> Dataset:
         paths = [Path(s) for s in sources]
         with open_bag(paths) as bag:
             try:
@@ -122,18 +154,22 @@ class RosbagImporter(Importer):
         with open_recovery(paths[0], bag.typestore, why) as again:
             return _read(again, options)
 
-    def write(self, ds: Dataset, out: Path, **options: object) -> list[Path]:
-        """Write `ds` as a bag under directory `out`: version ros1 (log.bag), ros2 or mcap (log/).
-
-        Options: scan_topic (/scan), odom_topic (/odom), gt_topic (/ground_truth),
-        frame_id (laser), name (log).
-        """
+    def write(
+        self, ds: Dataset, out: Path, options: RosbagWriteOptions | None = None
+    ) -> list[Path]:
+        """Write `ds` as a bag under directory `out`: version ros1 (log.bag), ros2 or mcap (log/)."""
         from importers.rosbag.writer import write_bag
 
-        return [write_bag(ds, Path(out), **options)]  # type: ignore[arg-type]
+        o = options or RosbagWriteOptions()
+        return [
+            write_bag(
+                ds, Path(out), version=o.version, scan_topic=o.scan_topic,
+                odom_topic=o.odom_topic, gt_topic=o.gt_topic, frame_id=o.frame_id, name=o.name,
+            )
+        ]  # fmt: skip
 
 
-def _read(bag: BagSource, options: ImportOptions) -> Dataset:
+def _read(bag: BagSource, options: RosbagOptions) -> Dataset:
     where = bag.paths[0]
     topics = list(bag.topics.values())
     lasers = [t for t in topics if t.msgtype == LASERSCAN]
@@ -143,7 +179,7 @@ def _read(bag: BagSource, options: ImportOptions) -> Dataset:
     scan = _pick(options.scan_topic, lasers, "LaserScan", "--scan-topic", where)
     assert scan is not None
     odoms = [t for t in topics if t.msgtype == ODOMETRY]
-    gt_wanted = options.get("gt_topic")
+    gt_wanted = options.gt_topic
     gts = [t for t in odoms if _bare(t.name).split("/")[-1] in GT_NAMES]
     gt = _pick(gt_wanted, odoms if gt_wanted else gts[:1], "ground-truth", "-O gt_topic=", where)
     tfs = [t for t in topics if t.msgtype in TF_TYPES]
@@ -170,16 +206,14 @@ def _read(bag: BagSource, options: ImportOptions) -> Dataset:
 
 def _collect(
     bag: BagSource,
-    options: ImportOptions,
+    options: RosbagOptions,
     scan: Topic,
     odom: Topic | None,
     gt: Topic | None,
     tf_names: set[str],
 ) -> _Collected:
     """One pass over the bag: LaserScans decoded in batches, the rest deserialised."""
-    use_rosbags = options.get("decode", "raw") == "rosbags"
-    if options.get("decode", "raw") not in ("raw", "rosbags"):
-        raise ToolkitError(f"-O decode={options.get('decode')!r}: expected raw or rosbags")
+    use_rosbags = options.decode == "rosbags"
     got = _Collected()
     pending: list[bytes | memoryview] = []
     beams: int | None = None
@@ -300,7 +334,7 @@ def _mounting(items: list[tuple[int, Any]], laser_frame: str) -> dict[str, float
 
 def _assemble(
     bag: BagSource,
-    options: ImportOptions,
+    options: RosbagOptions,
     scan: Topic,
     odom: Topic | None,
     gt: Topic | None,
@@ -400,8 +434,8 @@ def _assemble(
             report.note(f"{zero_odom} Odometry header stamps are zero; bag time used for those")
         report.drop("damaged Odometry message", odom.count - len(got.odom), where=odom.name)
     elif odom_from_tf:
-        odom_frame = _bare(options.get("odom_frame", "odom") or "odom")
-        base = options.get("base_frame")
+        odom_frame = _bare(options.odom_frame or "odom")
+        base = options.base_frame
         odometry, child = _tf_odometry(got.tf, odom_frame, _bare(base) if base else None)
         if odometry.empty:
             odometry = None

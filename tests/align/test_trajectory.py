@@ -26,13 +26,13 @@ def drifted_radish(real: Path, tmp_path: Path, name: str) -> tuple[toolkit.Datas
     """A corrected Radish log imported with its poses as ground truth, odometry drifted from
     them (`with_drift`, seed 0); and the true poses at the scans."""
     import importers
-    from importers.base import ImportOptions
+    from importers.carmen import CarmenOptions
 
     out = importers.import_log(
         "carmen",
         [real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"],
         tmp_path / name,
-        ImportOptions(extra={"poses": "groundtruth"}),
+        CarmenOptions(poses="groundtruth"),
     )
     ds = with_drift(toolkit.load(out), seed=0)
     truth = truth_poses(ds)

@@ -18,8 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import importers
-from importers.aria import Aria, write
-from importers.base import ImportOptions
+from importers.aria import Aria, AriaOptions, write
 from tests.conftest import Cli
 from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
@@ -63,7 +62,7 @@ sick1: 1501 99999 2501
 
 
 def _read(path: Path, **extra: str) -> Dataset:
-    return Aria().read([path], ImportOptions(extra=dict(extra)))
+    return Aria().read([path], AriaOptions.parse(extra))
 
 
 def test_hand_written_scan1_log(tmp_path: Path) -> None:
@@ -221,7 +220,7 @@ def test_log_without_times_uses_scan_order_and_rate(tmp_path: Path) -> None:
     path = tmp_path / "untimed.2d"
     path.write_text(HAND_SICK1.replace("logTime", "velocities"))
     assert _read(path).t.tolist() == [0.0, 1.0]
-    timed = Aria().read([path], ImportOptions(rate=4.0))
+    timed = Aria().read([path], AriaOptions(rate=4.0))
     assert timed.t.tolist() == [0.0, 0.25] and "4 Hz" in timed.meta["time_source"]
 
 

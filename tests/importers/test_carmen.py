@@ -19,8 +19,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import importers
-from importers.base import ImportOptions
-from importers.carmen import CODE_BAND, Carmen, in_order, longest_in_order
+from importers.carmen import (
+    CODE_BAND,
+    Carmen,
+    CarmenOptions,
+    CarmenWriteOptions,
+    in_order,
+    longest_in_order,
+)
 from tests.conftest import Cli
 from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
@@ -117,7 +123,7 @@ def parsed(real: Path) -> dict[str, Parsed]:
         laser = [
             (i, ln.split()) for i, ln in enumerate(lines, 1) if ln.startswith(("FLASER ", "Laser "))
         ]
-        out[_short(rel)] = Parsed(path, lines, laser, reader.read([path], ImportOptions()))
+        out[_short(rel)] = Parsed(path, lines, laser, reader.read([path], CarmenOptions()))
     return out
 
 
@@ -245,7 +251,7 @@ def test_intel_drops_the_four_scans_whose_timestamp_goes_back(parsed: dict[str, 
 
 def test_poses_groundtruth_option_stores_the_corrected_poses(real: Path) -> None:
     path = real / RADISH / "intel-corrected.log.gz"
-    ds = Carmen().read([path], ImportOptions(extra={"poses": "groundtruth"}))
+    ds = Carmen().read([path], CarmenOptions(poses="groundtruth"))
     assert ds.groundtruth is not None and len(ds.groundtruth) == ds.n_scans
     assert "scan_pose" not in ds.poses
     line = next(ln.split() for ln in _text_lines(path) if ln.startswith("FLASER "))
@@ -256,7 +262,7 @@ def test_poses_groundtruth_option_stores_the_corrected_poses(real: Path) -> None
 
 
 def test_rate_option_sets_the_scan_order_clock(real: Path) -> None:
-    ds = Carmen().read([real / RADISH / "orebro-corrected.log.gz"], ImportOptions(rate=10.0))
+    ds = Carmen().read([real / RADISH / "orebro-corrected.log.gz"], CarmenOptions(rate=10.0))
     np.testing.assert_allclose(ds.t, np.arange(ds.n_scans) / 10.0)
     assert ds.meta["carmen"]["rate_hz"] == 10.0
 
@@ -313,7 +319,7 @@ def _all_messages_log(path: Path) -> dict[str, np.ndarray]:
 
 def test_every_message_of_a_known_log(tmp_path: Path) -> None:
     truth = _all_messages_log(tmp_path / "all.log")
-    ds = Carmen().read([tmp_path / "all.log"], ImportOptions())
+    ds = Carmen().read([tmp_path / "all.log"], CarmenOptions())
     assert ds.meta["carmen"]["primary_laser"] == "FLASER"
     np.testing.assert_array_equal(ds.t, truth["t"])
     np.testing.assert_allclose(ds.ranges, truth["front"], rtol=1e-6)  # no code: nothing NaN
@@ -334,7 +340,7 @@ def test_every_message_of_a_known_log(tmp_path: Path) -> None:
     assert "skipped 12 NEFF line(s): not used" in ds.report.notes
     assert "skipped 12 SYNC line(s): not used" in ds.report.notes
     assert ds.report.records_read == 12 * 5 and ds.report.records_dropped == 0
-    other = Carmen().read([tmp_path / "all.log"], ImportOptions(laser="robotlaser1"))
+    other = Carmen().read([tmp_path / "all.log"], CarmenOptions(laser="robotlaser1"))
     assert other.n_beams == 90 and set(other.lasers) == {"flaser", "rlaser"}
 
 
@@ -359,7 +365,7 @@ def _laser_numbers(lines: list[str]) -> list[int]:
 def test_truncated_last_line_is_skipped_and_counted(tmp_path: Path, intel_lines: list[str]) -> None:
     k = _laser_numbers(intel_lines)[20]
     cut = [*intel_lines[:k], intel_lines[k][: len(intel_lines[k]) // 2]]
-    ds = Carmen().read([_write(tmp_path, cut, newline=False)], ImportOptions())
+    ds = Carmen().read([_write(tmp_path, cut, newline=False)], CarmenOptions())
     assert ds.report.dropped == {"truncated last line": 1} | {
         k: v for k, v in ds.report.dropped.items() if k.startswith("ODOM")
     }
@@ -375,7 +381,7 @@ def test_wrong_number_of_ranges_is_skipped_with_its_line(
     tok = lines[k].split()
     lines[k] = " ".join(tok[:10] + tok[11:])  # n says 180, 179 values follow
     path = _write(tmp_path, lines)
-    ds = Carmen().read([path], ImportOptions())
+    ds = Carmen().read([path], CarmenOptions())
     assert ds.report.dropped["wrong number of ranges"] == 1
     assert ds.report.examples["wrong number of ranges"] == f"{path}:{k + 1}"
     assert ds.n_scans == 905
@@ -389,7 +395,7 @@ def test_non_numeric_value_is_skipped_with_its_line(tmp_path: Path, intel_lines:
     tok[50] = "1.2x"
     lines[k] = " ".join(tok)
     path = _write(tmp_path, lines)
-    ds = Carmen().read([path], ImportOptions())
+    ds = Carmen().read([path], CarmenOptions())
     assert ds.report.dropped["non-numeric value"] == 1
     assert ds.report.examples["non-numeric value"] == f"{path}:{k + 1}"
     assert ds.n_scans == 905
@@ -401,7 +407,7 @@ def test_nan_inf_and_negative_ranges_become_nan(tmp_path: Path, intel_lines: lis
     tok = lines[k].split()
     tok[2], tok[3], tok[4] = "nan", "inf", "-0.5"
     lines[k] = " ".join(tok)
-    ds = Carmen().read([_write(tmp_path, lines)], ImportOptions())
+    ds = Carmen().read([_write(tmp_path, lines)], CarmenOptions())
     assert np.isnan(ds.ranges[0, :3]).all()
     assert ds.ranges[0, 3] == np.float32(tok[5])
     assert "FLASER: 3 range values NaN, inf or negative -> NaN" in ds.report.notes
@@ -415,7 +421,7 @@ def test_beam_count_changing_keeps_the_majority(tmp_path: Path, intel_lines: lis
         tok = lines[k].split()
         lines[k] = " ".join(["FLASER", "181", *tok[2:182], "1.0", *tok[182:]])
     path = _write(tmp_path, lines)
-    ds = Carmen().read([path], ImportOptions())
+    ds = Carmen().read([path], CarmenOptions())
     assert ds.n_beams == 180 and ds.n_scans == 903
     assert ds.report.dropped["beam count 181 (the log's is 180)"] == 3
     assert ds.report.examples["beam count 181 (the log's is 180)"] == f"{path}:{ks[0] + 1}"
@@ -424,7 +430,7 @@ def test_beam_count_changing_keeps_the_majority(tmp_path: Path, intel_lines: lis
 def test_compressed_damaged_copy(tmp_path: Path, intel_lines: list[str]) -> None:
     path = tmp_path / "intel.log.bz2"
     path.write_bytes(bz2.compress(("\n".join(intel_lines[:400]) + "\n").encode()))
-    ds = Carmen().read([path], ImportOptions())
+    ds = Carmen().read([path], CarmenOptions())
     assert ds.n_scans == sum(ln.startswith("FLASER ") for ln in intel_lines[:400])
     assert Carmen().sniff(path)
 
@@ -433,7 +439,7 @@ def test_truncated_gzip_keeps_the_lines_before_the_damage(real: Path, tmp_path: 
     data = (real / RADISH / "intel-corrected.log.gz").read_bytes()
     path = tmp_path / "cut.log.gz"
     path.write_bytes(data[: len(data) // 2])
-    ds = Carmen().read([path], ImportOptions())
+    ds = Carmen().read([path], CarmenOptions())
     assert 300 < ds.n_scans < 906
     assert any("compressed stream is damaged" in n for n in ds.report.notes)
     assert ds.report.dropped.get("truncated last line", 0) <= 1
@@ -441,9 +447,9 @@ def test_truncated_gzip_keeps_the_lines_before_the_damage(real: Path, tmp_path: 
 
 def test_range_max_option(real: Path) -> None:
     path = real / RADISH / "orebro-corrected.log.gz"
-    off = Carmen().read([path], ImportOptions(extra={"range_max": "none"}))
+    off = Carmen().read([path], CarmenOptions(range_max="none"))
     assert np.isnan(off.ranges).sum() == 0 and np.nanmax(off.ranges) == np.float32(32.767)
-    at30 = Carmen().read([path], ImportOptions(extra={"range_max": "30"}))
+    at30 = Carmen().read([path], CarmenOptions(range_max=30.0))
     assert at30.laser.range_max == 30.0
     np.testing.assert_array_equal(np.isnan(at30.ranges), off.ranges >= 30.0)
 
@@ -456,7 +462,7 @@ def test_a_stray_odom_timestamp_costs_one_line(tmp_path: Path) -> None:
     tok[7] = tok[9] = "4000000000.0"  # a garbage stamp, far in the future
     lines[odom[3]] = " ".join(tok)
     path = _write(tmp_path, lines)
-    ds = Carmen().read([path], ImportOptions())
+    ds = Carmen().read([path], CarmenOptions())
     assert ds.report.dropped == {"ODOM timestamp out of order": 1}
     assert ds.report.examples["ODOM timestamp out of order"] == f"{path}:{odom[3] + 1}"
     assert ds.odometry is not None
@@ -491,7 +497,7 @@ def test_unusable_files_are_one_clear_error(tmp_path: Path, content: str, messag
     path = tmp_path / "bad.log"
     path.write_text(content)
     with pytest.raises(FormatError) as e:
-        Carmen().read([path], ImportOptions())
+        Carmen().read([path], CarmenOptions())
     assert message in e.value.line() and str(path) in e.value.line()
     assert "\n" not in e.value.line()
 
@@ -554,7 +560,7 @@ def test_writer_reader_round_trip(tmp_path: Path, geometry: LaserGeometry, messa
     scans = [ln for ln in text if ln.startswith(message)]
     assert len(scans) == ds.n_scans
     assert re.search(r" \d+\.\d{6} toolkit \d+\.\d{6}$", scans[0])
-    back = Carmen().read(files, ImportOptions())
+    back = Carmen().read(files, CarmenOptions())
     assert back.laser.beams == geometry.beams
     for key in ("angle_min", "angle_increment", "x", "y", "yaw", "range_max"):
         assert getattr(back.laser, key) == pytest.approx(getattr(geometry, key), abs=1e-6), key
@@ -576,8 +582,8 @@ def test_real_log_write_read_round_trip(
     name: str, parsed: dict[str, Parsed], tmp_path: Path
 ) -> None:
     ds = parsed[name].ds
-    files = Carmen().write(ds, tmp_path, name=f"{name}.log")
-    back = Carmen().read(files, ImportOptions())
+    files = Carmen().write(ds, tmp_path, CarmenWriteOptions(name=f"{name}.log"))
+    back = Carmen().read(files, CarmenOptions())
     assert back.meta["time_source"] == "log"
     np.testing.assert_allclose(back.t, ds.t, atol=6e-7)
     np.testing.assert_array_equal(np.isnan(back.ranges), np.isnan(ds.ranges))

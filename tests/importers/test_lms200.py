@@ -17,9 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import importers
-from importers.base import ImportOptions
 from importers.lms200 import (
     LMS200,
+    LMS200Options,
     Telegrams,
     crc16_sick,
     crc_frames_numba,
@@ -59,7 +59,7 @@ def _expected(ds: Dataset, units: str = "mm") -> np.ndarray:
 
 
 def _read(*sources: Path, **extra: str) -> Dataset:
-    return LMS200().read(list(sources), ImportOptions(extra=dict(extra)))
+    return LMS200().read(list(sources), LMS200Options.parse(extra))
 
 
 # ---------------------------------------------------------------- CRC
@@ -273,7 +273,7 @@ def test_time_sources(tmp_path: Path) -> None:
     by_baud = _read(capture, baud="9600")
     np.testing.assert_allclose(by_baud.t, offsets * 10 / 9600)
     assert by_baud.meta["time_source"].startswith("baud 9600")
-    by_rate = LMS200().read([capture], ImportOptions(rate=75.0))
+    by_rate = LMS200().read([capture], LMS200Options(rate=75.0))
     np.testing.assert_allclose(by_rate.t, intact / 75.0, atol=1e-9)  # gaps stay gaps
     assert by_rate.meta["time_source"].startswith("rate 75")
     by_file = _read(capture, moved, truth_file)  # the writer's truth file is ignored

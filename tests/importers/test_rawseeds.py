@@ -194,7 +194,7 @@ def test_dataset_level_read_and_writer_checks(
     session: tuple[Path, Dataset], tmp_path: Path
 ) -> None:
     d, truth = session
-    ds = importers.get("rawseeds").read([sick_file(d)], ImportOptions())
+    ds = importers.get("rawseeds").read([sick_file(d)], rawseeds.RawseedsOptions())
     assert ds.path is None and ds.n_scans == truth.n_scans and ds.odometry is None
     assert "no ODOMETRY_XYT file" in " ".join(ds.report.notes)
     narrow = Dataset(truth.t, truth.ranges[:, :180], LaserGeometry.sick_180(180))
@@ -211,7 +211,7 @@ def test_dataset_level_read_and_writer_checks(
     first = lines_of(files[1])[0].rstrip("\n").split(",")
     assert len(first) == 13 and first[4:] == ["0.000000"] * 9
     assert first[0] == f"{gt.t[0]:.6f}" and first[1] == f"{gt.x[0]:.6f}"
-    back = importers.get("rawseeds").read([tmp_path / "w2"], ImportOptions())
+    back = importers.get("rawseeds").read([tmp_path / "w2"], rawseeds.RawseedsOptions())
     assert back.groundtruth is not None
     np.testing.assert_allclose(back.groundtruth.to_numpy(), gt.to_numpy(), atol=5e-7 + 2.5e-7)
 

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import importers
-from importers.base import ImportOptions
+from importers.rosbag.importer import RosbagOptions, RosbagWriteOptions
 from importers.rosbag.writer import TFMESSAGE, _Messages, _typestore
 from tests.importers.checks import DAMAGES, damaged
 from toolkit.dataset import Dataset, LaserGeometry
@@ -47,10 +47,10 @@ def _dataset(scans: int = 60, beams: int = 181, seed: int = 0) -> Dataset:
 @pytest.mark.parametrize("version", ["ros1", "ros2", "mcap"])
 def test_round_trip_through_each_bag_kind(tmp_path: Path, version: str) -> None:
     ds = _dataset()
-    (bag,) = ROSBAG.write(ds, tmp_path, version=version)
+    (bag,) = ROSBAG.write(ds, tmp_path, RosbagWriteOptions(version=version))
     assert ROSBAG.sniff(bag)
     assert importers.detect([bag]).name == "rosbag"
-    back = ROSBAG.read([bag], ImportOptions())
+    back = ROSBAG.read([bag], RosbagOptions())
     assert ds.odometry is not None and ds.groundtruth is not None
     np.testing.assert_array_equal(back.ranges, ds.ranges)  # NaN (written as inf) back to NaN
     np.testing.assert_allclose(back.t, ds.t, rtol=0, atol=1e-9)
@@ -69,16 +69,16 @@ def test_round_trip_through_each_bag_kind(tmp_path: Path, version: str) -> None:
 def test_single_scan_bag(tmp_path: Path, version: str) -> None:
     ranges = np.array([[1.0, 0.0, np.nan, 3.5]], np.float32)
     ds = Dataset(np.array([7.25]), ranges, LaserGeometry(4, -0.3, 0.2, 4.0))
-    (bag,) = ROSBAG.write(ds, tmp_path, version=version)
-    back = ROSBAG.read([bag], ImportOptions())
+    (bag,) = ROSBAG.write(ds, tmp_path, RosbagWriteOptions(version=version))
+    back = ROSBAG.read([bag], RosbagOptions())
     np.testing.assert_array_equal(back.ranges, [[1.0, np.nan, np.nan, 3.5]])  # 0 = invalid
     assert back.t.tolist() == [7.25] and back.odometry is None
 
 
 def test_raw_and_rosbags_decoders_agree(tmp_path: Path) -> None:
-    (bag,) = ROSBAG.write(_dataset(beams=361), tmp_path, version="mcap")
-    raw = ROSBAG.read([bag], ImportOptions())
-    slow = ROSBAG.read([bag], ImportOptions(extra={"decode": "rosbags"}))
+    (bag,) = ROSBAG.write(_dataset(beams=361), tmp_path, RosbagWriteOptions(version="mcap"))
+    raw = ROSBAG.read([bag], RosbagOptions())
+    slow = ROSBAG.read([bag], RosbagOptions(decode="rosbags"))
     np.testing.assert_array_equal(raw.ranges, slow.ranges)
     np.testing.assert_array_equal(raw.t, slow.t)
 
@@ -95,7 +95,7 @@ def test_ccny_matcher_bag_recovered_from_its_chunks(real: Path) -> None:
     store = get_typestore(Stores.ROS1_NOETIC)
     with pytest.raises(AssertionError), AnyReader([path], default_typestore=store):
         pass  # the reason the recovery reader exists
-    ds = ROSBAG.read([path], ImportOptions())
+    ds = ROSBAG.read([path], RosbagOptions())
     assert ds.ranges.shape == (360, 681)
     meta = ds.meta["rosbag"]
     assert meta["reader"] == "recovery (ROS1 v2.0)"
@@ -116,7 +116,7 @@ def test_ccny_matcher_bag_recovered_from_its_chunks(real: Path) -> None:
 
 @pytest.mark.real
 def test_pre_2010_rosrecord_bag(real: Path) -> None:
-    ds = ROSBAG.read([real / CCNY / "laser_scan_sparsifier" / "demo.bag"], ImportOptions())
+    ds = ROSBAG.read([real / CCNY / "laser_scan_sparsifier" / "demo.bag"], RosbagOptions())
     assert ds.ranges.shape == (123, 512)
     assert ds.meta["rosbag"]["scan_topic"] == "scan"
     assert ds.meta["rosbag"]["bag_time"] == pytest.approx([1275168820.02, 1275168832.18], abs=0.006)
@@ -195,11 +195,11 @@ def test_two_scan_topics_need_a_choice(tmp_path: Path) -> None:
         ToolkitError,
         match=r"2 LaserScan topics: /front \(5 msgs\), /rear \(5 msgs\); choose one with --scan-topic",
     ):
-        ROSBAG.read([bag], ImportOptions())
-    ds = ROSBAG.read([bag], ImportOptions(scan_topic="rear"))
+        ROSBAG.read([bag], RosbagOptions())
+    ds = ROSBAG.read([bag], RosbagOptions(scan_topic="rear"))
     assert ds.meta["rosbag"]["scan_topic"] == "/rear" and ds.n_scans == 5
     with pytest.raises(ToolkitError, match=r"no LaserScan topic '/side'.*/front"):
-        ROSBAG.read([bag], ImportOptions(scan_topic="/side"))
+        ROSBAG.read([bag], RosbagOptions(scan_topic="/side"))
     done = _cli("import", "rosbag", str(bag), "--out", str(tmp_path / "d"))
     assert done.returncode == 1
     assert done.stderr.strip().count("\n") == 0
@@ -217,14 +217,14 @@ def test_changing_beam_count_is_rejected_naming_the_message(tmp_path: Path) -> N
     with pytest.raises(
         FormatError, match=r"beam count changes from 100 to 101 at message 7 \(bag time 5.700\)"
     ):
-        ROSBAG.read([bag], ImportOptions())
+        ROSBAG.read([bag], RosbagOptions())
 
 
 def test_ranges_outside_limits_become_nan_and_are_counted(tmp_path: Path) -> None:
     m = _Messages(_typestore(True), True)
     ranges = np.array([0.0, 0.05, 0.1, 5.0, 9.99, 10.0, 12.0, np.inf, np.nan, 3.0], np.float32)
     items = [("/scan", SCAN, 1.0 + i, _laserscan(m, 1.0 + i, 10, ranges=ranges)) for i in range(3)]
-    ds = ROSBAG.read([_ros1_bag(tmp_path / "r.bag", items)], ImportOptions())
+    ds = ROSBAG.read([_ros1_bag(tmp_path / "r.bag", items)], RosbagOptions())
     expect = np.array([np.nan, np.nan, 0.1, 5.0, 9.99, np.nan, np.nan, np.nan, np.nan, 3.0])
     np.testing.assert_array_equal(ds.ranges, np.tile(expect.astype(np.float32), (3, 1)))
     assert ds.meta["rosbag"]["invalid_readings"] == 3 * 6
@@ -251,7 +251,7 @@ def test_odometry_and_mounting_from_tf_and_zero_stamps(tmp_path: Path) -> None:
             ]
         )
         items.append(("/tf", TFMESSAGE, t, tfm))
-    ds = ROSBAG.read([_ros1_bag(tmp_path / "tf.bag", items)], ImportOptions())
+    ds = ROSBAG.read([_ros1_bag(tmp_path / "tf.bag", items)], RosbagOptions())
     assert ds.meta["time_source"] == "bag time"
     np.testing.assert_allclose(ds.t, 1.0 + np.arange(6) * 0.1)
     assert ds.meta["rosbag"]["odometry"] == "tf odom -> base_footprint"
@@ -269,8 +269,8 @@ def test_two_odometry_topics_need_a_choice(tmp_path: Path) -> None:
         items.append((topic, "nav_msgs/msg/Odometry", 1.0, m.odometry(1.0, 1, 2, 0.3, "odom", 0)))
     bag = _ros1_bag(tmp_path / "o.bag", items)
     with pytest.raises(ToolkitError, match=r"2 Odometry topics: /odom .*/wheel_odom.*--odom-topic"):
-        ROSBAG.read([bag], ImportOptions())
-    ds = ROSBAG.read([bag], ImportOptions(odom_topic="/wheel_odom"))
+        ROSBAG.read([bag], RosbagOptions())
+    ds = ROSBAG.read([bag], RosbagOptions(odom_topic="/wheel_odom"))
     assert ds.odometry is not None and ds.odometry.theta[0] == pytest.approx(0.3)
 
 
@@ -282,20 +282,20 @@ def test_recovery_reader_matches_rosbags_when_the_index_is_lost(
     tmp_path: Path, compression: str | None
 ) -> None:
     path = _chunked_bag(tmp_path / "c.bag", compression)
-    whole = ROSBAG.read([path], ImportOptions())
+    whole = ROSBAG.read([path], RosbagOptions())
     assert whole.meta["rosbag"]["reader"] == "rosbags"
     # cut the index section off: rosbags cannot open the bag, the chunks are all there
     data = path.read_bytes()
     index_pos = _index_pos(data)
     cut = tmp_path / "cut.bag"
     cut.write_bytes(data[:index_pos])
-    recovered = ROSBAG.read([cut], ImportOptions())
+    recovered = ROSBAG.read([cut], RosbagOptions())
     assert recovered.meta["rosbag"]["reader"] == "recovery (ROS1 v2.0)"
     np.testing.assert_array_equal(recovered.ranges, whole.ranges)
     np.testing.assert_array_equal(recovered.t, whole.t)
     # and a bag cut inside its last chunk keeps the chunks before it, saying so
     cut.write_bytes(data[: index_pos - 300])
-    partial = ROSBAG.read([cut], ImportOptions())
+    partial = ROSBAG.read([cut], RosbagOptions())
     assert 0 < partial.n_scans < 40
     np.testing.assert_array_equal(partial.ranges, whole.ranges[: partial.n_scans])
     assert any("stopped at byte" in n for n in partial.report.notes)
@@ -310,7 +310,7 @@ def test_lz4_chunks_without_the_lz4_package_are_one_clear_error(
     monkeypatch.setitem(sys.modules, "lz4", None)
     monkeypatch.setitem(sys.modules, "lz4.frame", None)
     with pytest.raises(FormatError, match="lz4-compressed chunks need the lz4 package"):
-        ROSBAG.read([cut], ImportOptions())
+        ROSBAG.read([cut], RosbagOptions())
 
 
 def _chunked_bag(path: Path, compression: str | None) -> Path:
@@ -346,11 +346,11 @@ def clean_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     root = tmp_path_factory.mktemp("bags")
     ds = _dataset(scans=12, beams=31)
     out = {}
-    (ros1,) = ROSBAG.write(ds, root / "a", version="ros1")
+    (ros1,) = ROSBAG.write(ds, root / "a", RosbagWriteOptions(version="ros1"))
     out["ros1"] = ros1.read_bytes()
-    (mcap,) = ROSBAG.write(ds, root / "b", version="mcap")
+    (mcap,) = ROSBAG.write(ds, root / "b", RosbagWriteOptions(version="mcap"))
     out["mcap"] = next(mcap.glob("*.mcap")).read_bytes()
-    (ros2,) = ROSBAG.write(ds, root / "c", version="ros2")
+    (ros2,) = ROSBAG.write(ds, root / "c", RosbagWriteOptions(version="ros2"))
     out["db3"] = next(ros2.glob("*.db3")).read_bytes()
     return out
 
@@ -373,7 +373,7 @@ def test_damaged_bags_give_a_dataset_or_one_clear_error(
     path = tmp_path / f"x{hash((damage, where, bit))}.{'bag' if kind == 'ros1' else kind}"
     path.write_bytes(data)
     try:
-        ds = ROSBAG.read([path], ImportOptions())
+        ds = ROSBAG.read([path], RosbagOptions())
     except ToolkitError as e:
         assert "\n" not in e.line()
         return
@@ -387,7 +387,7 @@ def test_not_a_bag_is_one_clear_error(tmp_path: Path) -> None:
     bogus.write_text("hello\n")
     assert not ROSBAG.sniff(bogus)
     with pytest.raises(FormatError, match="not a ROS bag"):
-        ROSBAG.read([bogus], ImportOptions())
+        ROSBAG.read([bogus], RosbagOptions())
     done = _cli("import", "rosbag", str(bogus), "--out", str(tmp_path / "d"))
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "not a ROS bag" in done.stderr
 

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import importers
-from importers.base import ImportOptions
+from importers.table import TableOptions, TableWriteOptions
 from tests.importers.checks import DAMAGES, damaged
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
@@ -38,12 +38,12 @@ def _dataset(scans: int = 40, beams: int = 181, seed: int = 1, fov: float = 180.
     return Dataset(t, ranges, laser, odometry=odo)
 
 
-@pytest.mark.parametrize("sep", [",", " "])
+@pytest.mark.parametrize("sep", ["comma", "whitespace"])
 def test_round_trip(tmp_path: Path, sep: str) -> None:
     ds = _dataset(beams=240, fov=240.0)
-    (path,) = TABLE.write(ds, tmp_path, sep=sep)
+    (path,) = TABLE.write(ds, tmp_path, TableWriteOptions(sep=sep))
     assert TABLE.sniff(path) and importers.detect([path]).name == "table"
-    back = TABLE.read([path], ImportOptions())
+    back = TABLE.read([path], TableOptions())
     np.testing.assert_array_equal(back.ranges, ds.ranges)
     np.testing.assert_array_equal(back.t, ds.t)
     assert back.odometry is not None and ds.odometry is not None
@@ -72,7 +72,7 @@ def test_units_layout_and_angles_by_option(tmp_path: Path) -> None:
         "no_return": "0,65535",
         "sep": "tab",
     }
-    ds = TABLE.read([path], ImportOptions(extra=opts))
+    ds = TABLE.read([path], TableOptions.parse(opts))
     np.testing.assert_allclose(ds.t, t_ms / 1000)
     assert ds.ranges.shape == (12, 271)
     assert np.isnan(ds.ranges[:, 5:7]).all()
@@ -90,7 +90,7 @@ def test_sick_default_and_header_row(tmp_path: Path) -> None:
     path = tmp_path / "plain.csv"
     head = ",".join(["t", "x", "y", "theta", *[f"r{i}" for i in range(181)]])
     np.savetxt(path, body, delimiter=",", header=head, comments="")
-    ds = TABLE.read([path], ImportOptions())
+    ds = TABLE.read([path], TableOptions())
     assert ds.laser.angle_min == pytest.approx(-math.pi / 2)
     assert ds.laser.angle_increment == pytest.approx(math.radians(1))
     assert any("header" in n for n in ds.report.notes)
@@ -112,7 +112,7 @@ def test_mrpt_style_two_files_with_odometry_increments(tmp_path: Path) -> None:
     np.savetxt(laser_file, np.nan_to_num(ds.ranges, nan=0.0), fmt="%.4f")
     np.savetxt(odo_file, np.column_stack([dx, dy, dth]), fmt="%.12f")
     assert TABLE.sniff(laser_file) and TABLE.sniff(odo_file)
-    back = TABLE.read([odo_file, laser_file], ImportOptions(rate=10.0))
+    back = TABLE.read([odo_file, laser_file], TableOptions(rate=10.0))
     assert back.ranges.shape == (25, 361)
     assert back.laser.angle_increment == pytest.approx(math.radians(0.5))
     np.testing.assert_allclose(back.t, np.arange(25) / 10.0)
@@ -121,7 +121,7 @@ def test_mrpt_style_two_files_with_odometry_increments(tmp_path: Path) -> None:
     np.testing.assert_allclose(back.odometry.y, y, atol=1e-9)
     np.testing.assert_allclose(np.exp(1j * back.odometry.theta), np.exp(1j * th), atol=1e-9)
     with pytest.raises(ToolkitError, match="--rate"):
-        TABLE.read([laser_file, odo_file], ImportOptions())
+        TABLE.read([laser_file, odo_file], TableOptions())
 
 
 def test_rows_that_do_not_parse_are_dropped_and_counted(tmp_path: Path) -> None:
@@ -132,7 +132,7 @@ def test_rows_that_do_not_parse_are_dropped_and_counted(tmp_path: Path) -> None:
     lines[6] = lines[6].replace(",", ",x7,", 1)  # long row with garbage
     lines[8] = lines[8].replace(",", ",oops,", 1).rsplit(",", 1)[0]  # garbage, right width
     path.write_text("\n".join(lines) + "\n")
-    back = TABLE.read([path], ImportOptions())
+    back = TABLE.read([path], TableOptions())
     assert back.n_scans == 7
     assert back.report.dropped == {"row that does not parse": 3}
     np.testing.assert_array_equal(back.t, ds.t[[0, 1, 3, 4, 6, 8, 9]])
@@ -147,8 +147,8 @@ def test_breezyslam_mines_logs(real: Path, name: str, scans: int) -> None:
     path = real / MINES / name
     assert TABLE.sniff(path)
     with pytest.raises(ToolkitError, match="preset=mines"):
-        TABLE.read([path], ImportOptions())
-    ds = TABLE.read([path], ImportOptions(extra={"preset": "mines"}))
+        TABLE.read([path], TableOptions())
+    ds = TABLE.read([path], TableOptions(preset="mines"))
     assert ds.ranges.shape == (scans, 682)
     text = path.read_text().splitlines()
     for row, line in ((0, text[0]), (-1, text[-1])):
@@ -189,7 +189,11 @@ def test_sniff_leaves_other_formats_alone(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def clean_table(tmp_path_factory: pytest.TempPathFactory) -> bytes:
-    (path,) = TABLE.write(_dataset(scans=15, beams=30), tmp_path_factory.mktemp("t"), sep=" ")
+    (path,) = TABLE.write(
+        _dataset(scans=15, beams=30),
+        tmp_path_factory.mktemp("t"),
+        TableWriteOptions(sep="whitespace"),
+    )
     return path.read_bytes()
 
 
@@ -216,7 +220,7 @@ def test_damaged_tables_give_a_dataset_or_one_clear_error(
     path = tmp_path / f"x{hash((damage, where, bit))}.txt"
     path.write_bytes(data)
     try:
-        ds = TABLE.read([path], ImportOptions())
+        ds = TABLE.read([path], TableOptions())
     except ToolkitError as e:
         assert "\n" not in e.line()
         return
@@ -228,7 +232,7 @@ def test_cli_bad_table_is_one_line(tmp_path: Path) -> None:
     path = tmp_path / "bad.csv"
     path.write_text("a,b\nc,d\n")
     with pytest.raises(FormatError):
-        TABLE.read([path], ImportOptions())
+        TABLE.read([path], TableOptions())
     done = subprocess.run(
         [sys.executable, "-c", "from toolkit.app.cli import main; main()", "import", "table",
          str(path), "--out", str(tmp_path / "d")],

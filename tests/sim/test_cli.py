@@ -58,9 +58,10 @@ def test_existing_output_is_refused_and_kept(tmp_path: Path, cli: Cli) -> None:
     ("args", "message"),
     [
         (["--param", "range_noise=0.1"], "unknown simulator parameter"),
-        (["-O", "colour=red"], "rawseeds writer:"),
+        (["-O", "colour=red"], "unknown option 'colour' for the rawseeds writer; known: session"),
         (["--format", "auto"], "cannot write format 'auto'; formats with a writer: aria"),
-        (["--units", "inch"], "units must be one of"),
+        (["--units", "inch"], "units=inch for the simulator: expected cm|mm"),
+        (["-p", "beams=many"], "beams=many for the simulator: expected integer"),
         (["--scans", "1"], "scans must be at least 2"),
     ],
 )

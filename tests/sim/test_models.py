@@ -251,5 +251,5 @@ def test_unknown_parameter_is_a_clear_error() -> None:
         simulate("castle")
     with pytest.raises(ToolkitError, match="units"):
         simulate("corridor", units="inch")
-    with pytest.raises(ToolkitError, match="scans must be a number"):
+    with pytest.raises(ToolkitError, match="scans=many for the simulator: expected integer"):
         simulate("corridor", scans="many")

@@ -341,6 +341,8 @@ def find_logs(fmt: str, sources: list[Path]) -> list[tuple[Path, Path]]:
     sniffers = [importers.get(name) for name in (importers.names() if fmt == "auto" else [fmt])]
 
     def claimed(path: Path) -> bool:
+        if fmt == "auto" and importers.not_a_log(path):
+            return False  # the toolkit's own outputs (Parquet, JSON, PLY, TUM) are no logs
         for imp in sniffers:
             try:
                 if imp.sniff(path):

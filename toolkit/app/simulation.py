@@ -12,12 +12,13 @@ DIR is written to a temporary directory and renamed into place (toolkit.atomic.a
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from importers.base import Importer
+from importers.base import FormatOptions, Importer
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import write_dataset_files, write_described
 from toolkit.errors import ToolkitError
@@ -39,31 +40,33 @@ def write_truth(sim: Simulation, directory: Path) -> list[Path]:
 
 
 def write_simulation(
-    sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: Any
+    sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: object
 ) -> list[Path]:
-    """Write `sim` in format `fmt` under the directory `out`, atomically; the files (in `out`)."""
+    """Write `sim` in format `fmt` under the directory `out`, atomically; the files (in `out`).
+
+    `options`: the writer's options (`toolkit formats` lists them), as text or plain values;
+    parsed into the format's typed write options before any work (unknown ones: an error)."""
+    import importers
 
     out = Path(out)
     if fmt == "lms200":  # the capture's unit mode is the simulated scanner's
         options.setdefault("units", sim.params.get("units", "cm"))
     writer = None if fmt == DATASET_FORMAT else _writer(fmt)  # before any work
+    if writer is None and options:
+        raise ToolkitError(f"format {DATASET_FORMAT} has no options; given {', '.join(options)}")
+    typed = None if writer is None else importers.write_options(writer, options)
     with atomic_dir(out, force=force) as tmp:
         if writer is None:
             write_dataset_files(sim.dataset, tmp)
             native = sorted(tmp.iterdir())
         else:
-            try:
-                native = [Path(p) for p in writer.write(sim.dataset, tmp, **options)]
-            except TypeError as e:
-                if "unexpected keyword argument" not in str(e):
-                    raise
-                raise ToolkitError(f"{fmt} writer: {e}") from None
+            native = [Path(p) for p in writer.write(sim.dataset, tmp, typed)]
         truth = write_truth(sim, tmp)
         record = {
             "scenario": sim.scenario,
             "seed": sim.seed,
             "format": fmt,
-            "writer_options": {k: _plain(v) for k, v in options.items()},
+            "writer_options": {} if typed is None else _plain_fields(typed, options),
             "scans": sim.dataset.n_scans,
             "beams": sim.dataset.n_beams,
             "params": sim.params,
@@ -81,13 +84,10 @@ def writer_formats() -> list[str]:
     """The formats the simulator can write: those whose importer has a writer, and dataset."""
     import importers
 
-    names = importers.names()
-    return [n for n in names if type(importers.get(n)).write is not Importer.write] + [
-        DATASET_FORMAT
-    ]
+    return [n for n in importers.names() if importers.get(n).writes] + [DATASET_FORMAT]
 
 
-def _writer(fmt: str) -> Importer:
+def _writer(fmt: str) -> Importer[Any, Any]:
     import importers
 
     known = writer_formats()
@@ -107,5 +107,8 @@ def _counts(sim: Simulation) -> dict[str, int]:
     return {str(k): int(v) for k, v in zip(labels, counts, strict=True)}
 
 
-def _plain(value: Any) -> Any:
-    return value if isinstance(value, str | int | float | bool) or value is None else str(value)
+def _plain_fields(options: FormatOptions, given: Iterable[str]) -> dict[str, Any]:
+    """The options given, as parsed (typed), in JSON values."""
+    plain = (str, int, float, bool, type(None))
+    values = {k: getattr(options, k) for k in given}
+    return {k: v if isinstance(v, plain) else str(v) for k, v in values.items()}

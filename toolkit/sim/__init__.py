@@ -31,6 +31,7 @@ from toolkit.sim.odometry import OdometryModel
 from toolkit.sim.scenarios import SCENARIOS, Scenario, sample_path
 from toolkit.sim.truth import sections as _sections
 from toolkit.sim.truth import training_regions
+from toolkit.typed import convert, field_types
 
 __all__ = [
     "SCENARIOS",
@@ -41,7 +42,7 @@ __all__ = [
     "simulate",
 ]
 
-PATH_PARAMS = ("scans", "speed", "turn_rate", "t0")
+PATH_PARAMS: dict[str, type] = {"scans": int, "speed": float, "turn_rate": float, "t0": float}
 
 
 @dataclass
@@ -95,35 +96,32 @@ class Simulation:
 
 
 def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, OdometryModel]:
-    """The scenario and the models with `params` applied; unknown names are an error."""
+    """The scenario and the models with `params` applied. Each parameter is checked against
+    the models' dataclass fields and converted to the field's type (text from `-p KEY=VALUE`
+    or JSON values); an unknown name or a wrong type is a one-line error."""
     if scenario not in SCENARIOS:
         raise ToolkitError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     scn = SCENARIOS[scenario]()
-    laser_fields = {f.name for f in dataclasses.fields(LaserModel)}
-    odo_fields = {f.name for f in dataclasses.fields(OdometryModel)}
-    unknown = set(params) - laser_fields - odo_fields - set(PATH_PARAMS)
+    laser_fields = field_types(LaserModel)
+    odo_fields = field_types(OdometryModel)
+    kinds = {**PATH_PARAMS, **laser_fields, **odo_fields}
+    unknown = sorted(set(params) - set(kinds))
     if unknown:
-        known = ", ".join(sorted([*PATH_PARAMS, *laser_fields, *odo_fields]))
-        raise ToolkitError(f"unknown simulator parameter(s) {sorted(unknown)}; known: {known}")
+        known = ", ".join(sorted(kinds))
+        raise ToolkitError(f"unknown simulator parameter(s) {unknown}; known: {known}")
+    params = {
+        k: convert(v, kinds[k], k, "the simulator") for k, v in params.items() if v is not None
+    }
     for name in PATH_PARAMS:
-        if params.get(name) is not None:
-            kind = type(getattr(scn, name))
-            try:
-                setattr(scn, name, kind(params[name]))
-            except (TypeError, ValueError):
-                raise ToolkitError(f"{name} must be a number, not {params[name]!r}") from None
+        if name in params:
+            setattr(scn, name, params[name])
     if scn.scans < 2:
         raise ToolkitError(f"scans must be at least 2, not {scn.scans}")
     if scn.speed <= 0 or scn.turn_rate <= 0:
         raise ToolkitError("speed and turn_rate must be positive")
     laser_args = {**scn.laser, **{k: v for k, v in params.items() if k in laser_fields}}
     odo_args = {k: v for k, v in params.items() if k in odo_fields}
-    try:
-        laser = LaserModel(**laser_args)
-        odometry = OdometryModel(**odo_args)
-    except (TypeError, ValueError) as e:
-        raise ToolkitError(f"bad simulator parameter: {e}") from None
-    return scn, laser, odometry
+    return scn, LaserModel(**laser_args), OdometryModel(**odo_args)
 
 
 def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from toolkit.dataset import LaserGeometry
+from toolkit.errors import ToolkitError
 from toolkit.sim.geometry import World, cast
+from toolkit.typed import check_fields
 
 UNITS = {"cm": (0.01, 80.0), "mm": (0.001, 8.0)}  # resolution, maximum range (m)
 
@@ -33,7 +35,7 @@ UNITS = {"cm": (0.01, 80.0), "mm": (0.001, 8.0)}  # resolution, maximum range (m
 class LaserModel:
     """LMS-200 geometry and error model; every field is a documented simulator parameter."""
 
-    units: str = "cm"  # "cm" (80 m mode) or "mm" (8 m mode)
+    units: Literal["cm", "mm"] = "cm"  # "cm" (80 m mode) or "mm" (8 m mode)
     beams: int = 181  # 180° at 1°
     fov_deg: float = 180.0
     range_min: float = 0.05  # m; closer readings are invalid
@@ -47,10 +49,9 @@ class LaserModel:
     mount_z: float = 0.30  # m, laser height (for 3D maps)
 
     def __post_init__(self) -> None:
-        if self.units not in UNITS:
-            raise ValueError(f"units must be one of {sorted(UNITS)}, not {self.units!r}")
+        check_fields(self, "the simulator")  # types and choices, as `toolkit simulate` parses
         if self.beams < 2:
-            raise ValueError("a scan needs at least 2 beams")
+            raise ToolkitError(f"beams={self.beams} for the simulator: a scan needs at least 2")
 
     @property
     def resolution(self) -> float:

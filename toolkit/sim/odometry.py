@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from toolkit.typed import check_fields
+
 
 @dataclass
 class OdometryModel:
@@ -33,6 +35,9 @@ class OdometryModel:
     wheel_noise: float = 0.002  # m per sqrt(m) rolled, per wheel
     slip_prob: float = 0.002  # chance per step that one wheel slips
     slip_max: float = 0.3  # largest slip, as a fraction of the step's travel
+
+    def __post_init__(self) -> None:
+        check_fields(self, "the simulator")  # numbers, as `toolkit simulate -p` parses them
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -8,8 +8,15 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Annotated
 
 import typer
+import typer.core
+
+# Typer (0.2x) prints every argument's Python type beside its name (`DATASET <list[Path]>`);
+# arguments are named for what they are and their help says the rest, as argparse shows them.
+# (Options say what they take with an explicit metavar, flags take nothing.)
+typer.core.TyperArgument.display_type_rich = lambda self, ctx: None  # type: ignore[method-assign,assignment,unused-ignore]
 
 app = typer.Typer(
     name="toolkit",
@@ -17,8 +24,45 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain help, like click and argparse: flags as flags, text rewrapped
     context_settings={"help_option_names": ["-h", "--help"]},
 )
+
+
+def version() -> str:
+    """The installed package's version (the source tree's when run from a checkout)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("laser-toolkit")
+    except PackageNotFoundError:
+        from toolkit import __version__
+
+        return __version__
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        typer.echo(f"toolkit {version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    _version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            "-V",
+            callback=_show_version,
+            is_eager=True,
+            help="Print the version and exit.",
+        ),
+    ] = False,
+) -> None:
+    """2D laser robot logs: import to Parquet, align scans, build maps, learn places, report."""
+
 
 # Command modules register themselves on `app` when imported.
 from toolkit.app.cli import import_cmd as _import_cmd  # noqa: E402,F401
@@ -41,7 +85,7 @@ def main() -> None:
     try:
         # Without standalone mode click returns exit codes (typer.Exit, Ctrl-C) instead of
         # raising SystemExit, so that errors below can be printed as one line.
-        rc = app(standalone_mode=False)
+        rc = app(prog_name="toolkit", standalone_mode=False)
         if rc == 130:
             typer.echo("interrupted; no output written", err=True)
         if isinstance(rc, int) and rc != 0:
@@ -56,6 +100,9 @@ def main() -> None:
         sys.exit(130)
     except Exception as e:  # a usage error, or a bug: still one line
         show = getattr(e, "format_message", None)
+        if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
+            typer.echo(show())  # `toolkit` alone: the help, as `--help` prints it
+            sys.exit(0)
         if show is not None:  # click's exceptions (typer bundles its own click)
             typer.echo(f"error: {show()} (see --help)", err=True)
             sys.exit(1)

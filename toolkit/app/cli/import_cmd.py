@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import shutil
+import textwrap
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values, report_outcomes
 
+if TYPE_CHECKING:
+    from importers.base import OptionSpec
 
-@app.command("import")
+
+@app.command("import", short_help="Import a log (or, with --each, many) into a dataset.")
 def import_command(
     fmt: Annotated[
         str,
@@ -19,18 +24,40 @@ def import_command(
             metavar="FORMAT", help="auto, or one of the formats `toolkit formats` lists"
         ),
     ],
-    sources: Annotated[list[Path], typer.Argument(help="log files or a session directory")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="dataset directory to write")],
+    sources: Annotated[
+        list[Path],
+        typer.Argument(
+            metavar="SOURCE", help="log files or a session directory", show_default=False
+        ),
+    ],
+    out: Annotated[Path, typer.Option("--out", metavar="DIR", help="dataset directory to write")],
     force: Annotated[bool, typer.Option("--force", help="replace an existing dataset")] = False,
     rate: Annotated[
-        float | None, typer.Option(help="scans per second, for logs without a clock")
+        float | None,
+        typer.Option(
+            metavar="HZ",
+            help="scans per second, for logs without a clock (carmen, aria, lms200, table)",
+        ),
     ] = None,
-    scan_topic: Annotated[str | None, typer.Option(help="ROS bags: the LaserScan topic")] = None,
-    odom_topic: Annotated[str | None, typer.Option(help="ROS bags: the odometry topic")] = None,
-    laser: Annotated[str | None, typer.Option(help="which laser is the primary one")] = None,
+    scan_topic: Annotated[
+        str | None, typer.Option(metavar="TOPIC", help="rosbag: the LaserScan topic")
+    ] = None,
+    odom_topic: Annotated[
+        str | None, typer.Option(metavar="TOPIC", help="rosbag: the odometry topic")
+    ] = None,
+    laser: Annotated[
+        str | None,
+        typer.Option(metavar="NAME", help="carmen, rawseeds: which laser is the primary one"),
+    ] = None,
     option: Annotated[
         list[str] | None,
-        typer.Option("--option", "-O", help="format-specific KEY=VALUE (see `toolkit formats`)"),
+        typer.Option(
+            "--option",
+            "-O",
+            metavar="KEY=VALUE",
+            help="a format option, repeatable; `toolkit formats` lists each format's; an "
+            "option or flag the format does not have is an error",
+        ),
     ] = None,
     each: Annotated[
         bool,
@@ -44,8 +71,9 @@ def import_command(
     scheduler: Annotated[
         str,
         typer.Option(
+            metavar="WHERE",
             help="with --each: where the imports run: none (this process), local or local:N "
-            "(a Dask LocalCluster of N workers) or a Dask scheduler's address"
+            "(a Dask LocalCluster of N workers) or a Dask scheduler's address",
         ),
     ] = "none",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
@@ -64,6 +92,8 @@ def import_command(
         laser=laser,
         extra=key_values(option, "-O"),
     )
+    if fmt != "auto":  # a bad option fails once, up front, not once per log
+        importers.read_options(importers.get(fmt), options)
     if each or scheduler != "none":
         _import_each(fmt, sources, out, options, force, scheduler, quiet)
         return
@@ -93,13 +123,40 @@ def _import_each(
     report_outcomes(outcomes, out, "logs", quiet)
 
 
-@app.command("formats")
-def formats_command() -> None:
-    """List the source formats, what auto-detection looks for, and their options."""
+@app.command("formats", short_help="List the formats: read/write, sources, options.")
+def formats_command(
+    name: Annotated[
+        str | None, typer.Argument(metavar="FORMAT", help="one format only (default: all)")
+    ] = None,
+) -> None:
+    """List the log formats: which the toolkit reads and writes, what each reads, and each
+    format's options: `-O KEY=VALUE` of `toolkit import` (reading) and of `toolkit simulate`
+    (writing), with type, default and meaning."""
     import importers
 
-    for name in importers.names():
-        imp = importers.get(name)
-        typer.echo(f"{name:10s} {imp.summary}")
-        for key, help_ in imp.options.items():
-            typer.echo(f"{'':10s}   -O {key}=...  {help_}")
+    chosen = [importers.get(name)] if name else [importers.get(n) for n in importers.names()]
+    width = _width()
+    typer.echo(f"{'FORMAT':9s} {'READ':5s} {'WRITE':5s} SOURCES")
+    for imp in chosen:
+        row = f"{imp.name:9s} {'yes':5s} {'yes' if imp.writes else 'no':5s} {imp.summary}"
+        typer.echo(textwrap.fill(row, width, subsequent_indent=" " * 22))
+    for imp in chosen:
+        typer.echo(f"\n{imp.name}: toolkit import {imp.name} SOURCE --out DIR -O KEY=VALUE ...")
+        _print_options(imp.Options.specs())
+        if imp.WriteOptions is not None:
+            typer.echo(f"{imp.name} writer: toolkit simulate ... -f {imp.name} -O KEY=VALUE ...")
+            _print_options(imp.WriteOptions.specs(flags=False))
+
+
+def _print_options(specs: list[OptionSpec]) -> None:
+    """Per option: KEY=TYPE (default), the flag that sets it too, then its help, wrapped."""
+    width = _width()
+    for s in specs:
+        flag = f"; also {s.flag}" if s.flag else ""
+        typer.echo(f"  {s.name}={s.type}  (default {s.default}{flag})")
+        typer.echo(textwrap.fill(s.help, width, initial_indent=" " * 6, subsequent_indent=" " * 6))
+
+
+def _width() -> int:
+    """The terminal's width for wrapped listings, within 60-100 columns."""
+    return max(60, min(shutil.get_terminal_size().columns, 100))

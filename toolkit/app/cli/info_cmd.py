@@ -36,9 +36,9 @@ def print_summary(s: dict[str, Any]) -> None:
     typer.echo("\n".join(lines))
 
 
-@app.command("info")
+@app.command("info", short_help="Summarise a dataset.")
 def info_command(
-    dataset: Annotated[Path, typer.Argument(help="dataset directory")],
+    dataset: Annotated[Path, typer.Argument(metavar="DATASET", help="dataset directory")],
     as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
 ) -> None:
     """Summarise a dataset: scans, beams, field of view, duration and rate, poses, drops."""

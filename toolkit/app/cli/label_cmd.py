@@ -10,42 +10,49 @@ import typer
 from toolkit.app.cli import app
 
 
-@app.command("label")
+@app.command("label", short_help="Learn places from a few scans, find them along a log.")
 def label_command(
-    dataset: Annotated[Path, typer.Argument(help="dataset directory")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="run directory to write into")],
+    dataset: Annotated[Path, typer.Argument(metavar="DATASET", help="dataset directory")],
+    out: Annotated[Path, typer.Option("--out", metavar="DIR", help="run directory to write into")],
     regions: Annotated[
         Path | None,
-        typer.Option(help="training spans: CSV feature,start,end (times inclusive)"),
+        typer.Option(metavar="CSV", help="training spans: CSV feature,start,end (times inclusive)"),
     ] = None,
     model: Annotated[
-        Path | None, typer.Option("--model", help="apply a saved model.json instead of learning")
+        Path | None,
+        typer.Option(
+            "--model", metavar="JSON", help="apply a saved model.json instead of learning"
+        ),
     ] = None,
     trajectory: Annotated[
         Path | None,
         typer.Option(
+            metavar="FILE",
             help="poses t,x,y,theta (e.g. RUN/trajectory.parquet from `toolkit map`); "
-            "default: the dataset's ground truth, else its odometry"
+            "default: the dataset's ground truth, else its odometry",
         ),
     ] = None,
     smoothing: Annotated[
         str | None,
         typer.Option(
+            metavar="MODE",
             help="along the trajectory (Eq. 7): forward-backward (the default: the whole log), "
-            "forward (streaming: only the scans so far) or none"
+            "forward (streaming: only the scans so far) or none",
         ),
     ] = None,
     robust: Annotated[
         float | None,
         typer.Option(
+            metavar="W",
             help="per beam, the weight of the world's model against the feature's "
-            "(default 0.9; lower trusts every beam of the taught scans more)"
+            "(default 0.9; lower trusts every beam of the taught scans more)",
         ),
     ] = None,
     evidence_length: Annotated[
         float | None,
         typer.Option(
             "--evidence-length",
+            metavar="M",
             help="m of path per scan's worth of evidence in the HMM (default 0.5, 0.15 with "
             "--none-model surroundings; 0: every "
             "scan counts fully, as if consecutive scans were independent); when learning "
@@ -67,6 +74,7 @@ def label_command(
         str,
         typer.Option(
             "--none-model",
+            metavar="MODEL",
             help="what 'none' is: world (the default: the whole log's per-beam histogram) or "
             "surroundings (each feature's own model where its reading is common in the log, "
             "the world where it is distinctive; with strict returns, 0.15 m of evidence "
@@ -78,7 +86,10 @@ def label_command(
     ] = False,
     truth: Annotated[
         Path | None,
-        typer.Option(help="true labels (t, label; e.g. the simulator's truth.parquet) to score"),
+        typer.Option(
+            metavar="FILE",
+            help="true labels (t, label; e.g. the simulator's truth.parquet) to score",
+        ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="replace earlier label outputs")] = False,
 ) -> None:

@@ -12,7 +12,7 @@ import typer
 from toolkit.app.cli import app
 
 
-@app.command("map")
+@app.command("map", short_help="Align the scans; trajectory, maps and metrics.")
 def map_command(
     datasets: Annotated[
         list[Path],
@@ -24,25 +24,32 @@ def map_command(
     ],
     out: Annotated[
         Path,
-        typer.Option("--out", "-o", help="run directory to write (many datasets: their parent)"),
+        typer.Option(
+            "--out", metavar="DIR", help="run directory to write (many datasets: their parent)"
+        ),
     ],
     method: Annotated[
         str,
         typer.Option(
+            metavar="METHOD",
             help="gaussian (the paper's scan matcher), icp (2D point-to-line), "
-            "icp-point (Open3D point-to-point) or odometry"
+            "icp-point (Open3D point-to-point) or odometry",
         ),
     ] = "gaussian",
     voxel: Annotated[
-        float, typer.Option(help="voxel size (m) to downsample cloud.ply; 0 keeps every return")
+        float,
+        typer.Option(
+            metavar="M", help="voxel size (m) to downsample cloud.ply; 0 keeps every return"
+        ),
     ] = 0.0,
     force: Annotated[bool, typer.Option("--force", help="replace an existing run")] = False,
     scheduler: Annotated[
         str,
         typer.Option(
+            metavar="WHERE",
             help="where the work runs: none (this process), local or local:N (a Dask "
             "LocalCluster of N workers) or a Dask scheduler's address; one dataset: its scan "
-            "pairs (gaussian), many: one task per dataset"
+            "pairs (gaussian), many: one task per dataset",
         ),
     ] = "none",
     each: Annotated[

@@ -14,12 +14,15 @@ if TYPE_CHECKING:
 
 
 def key_values(pairs: list[str] | None, flag: str) -> dict[str, str]:
-    """Repeated `FLAG KEY=VALUE` options as a dict; a malformed one is a one-line error."""
+    """Repeated `FLAG KEY=VALUE` options as a dict (text: the format or the simulator converts
+    each to its type); a malformed or repeated one is a one-line error."""
     out = {}
     for pair in pairs or []:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
             raise ToolkitError(f"{flag} {pair!r} is not KEY=VALUE")
+        if key.strip() in out:
+            raise ToolkitError(f"{flag} {key.strip()}= given twice; give it once")
         out[key.strip()] = value.strip()
     return out
 

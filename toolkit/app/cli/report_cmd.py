@@ -12,27 +12,31 @@ import typer
 from toolkit.app.cli import app
 
 
-@app.command("report")
+@app.command("report", short_help="Write the paper's figures and tables, measured now.")
 def report_command(
-    out: Annotated[Path, typer.Option("--out", "-o", help="report folder to write")],
+    out: Annotated[Path, typer.Option("--out", metavar="DIR", help="report folder to write")],
     datasets: Annotated[
         list[Path] | None,
         typer.Argument(
+            metavar="DATASET",
+            show_default=False,
             help="dataset directories to map, label and score "
-            "(default: the bundled logs of datasets/catalog.json)"
+            "(default: the bundled logs of datasets/catalog.json)",
         ),
     ] = None,
     regions: Annotated[
         Path | None,
         typer.Option(
+            metavar="CSV",
             help="training regions CSV (feature,start,end) for the datasets given; "
-            "default: regions.csv in each dataset folder"
+            "default: regions.csv in each dataset folder",
         ),
     ] = None,
     real: Annotated[
         Path | None,
         typer.Option(
-            help="folder of real logs (default: $TOOLKIT_REAL_DATA or ../shared/data/real)"
+            metavar="DIR",
+            help="folder of real logs (default: $TOOLKIT_REAL_DATA or ../shared/data/real)",
         ),
     ] = None,
     no_real: Annotated[bool, typer.Option("--no-real", help="leave the real logs out")] = False,
@@ -40,7 +44,10 @@ def report_command(
         bool, typer.Option("--quick", help="fewer trials and cloud sizes (tests, CI)")
     ] = False,
     seed: Annotated[
-        int, typer.Option(help="seed of the simulator (the corridor, the drift added to Intel)")
+        int,
+        typer.Option(
+            metavar="N", help="seed of the simulator (the corridor, the drift added to Intel)"
+        ),
     ] = 0,
     force: Annotated[bool, typer.Option("--force", help="replace an existing report")] = False,
 ) -> None:

@@ -12,21 +12,9 @@ from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values
 
 
-def _value(text: str) -> Any:
-    """A KEY=VALUE value as the number or boolean it spells, else the string."""
-    low = text.lower()
-    if low in ("true", "false"):
-        return low == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def _pairs(pairs: list[str] | None, flag: str) -> dict[str, Any]:
-    return {k.replace("-", "_"): _value(v) for k, v in key_values(pairs, flag).items()}
+    """KEY=VALUE text; the simulator and the writer convert each to its field's type."""
+    return {k.replace("-", "_"): v for k, v in key_values(pairs, flag).items()}
 
 
 def _config(path: Path | None) -> dict[str, Any]:
@@ -51,47 +39,76 @@ def _config(path: Path | None) -> dict[str, Any]:
     return params
 
 
-@app.command("simulate")
+@app.command("simulate", short_help="Simulate a log with known truth, in a native format.")
 def simulate_command(
-    scenario: Annotated[str, typer.Argument(help="corridor (the paper's Fig. 1) or building")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="directory to write")],
+    scenario: Annotated[
+        str,
+        typer.Argument(metavar="SCENARIO", help="corridor (the paper's Fig. 1) or building"),
+    ],
+    out: Annotated[Path, typer.Option("--out", metavar="DIR", help="directory to write")],
     fmt: Annotated[
         str,
         typer.Option(
-            "--format", "-f", help="a format with a writer (see `toolkit formats`), or dataset"
+            "--format",
+            "-f",
+            metavar="FORMAT",
+            help="a format with a writer (see `toolkit formats`), or dataset",
         ),
     ],
-    seed: Annotated[int | None, typer.Option(help="random seed (default 0)")] = None,
+    seed: Annotated[int | None, typer.Option(metavar="N", help="random seed (default 0)")] = None,
     scans: Annotated[
-        int | None, typer.Option(help="number of scans (default per scenario)")
+        int | None, typer.Option(metavar="N", help="number of scans (default per scenario)")
     ] = None,
     config: Annotated[
-        Path | None, typer.Option(help="JSON object of parameters (or a simulation.json)")
+        Path | None,
+        typer.Option(metavar="JSON", help="JSON object of parameters (or a simulation.json)"),
     ] = None,
-    speed: Annotated[float | None, typer.Option(help="robot speed, m/s")] = None,
+    speed: Annotated[float | None, typer.Option(metavar="M/S", help="robot speed, m/s")] = None,
     units: Annotated[
-        str | None, typer.Option(help="LMS-200 units: cm (80 m, 1 cm) or mm (8 m, 1 mm)")
+        str | None,
+        typer.Option(metavar="cm|mm", help="LMS-200 units: cm (80 m, 1 cm) or mm (8 m, 1 mm)"),
     ] = None,
-    range_sigma: Annotated[float | None, typer.Option(help="laser range noise, m")] = None,
+    range_sigma: Annotated[
+        float | None, typer.Option(metavar="M", help="laser range noise, m")
+    ] = None,
     glass_normal_deg: Annotated[
-        float | None, typer.Option(help="glass returns within this angle of normal, deg")
+        float | None,
+        typer.Option(metavar="DEG", help="glass returns within this angle of normal, deg"),
     ] = None,
     mixed_prob: Annotated[
-        float | None, typer.Option(help="chance of a mixed pixel at a depth edge")
+        float | None, typer.Option(metavar="P", help="chance of a mixed pixel at a depth edge")
     ] = None,
     wheel_diff: Annotated[
-        float | None, typer.Option(help="relative wheel diameter difference (heading drift)")
+        float | None,
+        typer.Option(metavar="R", help="relative wheel diameter difference (heading drift)"),
     ] = None,
-    scale_error: Annotated[float | None, typer.Option(help="odometry scale error")] = None,
-    wheel_noise: Annotated[float | None, typer.Option(help="wheel noise, m per sqrt(m)")] = None,
-    slip_prob: Annotated[float | None, typer.Option(help="wheel slip chance per scan")] = None,
+    scale_error: Annotated[
+        float | None, typer.Option(metavar="R", help="odometry scale error")
+    ] = None,
+    wheel_noise: Annotated[
+        float | None, typer.Option(metavar="M", help="wheel noise, m per sqrt(m)")
+    ] = None,
+    slip_prob: Annotated[
+        float | None, typer.Option(metavar="P", help="wheel slip chance per scan")
+    ] = None,
     param: Annotated[
         list[str] | None,
-        typer.Option("--param", "-p", help="any model parameter KEY=VALUE (README: Simulator)"),
+        typer.Option(
+            "--param",
+            "-p",
+            metavar="KEY=VALUE",
+            help="any model parameter, repeatable: scans, speed, turn_rate, t0 or a field of "
+            "LaserModel or OdometryModel (toolkit/sim)",
+        ),
     ] = None,
     option: Annotated[
         list[str] | None,
-        typer.Option("--option", "-O", help="writer option KEY=VALUE (e.g. lms200 baud=38400)"),
+        typer.Option(
+            "--option",
+            "-O",
+            metavar="KEY=VALUE",
+            help="a writer option, repeatable (`toolkit formats`; e.g. lms200 baud=38400)",
+        ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing DIR")] = False,
 ) -> None:
