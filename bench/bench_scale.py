@@ -32,14 +32,14 @@ CLUSTERS = ("local:1", "local:2", "local:4")
 
 
 def _log(scans: int) -> tuple[np.ndarray, np.ndarray, Any]:
-    from toolkit.align import scan as sc
+    from toolkit import se2
     from toolkit.poses import odometry_poses
     from toolkit.sim import simulate
 
     ds = simulate("building", seed=0).dataset
     odo = odometry_poses(ds)
     assert odo is not None
-    steps = sc.laser_motion(sc.between(odo[:-1], odo[1:]), ds.laser)
+    steps = se2.laser_motion(se2.between(odo[:-1], odo[1:]), ds.laser)
     copies = -(-scans // ds.n_scans)
     ranges = np.tile(ds.ranges, (copies, 1))[:scans]
     seeds = np.tile(np.vstack([steps, np.zeros((1, 3))]), (copies, 1))[: scans - 1]

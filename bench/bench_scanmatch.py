@@ -82,13 +82,14 @@ def _dataset(name: str, work: Path) -> Any:
 def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
     import numba
 
+    from toolkit import se2
     from toolkit.align import scan as sc
     from toolkit.poses import odometry_poses
 
     ds = _dataset("building", Path())
     odo = odometry_poses(ds)
     assert odo is not None
-    seeds = sc.laser_motion(sc.between(odo[:-1], odo[1:]), ds.laser)
+    seeds = se2.laser_motion(se2.between(odo[:-1], odo[1:]), ds.laser)
     pairs = len(seeds)
     rates: dict[str, float] = {}
     # ICP as the matcher is run: the same odometry seeds, its gate as the correspondence
@@ -186,10 +187,10 @@ def child_accuracy(name: str, work: str) -> list[dict[str, Any]]:
 
 def child_make_log(scans: int, out: str) -> dict[str, Any]:
     """A long log: the simulated building's scans repeated, its path continued lap after lap."""
-    import pandas as pd
 
     import toolkit
-    from toolkit.align import scan as sc
+    from toolkit import se2
+    from toolkit.dataset import pose_frame
     from toolkit.poses import compose_steps
 
     base = _dataset("building", Path())
@@ -198,14 +199,12 @@ def child_make_log(scans: int, out: str) -> dict[str, Any]:
     frames = {}
     for name, frame in (("odometry", base.odometry), ("groundtruth", base.groundtruth)):
         p = frame[["x", "y", "theta"]].to_numpy()
-        steps = sc.between(p[:-1], p[1:])
+        steps = se2.between(p[:-1], p[1:])
         steps = np.concatenate([steps, np.zeros((1, 3))])  # lap to lap: no motion
         poses = compose_steps(p[0], np.tile(steps, (laps, 1))[: scans - 1])
         dt = float(np.median(np.diff(base.t)))
         t = base.t[0] + dt * np.arange(scans)
-        frames[name] = pd.DataFrame(
-            {"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]}
-        )
+        frames[name] = pose_frame(t, poses)
     ds = toolkit.Dataset(
         t=frames["odometry"]["t"].to_numpy(),
         ranges=ranges,

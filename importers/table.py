@@ -43,8 +43,9 @@ import pyarrow.csv as pacsv
 
 from importers import register
 from importers.base import Importer, ImportOptions, head_bytes, open_binary
+from toolkit import se2
 from toolkit.atomic import atomic_file
-from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
+from toolkit.dataset import Dataset, ImportReport, LaserGeometry, PoseStream, make_meta, pose_frame
 from toolkit.errors import FormatError, ToolkitError
 
 PRESETS: dict[str, dict[str, str]] = {
@@ -520,7 +521,7 @@ def _poses(
 
 
 def _frame(t: np.ndarray, x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> pd.DataFrame:
-    frame = pd.DataFrame({"t": t, "x": x, "y": y, "theta": np.angle(np.exp(1j * theta))})
+    frame = pose_frame(t, np.column_stack([x, y, se2.wrap(theta)]))
     return frame[np.isfinite(frame.to_numpy()).all(axis=1)].reset_index(drop=True)
 
 
@@ -578,10 +579,5 @@ def _odometry_file(
 
 
 def _interpolate_pose(odometry: pd.DataFrame, t: np.ndarray) -> dict[str, np.ndarray]:
-    ot = odometry.t.to_numpy()
-    theta = np.unwrap(odometry.theta.to_numpy())
-    return {
-        "x": np.interp(t, ot, odometry.x.to_numpy()),
-        "y": np.interp(t, ot, odometry.y.to_numpy()),
-        "theta": np.angle(np.exp(1j * np.interp(t, ot, theta))),
-    }
+    x, y, theta = PoseStream.from_frame(odometry).at(t).T
+    return {"x": x, "y": y, "theta": theta}

@@ -25,6 +25,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from toolkit import se2
 from toolkit.atomic import atomic_dir
 from toolkit.errors import FormatError, ToolkitError
 
@@ -196,6 +197,54 @@ class Dataset:
             + (f", path={str(self.path)!r}" if self.path else "")
             + ")"
         )
+
+
+@dataclass(frozen=True)
+class PoseStream:
+    """Timed robot poses: `t` (N,) s and `xyt` (N x 3) x, y, theta (m, rad); the odometry,
+    the ground truth or a trajectory, read from and written as t, x, y, theta frames."""
+
+    t: np.ndarray
+    xyt: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.ascontiguousarray(self.t, dtype=np.float64).reshape(-1)
+        xyt = np.ascontiguousarray(self.xyt, dtype=np.float64).reshape(-1, 3)
+        if len(t) != len(xyt):
+            raise ValueError(f"{len(t)} times but {len(xyt)} poses")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "xyt", xyt)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        """Poses at times `t` (len(t) x 3) by `toolkit.se2.interpolate` (heading on the
+        circle, clamped at the ends); a copy of the poses when `t` are the stream's times."""
+        t = np.asarray(t, dtype=np.float64)
+        if len(t) == len(self.t) and np.array_equal(t, self.t):
+            return self.xyt.copy()
+        if len(self.t) == 0:
+            raise ToolkitError("pose stream is empty")
+        return se2.interpolate(self.t, self.xyt, t)
+
+    def frame(self) -> pd.DataFrame:
+        """DataFrame t, x, y, theta (float64)."""
+        x, y, theta = self.xyt.T
+        return pd.DataFrame({"t": self.t, "x": x, "y": y, "theta": theta})
+
+    @classmethod
+    def from_frame(cls, frame: pd.DataFrame) -> PoseStream:
+        """The stream of a t, x, y, theta frame (rows in their order)."""
+        missing = [c for c in POSE_COLUMNS if c not in frame.columns]
+        if missing:
+            raise ValueError(f"pose table lacks columns {missing}")
+        return cls(frame["t"].to_numpy(np.float64), frame[["x", "y", "theta"]].to_numpy(np.float64))
+
+
+def pose_frame(t: np.ndarray, xyt: np.ndarray) -> pd.DataFrame:
+    """DataFrame t, x, y, theta of poses `xyt` (N x 3) at times `t`."""
+    return PoseStream(t, xyt).frame()
 
 
 def _poses_frame(frame: pd.DataFrame | None) -> pd.DataFrame | None:

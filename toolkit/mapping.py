@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import Dataset, LaserGeometry, load
@@ -36,16 +37,11 @@ from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 CHUNK = 20_000  # scans per chunk of map building
 
 
-def laser_poses(robot: np.ndarray, laser: LaserGeometry) -> np.ndarray:
-    """World poses of the laser (S x 3) for robot poses (S x 3)."""
-    return sc.compose(robot, np.broadcast_to(sc.mount_pose(laser), robot.shape))
-
-
 def world_points(
     ranges: np.ndarray, robot: np.ndarray, laser: LaserGeometry
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every return of `ranges` (S x B) in world x, y (N x 2) and the scan it came from (N,)."""
-    lp = laser_poses(robot, laser)
+    lp = se2.laser_poses(robot, laser)
     scan, beam = np.nonzero(np.isfinite(ranges))
     r = ranges[scan, beam].astype(np.float64)
     bearing = lp[scan, 2] + laser.angles[beam]

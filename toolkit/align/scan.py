@@ -36,6 +36,8 @@ from typing import Any, Literal
 import numba as nb
 import numpy as np
 
+from toolkit import se2
+from toolkit.align import se2_jit
 from toolkit.dataset import LaserGeometry
 
 Variant = Literal["text", "paper"]
@@ -105,50 +107,6 @@ class PairMatches:
             np.zeros(n, np.int8),
             np.zeros(n),
         )
-
-
-# ---------------------------------------------------------------- SE(2) helpers
-
-
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ∘ b for (..., 3) poses (x, y, theta)."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
-    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
-    return np.stack([x, y, wrap(a[..., 2] + b[..., 2])], axis=-1)
-
-
-def inverse(a: np.ndarray) -> np.ndarray:
-    """a^-1 for (..., 3) poses."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = -c * a[..., 0] - s * a[..., 1]
-    y = s * a[..., 0] - c * a[..., 1]
-    return np.stack([x, y, -a[..., 2]], axis=-1)
-
-
-def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a^-1 ∘ b: b seen from a."""
-    return compose(inverse(a), b)
-
-
-def wrap(theta: np.ndarray) -> np.ndarray:
-    return np.asarray((theta + np.pi) % (2 * np.pi) - np.pi)
-
-
-def mount_pose(laser: LaserGeometry) -> np.ndarray:
-    return np.array([laser.x, laser.y, laser.yaw], dtype=np.float64)
-
-
-def laser_motion(robot_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
-    """Relative robot motions (P x 3) as motions of the laser: M^-1 ∘ step ∘ M."""
-    m = np.broadcast_to(mount_pose(laser), robot_steps.shape)
-    return compose(compose(inverse(m), robot_steps), m)
-
-
-def robot_motion(laser_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
-    """Relative laser motions (P x 3) as motions of the robot: M ∘ step ∘ M^-1."""
-    m = np.broadcast_to(mount_pose(laser), laser_steps.shape)
-    return compose(compose(m, laser_steps), inverse(m))
 
 
 # ---------------------------------------------------------------- the kernel
@@ -576,7 +534,7 @@ def _match_pair(
     degenerate = _covariance(best, params, out_cov)
     out_pose[0] = best[_TX]
     out_pose[1] = best[_TY]
-    out_pose[2] = math.atan2(math.sin(best[_TH]), math.cos(best[_TH]))
+    out_pose[2] = se2_jit.wrap(best[_TH])
     out_stats[0] = math.sqrt(best[_VAR])
     out_stats[1] = best[_USED]
     out_stats[2] = degenerate
@@ -680,10 +638,7 @@ def _keyframes(odo: np.ndarray, distance: float, angle: float) -> np.ndarray:
     key = 0
     for k in range(1, n):
         ref[k] = key
-        dx = odo[k, 0] - odo[key, 0]
-        dy = odo[k, 1] - odo[key, 1]
-        turn = abs(math.atan2(math.sin(odo[k, 2] - odo[key, 2]), math.cos(odo[k, 2] - odo[key, 2])))
-        if dx * dx + dy * dy >= distance * distance or turn >= angle:
+        if se2_jit.is_keyframe(odo[k], odo[key], distance, angle):
             key = k
     return ref
 
@@ -699,7 +654,7 @@ def match_pairs(
     """Match every scan k >= 1 of `ranges` (S x B) against scan ref[k] (default k - 1).
 
     `seeds[k-1]` is the odometry's pose of laser k in the frame of laser ref[k] (see
-    `laser_motion`). Pairs are independent given the seeds: all are matched at once, in
+    `toolkit.se2.laser_motion`). Pairs are independent given the seeds: all are matched at once, in
     parallel, in chunks of `chunk` pairs so the working memory stays bounded.
     """
     config = config or MatchConfig()
@@ -791,8 +746,8 @@ class StreamMatcher:
             self._key_odometry[:] = odo
             self._key_pose[:] = odo
             return odo.copy()
-        robot_seed = between(self._key_odometry[None], odo[None])
-        seed = np.ascontiguousarray(laser_motion(robot_seed, self.laser)[0])
+        robot_seed = se2.between(self._key_odometry[None], odo[None])
+        seed = np.ascontiguousarray(se2.laser_motion(robot_seed, self.laser)[0])
         _match_pair(
             self._key_scan,
             np.ascontiguousarray(scan),
@@ -807,24 +762,11 @@ class StreamMatcher:
             self.stats,
             self._work,
         )
-        step = robot_motion(self.pose[None], self.laser)[0]
-        x, y, th = self._key_pose
-        c, s = math.cos(th), math.sin(th)
-        pose = np.array(
-            [
-                x + c * step[0] - s * step[1],
-                y + s * step[0] + c * step[1],
-                math.atan2(math.sin(th + step[2]), math.cos(th + step[2])),
-            ]
-        )
-        dx, dy = odo[:2] - self._key_odometry[:2]
-        turn = abs(
-            math.atan2(
-                math.sin(odo[2] - self._key_odometry[2]), math.cos(odo[2] - self._key_odometry[2])
-            )
-        )
+        step = se2.robot_motion(self.pose[None], self.laser)[0]
+        pose = np.empty(3)
+        se2_jit.compose_into(self._key_pose, step, pose)
         cfg = self.config
-        if dx * dx + dy * dy >= cfg.keyframe_distance**2 or turn >= cfg.keyframe_angle:
+        if se2_jit.is_keyframe(odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle):
             self._key_scan[:] = scan
             self._key_odometry[:] = odo
             self._key_pose[:] = pose

@@ -26,6 +26,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from toolkit import se2
 from toolkit.features.model import (
     BIN_STEP,
     Config,
@@ -558,7 +559,7 @@ def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
     step = np.full(n, np.inf)
     if n > 1:
         d = np.diff(poses[:, :2], axis=0)
-        turn = np.abs(np.remainder(np.diff(poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
+        turn = np.abs(se2.wrap(np.diff(poses[:, 2])))
         step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
     return step
 

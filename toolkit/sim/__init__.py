@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
-from toolkit.dataset import Dataset, ImportReport, make_meta, path_distance
+from toolkit.dataset import Dataset, ImportReport, make_meta, path_distance, pose_frame
 from toolkit.errors import ToolkitError
 from toolkit.progress import task
 from toolkit.sim.geometry import World
@@ -157,8 +157,8 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         t=t,
         ranges=ranges,
         laser=laser.geometry(),
-        odometry=_poses(t, odo),
-        groundtruth=_poses(t, truth),
+        odometry=pose_frame(t, odo),
+        groundtruth=pose_frame(t, truth),
         meta=meta,
     )
     return Simulation(
@@ -171,7 +171,3 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         params=used,
         world=scn.world,
     )
-
-
-def _poses(t: np.ndarray, poses: np.ndarray) -> pd.DataFrame:
-    return pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
