@@ -32,7 +32,7 @@ from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.metrics import evaluate
-from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 
 CHUNK = 20_000  # scans per chunk of map building
 
@@ -186,7 +186,7 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
         "seconds_aligning": result.seconds,
         "pairs_per_second": result.pairs_per_second,
     }
-    if result.matches is not None and result.method == "gaussian":
+    if result.matches is not None and result.method == Method.GAUSSIAN:
         out["degenerate_pairs"] = {
             "one_direction_from_odometry": int((result.matches.degenerate == 1).sum()),
             "all_from_odometry": int((result.matches.degenerate == 2).sum()),
@@ -198,7 +198,7 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
     out["groundtruth"] = True
     out.update(evaluate(result.poses, truth))
     odo = odometry_poses(ds)
-    if odo is not None and result.method != "odometry":
+    if odo is not None and result.method != Method.ODOMETRY:
         out["odometry"] = evaluate(odo, truth)
     return out
 
@@ -215,7 +215,7 @@ def _meta_digest(ds: Dataset) -> str | None:
 def write_run(
     ds: Dataset,
     out: str | Path,
-    method: str = "gaussian",
+    method: Method | str = Method.GAUSSIAN,
     voxel: float = 0.0,
     config: sc.MatchConfig | None = None,
     force: bool = False,
@@ -226,6 +226,7 @@ def write_run(
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
+    method = Method.parse(method)
     from toolkit.progress import task
 
     with task(f"map ({method})", 4) as (progress, bar):
@@ -263,7 +264,7 @@ def write_run(
 def map_dataset(
     dataset: str | Path,
     out: str | Path,
-    method: str = "gaussian",
+    method: Method | str = Method.GAUSSIAN,
     voxel: float = 0.0,
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,

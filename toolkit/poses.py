@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Literal
 
 import numba as nb
@@ -27,8 +28,26 @@ from toolkit.align import se2_jit
 from toolkit.dataset import Dataset, PoseStream, pose_frame
 from toolkit.errors import ToolkitError
 
-Method = Literal["gaussian", "icp", "icp-point", "odometry"]
-METHODS: tuple[str, ...] = ("gaussian", "icp", "icp-point", "odometry")
+
+class Method(StrEnum):
+    """How a trajectory is obtained; the values are the CLI's `--method` names."""
+
+    GAUSSIAN = "gaussian"  # the paper's scan matcher
+    ICP = "icp"  # 2D point-to-line ICP
+    ICP_POINT = "icp-point"  # Open3D point-to-point ICP
+    ODOMETRY = "odometry"  # no matching
+
+    @classmethod
+    def parse(cls, name: str) -> Method:
+        """The method called `name`; a ToolkitError naming the known ones otherwise."""
+        try:
+            return cls(name)
+        except ValueError:
+            known = ", ".join(m.value for m in cls)
+            raise ToolkitError(f"unknown method {name!r}; known: {known}") from None
+
+
+METHODS: tuple[str, ...] = tuple(m.value for m in Method)
 
 
 @dataclass
@@ -36,7 +55,7 @@ class TrajectoryResult:
     """Poses per scan and how they were obtained."""
 
     frame: pd.DataFrame  # t, x, y, theta
-    method: str
+    method: Method
     matches: sc.PairMatches | None = None  # per pair, for the matching methods
     seconds: float = 0.0  # time spent aligning scan pairs
     config: dict[str, object] = field(default_factory=dict)
@@ -101,7 +120,7 @@ def truth_poses(ds: Dataset) -> np.ndarray | None:
 
 def build(
     ds: Dataset,
-    method: str = "gaussian",
+    method: Method | str = Method.GAUSSIAN,
     config: sc.MatchConfig | None = None,
     matcher: Callable[..., sc.PairMatches] | None = None,
 ) -> TrajectoryResult:
@@ -110,11 +129,10 @@ def build(
 
     `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
     runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`)."""
-    if method not in METHODS:
-        raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    method = Method.parse(method)
     odo = odometry_poses(ds)
     n = ds.n_scans
-    if method == "odometry":
+    if method == Method.ODOMETRY:
         if odo is None:
             raise ToolkitError("method odometry needs odometry; the dataset has none", file=ds.path)
         return TrajectoryResult(pose_frame(ds.t, odo), method)
@@ -130,12 +148,12 @@ def build(
         robot_seed = np.zeros((n - 1, 3))
     seeds = se2.laser_motion(robot_seed, ds.laser)
     t0 = time.perf_counter()
-    if method == "gaussian":
+    if method == Method.GAUSSIAN:
         matches = (matcher or sc.match_pairs)(ds.ranges, seeds, ds.laser, config, ref)
         used: dict[str, object] = config.to_dict()
     else:
         icp_method: Literal["point_to_line", "point_to_point"] = (
-            "point_to_line" if method == "icp" else "point_to_point"
+            "point_to_line" if method == Method.ICP else "point_to_point"
         )
         matches = sc.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
         used = {"icp": icp_method, "max_distance": 0.5, "iterations": 30}
@@ -146,7 +164,7 @@ def build(
 
 
 def trajectory(
-    ds: Dataset, method: str = "gaussian", config: sc.MatchConfig | None = None
+    ds: Dataset, method: Method | str = Method.GAUSSIAN, config: sc.MatchConfig | None = None
 ) -> pd.DataFrame:
     """DataFrame t, x, y, theta: the robot's pose at every scan by `method`."""
     return build(ds, method, config).frame

@@ -138,3 +138,13 @@ def test_keyframes_follow_odometry() -> None:
     odo = np.column_stack([np.arange(10) * 0.1, np.zeros(10), np.zeros(10)])
     assert list(sc.keyframes(odo, 0.25, 1.0)) == [0, 0, 0, 0, 3, 3, 3, 6, 6, 6]
     assert list(sc.keyframes(odo, 0.0, 0.0)) == [0, 0, 1, 2, 3, 4, 5, 6, 7, 8]
+
+
+def test_kernel_parameters_fill_every_named_slot() -> None:
+    laser = LaserModel().geometry()
+    config = sc.MatchConfig(variant="paper", odometry_sigma=(0.07, 0.03), restart_turn=-1.0)
+    params = sc._params(config, laser)
+    assert params.shape == (sc._PARAMS,) and np.isfinite(params).all()
+    assert params[sc._P_PAPER] == 1.0 and params[sc._P_RESTART_TURN] == -1.0
+    assert params[sc._P_ODOMETRY_SIGMA_T] == 0.07 and params[sc._P_ODOMETRY_SIGMA_R] == 0.03
+    assert params[sc._P_BEAM_STEP] == abs(laser.angle_increment)

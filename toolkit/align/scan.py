@@ -158,6 +158,32 @@ def _exp_neg(x: float) -> float:
     return p * _POW2_NEG[n]
 
 
+# kernel parameter slots: `MatchConfig` (and the beam step) as one float64 array for numba,
+# written by `_params` and read by these names only
+(
+    _P_ITERATIONS,
+    _P_MAX_CORRECTION,
+    _P_MAX_TURN,
+    _P_GATE,
+    _P_JUMP,
+    _P_SIGMA_MIN,
+    _P_DEGENERATE_RATIO,
+    _P_MIN_POINTS,
+    _P_ODOMETRY_SIGMA_T,
+    _P_ODOMETRY_SIGMA_R,
+    _P_PAPER,  # 1.0: Eq. 6 as printed
+    _P_COS_MAX_INCIDENCE,
+    _P_MIN_INFORMATION,
+    _P_RESCUE_STEP,
+    _P_RESCUE_BELOW,
+    _P_BEAM_STEP,  # |angle increment| of the laser
+    _P_SETTLE_SHIFT,
+    _P_SETTLE_TURN,
+    _P_RESTART_TURN,
+    _P_RESTART_SHIFT,
+) = range(20)
+_PARAMS = 20
+
 # state slots of one refinement, kept in a small float64 array
 _TX, _TY, _TH, _VAR, _USED, _SW, _DEG, _UX, _UY = range(9)
 _H = 9  # h00 h01 h02 h11 h12 h22 at 9..14
@@ -180,9 +206,9 @@ def _prepare(
     cy: np.ndarray,
 ) -> int:
     """Both scans' returns and the previous scan's surface lines; returns the valid count."""
-    jump = params[4]
-    min_incidence = params[11]
-    spread = params[15] / max(min_incidence, 1e-3)  # beam step / cos(max incidence)
+    jump = params[_P_JUMP]
+    min_incidence = params[_P_COS_MAX_INCIDENCE]
+    spread = params[_P_BEAM_STEP] / max(min_incidence, 1e-3)  # beam step / cos(max incidence)
     nbeams = prev.shape[0]
     valid = 0
     for i in range(nbeams):
@@ -237,17 +263,17 @@ def _refine(
 ) -> None:
     """Gaussian rounds (Eq. 3-6 on point-to-line correspondences) from pose `start`, bounded
     around the odometry `seed`; the result goes to `state`."""
-    iterations = int(params[0])
-    max_corr = params[1]
-    max_turn = params[2]
-    gate = params[3]
-    var_min = params[5] * params[5]
-    ratio = params[6]
-    min_points = params[7]
-    paper = params[10] > 0.5
-    min_info = params[12]
-    settle_t = params[16]
-    settle_r = params[17]
+    iterations = int(params[_P_ITERATIONS])
+    max_corr = params[_P_MAX_CORRECTION]
+    max_turn = params[_P_MAX_TURN]
+    gate = params[_P_GATE]
+    var_min = params[_P_SIGMA_MIN] * params[_P_SIGMA_MIN]
+    ratio = params[_P_DEGENERATE_RATIO]
+    min_points = params[_P_MIN_POINTS]
+    paper = params[_P_PAPER] > 0.5
+    min_info = params[_P_MIN_INFORMATION]
+    settle_t = params[_P_SETTLE_SHIFT]
+    settle_r = params[_P_SETTLE_TURN]
     nbeams = px.shape[0]
     inv_inc = 1.0 / angle_inc
 
@@ -426,8 +452,8 @@ def _refine(
 @nb.njit(cache=True, nogil=True)
 def _covariance(state: np.ndarray, params: np.ndarray, out_cov: np.ndarray) -> int:
     """var * H^-1 on what the scan observed, the odometry's variance elsewhere."""
-    odo_var_t = params[8] * params[8]
-    odo_var_r = params[9] * params[9]
+    odo_var_t = params[_P_ODOMETRY_SIGMA_T] * params[_P_ODOMETRY_SIGMA_T]
+    odo_var_r = params[_P_ODOMETRY_SIGMA_R] * params[_P_ODOMETRY_SIGMA_R]
     var = state[_VAR]
     degenerate = int(state[_DEG])
     ux, uy = state[_UX], state[_UY]
@@ -501,10 +527,10 @@ def _match_pair(
     start = np.empty(3)
     start[:] = seed[:3]
     _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, fb, best)
-    rescue_step = params[13]
+    rescue_step = params[_P_RESCUE_STEP]
     rescued = False
-    if rescue_step > 0.0 and best[_SCORE] < params[14] * valid:
-        max_turn = params[2]
+    if rescue_step > 0.0 and best[_SCORE] < params[_P_RESCUE_BELOW] * valid:
+        max_turn = params[_P_MAX_TURN]
         steps = int(max_turn / rescue_step)
         for k in range(1, steps + 1):
             for sign in (-1.0, 1.0):
@@ -523,8 +549,8 @@ def _match_pair(
     # The rounds settle on the mode nearest their start: about a tenth of the odometry's
     # error survives (a heading bias that piles up over a log). A second run, started
     # afresh (uniform weights, wide spread) from the estimate, leaves a tenth of that.
-    rt = params[18]
-    rs = params[19]
+    rt = params[_P_RESTART_TURN]
+    rs = params[_P_RESTART_SHIFT]
     if not rescued and rt >= 0.0 and best[_DEG] < 2:
         moved = math.hypot(best[_TX] - seed[0], best[_TY] - seed[1])
         if abs(best[_TH] - seed[2]) > rt or moved > rs:
@@ -590,32 +616,33 @@ def _match_all(
 
 
 def _params(config: MatchConfig, laser: LaserGeometry) -> np.ndarray:
+    """The kernels' parameter array (slots `_P_*`)."""
     c = config
-    return np.array(
-        [
-            c.iterations,
-            c.max_correction,
-            c.max_turn,
-            c.gate,
-            c.jump,
-            c.sigma_min,
-            c.degenerate_ratio,
-            c.min_points,
-            c.odometry_sigma[0],
-            c.odometry_sigma[1],
-            1.0 if c.variant == "paper" else 0.0,
-            math.cos(c.max_incidence),
-            c.min_information,
-            c.rescue_step,
-            c.rescue_below,
-            abs(laser.angle_increment),
-            c.settle_shift,
-            c.settle_turn,
-            c.restart_turn,
-            c.restart_shift,
-        ],
-        dtype=np.float64,
-    )
+    values = {
+        _P_ITERATIONS: c.iterations,
+        _P_MAX_CORRECTION: c.max_correction,
+        _P_MAX_TURN: c.max_turn,
+        _P_GATE: c.gate,
+        _P_JUMP: c.jump,
+        _P_SIGMA_MIN: c.sigma_min,
+        _P_DEGENERATE_RATIO: c.degenerate_ratio,
+        _P_MIN_POINTS: c.min_points,
+        _P_ODOMETRY_SIGMA_T: c.odometry_sigma[0],
+        _P_ODOMETRY_SIGMA_R: c.odometry_sigma[1],
+        _P_PAPER: 1.0 if c.variant == "paper" else 0.0,
+        _P_COS_MAX_INCIDENCE: math.cos(c.max_incidence),
+        _P_MIN_INFORMATION: c.min_information,
+        _P_RESCUE_STEP: c.rescue_step,
+        _P_RESCUE_BELOW: c.rescue_below,
+        _P_BEAM_STEP: abs(laser.angle_increment),
+        _P_SETTLE_SHIFT: c.settle_shift,
+        _P_SETTLE_TURN: c.settle_turn,
+        _P_RESTART_TURN: c.restart_turn,
+        _P_RESTART_SHIFT: c.restart_shift,
+    }
+    params = np.full(_PARAMS, np.nan)
+    params[list(values)] = list(values.values())
+    return params
 
 
 def _tables(laser: LaserGeometry) -> tuple[np.ndarray, np.ndarray]:
