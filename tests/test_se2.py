@@ -108,7 +108,7 @@ def test_pose_stream_round_trips_a_frame() -> None:
 def test_numba_wrap_and_compose_equal_se2() -> None:
     a, b = random_poses(500, 4), random_poses(500, 5)
     wrapped = np.array([se2_jit.wrap(x) for x in a[:, 2]])
-    assert np.allclose(wrapped, se2.wrap(a[:, 2]), rtol=0, atol=1e-12)
+    assert np.array_equal(wrapped, se2.wrap(a[:, 2]))
     out = np.empty(3)
     for pa, pb, want in zip(a, b, se2.compose(a, b), strict=True):
         se2_jit.compose_into(pa, pb, out)

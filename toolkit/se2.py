@@ -18,8 +18,6 @@ from typing import Protocol
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
-
 
 class Mount(Protocol):
     """Where a sensor sits on the robot (`toolkit.dataset.LaserGeometry` is one)."""
@@ -33,8 +31,9 @@ class Mount(Protocol):
 
 
 def wrap(theta: np.ndarray | float) -> np.ndarray:
-    """Angles (any shape) wrapped to (-pi, pi]."""
-    w = np.asarray((np.asarray(theta, dtype=np.float64) + np.pi) % TWO_PI - np.pi)
+    """Angles (any shape) wrapped to (-pi, pi], as atan2(sin, cos) (the kernels' form)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    w = np.arctan2(np.sin(theta), np.cos(theta))
     return np.where(w == -np.pi, np.pi, w)
 
 

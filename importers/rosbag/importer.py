@@ -21,9 +21,6 @@ truth as nav_msgs/Odometry on /ground_truth and the mounting as a static tf.
 from __future__ import annotations
 
 import math
-import os
-import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -446,17 +443,3 @@ def _files(paths: Sequence[Path]) -> list[Path]:
     for p in paths:
         out.extend(sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p])
     return out
-
-
-def replace_dir(tmp: Path, final: Path) -> None:
-    """Move a finished bag (file or directory) into place."""
-    if final.is_dir():
-        shutil.rmtree(final)
-    elif final.exists():
-        final.unlink()
-    os.replace(tmp, final)
-
-
-def temp_dir_beside(out: Path) -> Path:
-    out.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=".bag.", suffix=".tmp", dir=out))

@@ -9,14 +9,13 @@ transform base_link -> frame_id on /tf_static.
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from importers.rosbag.importer import replace_dir, temp_dir_beside
+from toolkit.atomic import atomic_path
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
 
@@ -106,9 +105,7 @@ def write_bag(
         raise ToolkitError(f"rosbag version {version!r}: expected one of {', '.join(VERSIONS)}")
     ros1 = version == "ros1"
     final = out / (f"{name}.bag" if ros1 else name)
-    tmp = temp_dir_beside(out)
-    try:
-        path = tmp / final.name
+    with atomic_path(final) as path:
         msgs = _Messages(_typestore(ros1), ros1)
         streams = _streams(ds, msgs, scan_topic, odom_topic, gt_topic, frame_id)
         if ros1:
@@ -133,9 +130,6 @@ def write_bag(
                 }
                 for topic, stamp, raw in streams.ordered():
                     w2.write(conns2[topic], stamp, raw)
-        replace_dir(path, final)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return final
 
 

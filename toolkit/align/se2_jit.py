@@ -14,7 +14,8 @@ import numpy as np
 @nb.njit(cache=True, nogil=True)
 def wrap(theta: float) -> float:
     """`toolkit.se2.wrap` for one angle: to (-pi, pi]."""
-    return math.atan2(math.sin(theta), math.cos(theta))
+    w = math.atan2(math.sin(theta), math.cos(theta))
+    return math.pi if w == -math.pi else w
 
 
 @nb.njit(cache=True, nogil=True)
