@@ -24,9 +24,12 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from toolkit.dataset import LaserGeometry
 
 CLUSTERS = ("local:1", "local:2", "local:4")
 
@@ -46,7 +49,9 @@ def _log(scans: int) -> tuple[np.ndarray, np.ndarray, Any]:
     return np.ascontiguousarray(ranges), seeds, ds.laser
 
 
-def _single(ranges: np.ndarray, seeds: np.ndarray, laser: Any, repeats: int) -> list[dict]:
+def _single(
+    ranges: np.ndarray, seeds: np.ndarray, laser: LaserGeometry, repeats: int
+) -> list[dict[str, Any]]:
     import numba
 
     from toolkit.align import scan as sc

@@ -329,7 +329,7 @@ def parse_chunk(
     }
     bad: list[tuple[int, str]] = []
 
-    def skip(row: Any) -> str:
+    def skip(row: pacsv.InvalidRow) -> str:
         bad.append((row.number if row.number is not None else 1 << 62, str(row.text)))
         return "skip"
 

@@ -34,7 +34,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
@@ -190,7 +190,7 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
     ncols = int(counts.iloc[0])
     bad: list[int] = []
 
-    def invalid(row: Any) -> str:
+    def invalid(row: pacsv.InvalidRow) -> str:
         bad.append(int(row.number) if row.number is not None else -1)
         return "skip"
 

@@ -15,6 +15,7 @@ import numpy as np
 from reports.base import NotAvailable, Section, new_figure, require, save_figure
 from reports.context import CORRIDOR, Context
 from reports.runs import safe_name
+from toolkit.dataset import Dataset
 
 VIEW = 6.0  # m: the panels show the returns within this range of the laser
 
@@ -39,7 +40,7 @@ def pick_pairs(ranges: np.ndarray, sections: np.ndarray) -> dict[str, int]:
     return out
 
 
-def align_pair(ds: Any, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
+def align_pair(ds: Dataset, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
     """Relative laser pose (x, y, theta) of scan k in scan k-1's frame by each method."""
     sc = require("toolkit.align.scan", "match_pairs", "match_pairs_icp")
     se2 = require("toolkit.se2", "between", "laser_motion", "wrap")
@@ -83,7 +84,9 @@ def generate(ctx: Context, section: Section) -> None:
             section.data[name] = _pairs(ctx, section, name, ds, pairs)
 
 
-def _pairs(ctx: Context, section: Section, name: str, ds: Any, pairs: dict[str, int]) -> Any:
+def _pairs(
+    ctx: Context, section: Section, name: str, ds: Dataset, pairs: dict[str, int]
+) -> dict[str, Any]:
     sc = require("toolkit.align.scan", "scan_points")
     methods = ("odometry", *ctx.matchers, "truth")
     fig = new_figure(3.6 * len(methods), 3.6 * len(pairs))

@@ -67,7 +67,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
     return LabelRun(name, spans, training, model, labels, seconds, truth, files)
 
 
-def truth_labels(path: Any, t: np.ndarray) -> np.ndarray | None:
+def truth_labels(path: Path | None, t: np.ndarray) -> np.ndarray | None:
     """True labels of the scans at times `t` from a simulated log's truth.parquet (given, or
     inside or beside its folder), matched by time: a capture that lost frames keeps the rest."""
     if path is None:

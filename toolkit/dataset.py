@@ -347,7 +347,7 @@ def _ranges(table: pa.Table, path: Path) -> np.ndarray:
         raise FormatError("ranges is not a fixed-size list", file=path)
     beams = list_type.list_size
     flat = ranges_col.combine_chunks().flatten() if len(table) else pa.array([], pa.float32())
-    return flat.to_numpy(zero_copy_only=False).reshape(len(table), beams)
+    return np.asarray(flat.to_numpy(zero_copy_only=False)).reshape(len(table), beams)
 
 
 def write_scans(path: Path, t: np.ndarray, ranges: np.ndarray) -> None:
@@ -396,7 +396,7 @@ def make_meta(
     *,
     time_source: str = "log",
     lasers: Mapping[str, LaserGeometry] | None = None,
-    **extra: Any,
+    **extra: object,
 ) -> dict[str, Any]:
     """meta.json content: geometry, provenance, import report, and format-specific decisions."""
     from toolkit import __version__

@@ -24,7 +24,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import pandas as pd
@@ -50,7 +50,14 @@ def _bare(name: str) -> str:
     return name.strip("/")
 
 
-def _yaw(q: Any) -> float:
+class _Quaternion(Protocol):
+    x: float
+    y: float
+    z: float
+    w: float
+
+
+def _yaw(q: _Quaternion) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 

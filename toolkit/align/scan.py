@@ -155,7 +155,7 @@ def _exp_neg(x: float) -> float:
             )
         )
     )
-    return p * _POW2_NEG[n]
+    return float(p * _POW2_NEG[n])
 
 
 # kernel parameter slots: `MatchConfig` (and the beam step) as one float64 array for numba,

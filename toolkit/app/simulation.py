@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -43,7 +42,7 @@ def write_truth(sim: Simulation, directory: Path) -> list[Path]:
 
 
 def write_simulation(
-    sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: Any
+    sim: Simulation, out: str | Path, fmt: str, force: bool = False, **options: object
 ) -> list[Path]:
     """Write `sim` in format `fmt` under the directory `out`, atomically; the files (in `out`)."""
 
@@ -111,5 +110,5 @@ def _counts(sim: Simulation) -> dict[str, int]:
     return {str(k): int(v) for k, v in zip(labels, counts, strict=True)}
 
 
-def _plain(value: Any) -> Any:
+def _plain(value: object) -> str | int | float | bool | None:
     return value if isinstance(value, str | int | float | bool) or value is None else str(value)

@@ -94,7 +94,11 @@ class Simulation:
         return frame
 
 
-def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, OdometryModel]:
+#: A simulator parameter's value (`-p NAME=VALUE`).
+Param = bool | int | float | str
+
+
+def parameters(scenario: str, **params: Param) -> tuple[Scenario, LaserModel, OdometryModel]:
     """The scenario and the models with `params` applied; unknown names are an error."""
     if scenario not in SCENARIOS:
         raise ToolkitError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
@@ -116,8 +120,11 @@ def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, Odom
         raise ToolkitError(f"scans must be at least 2, not {scn.scans}")
     if scn.speed <= 0 or scn.turn_rate <= 0:
         raise ToolkitError("speed and turn_rate must be positive")
-    laser_args = {**scn.laser, **{k: v for k, v in params.items() if k in laser_fields}}
-    odo_args = {k: v for k, v in params.items() if k in odo_fields}
+    laser_args: dict[str, Any] = {
+        **scn.laser,
+        **{k: v for k, v in params.items() if k in laser_fields},
+    }
+    odo_args: dict[str, Any] = {k: v for k, v in params.items() if k in odo_fields}
     try:
         laser = LaserModel(**laser_args)
         odometry = OdometryModel(**odo_args)
@@ -126,7 +133,7 @@ def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, Odom
     return scn, laser, odometry
 
 
-def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
+def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor" or "building") with the models' parameters `params`."""
     scn, laser, odometry = parameters(scenario, **params)
     rng = np.random.default_rng(seed)

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values, report_outcomes
+
+if TYPE_CHECKING:
+    from importers.base import ImportOptions
 
 
 @app.command("import")
@@ -76,7 +79,7 @@ def _import_each(
     fmt: str,
     sources: list[Path],
     out: Path,
-    options: object,
+    options: ImportOptions,
     force: bool,
     scheduler: str,
     quiet: bool,

@@ -12,7 +12,7 @@ from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values
 
 
-def _value(text: str) -> Any:
+def _value(text: str) -> bool | int | float | str:
     """A KEY=VALUE value as the number or boolean it spells, else the string."""
     low = text.lower()
     if low in ("true", "false"):
