@@ -26,7 +26,6 @@ from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError
 
-pytestmark = pytest.mark.real
 ROOT = Path(__file__).resolve().parents[2]
 RADISH = "carmen_radish_corrected"
 RADISH_LOGS = [
