@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from toolkit.sim import Simulation, simulate
+
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 
@@ -29,6 +31,19 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if "real" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real)
+
+
+@pytest.fixture(scope="session")
+def corridor_sim() -> Simulation:
+    """The simulator's corridor, seed 0 (2000 scans), simulated once per session: read it,
+    do not change it (`dataclasses.replace` for a variant)."""
+    return simulate("corridor", seed=0)
+
+
+@pytest.fixture(scope="session")
+def building_sim() -> Simulation:
+    """The simulator's building, seed 0 (4000 scans), simulated once per session; read only."""
+    return simulate("building", seed=0)
 
 
 @pytest.fixture(autouse=True)
