@@ -17,6 +17,8 @@ from tests.conftest import Cli
 from toolkit.features import FeatureModel
 from toolkit.sim import Simulation
 
+pytestmark = pytest.mark.slow  # `toolkit label` end to end, five runs of ~5-15 s
+
 
 @pytest.fixture(scope="module")
 def sim_dirs(

@@ -14,6 +14,8 @@ import reports
 from reports import Report
 from toolkit.sim import Simulation, simulate
 
+pytestmark = pytest.mark.slow  # the report built end to end (~75 s loaded)
+
 GIVEN_SCANS = 300
 
 
