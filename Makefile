@@ -22,8 +22,8 @@ demo: install    ## import the bundled and real logs, map, label, report into $(
 test: install    ## the whole test suite, on both cores
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
-test-fast: install
-	$(BIN)/python -m pytest -q -m "not slow" -x
+test-fast: install  ## the suite without the long end-to-end runs (marked slow), on both cores
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -m "not slow" -x
 
 bench: install   ## benchmarks side by side in one run; results in $(OUT)/bench/
 	$(BIN)/python -m bench --out $(OUT)/bench
@@ -34,6 +34,7 @@ lint: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy $(SOURCES)
+	$(BIN)/mypy --strict toolkit
 
 format: install
 	$(BIN)/ruff format .

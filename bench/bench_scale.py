@@ -24,29 +24,34 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from toolkit.dataset import LaserGeometry
 
 CLUSTERS = ("local:1", "local:2", "local:4")
 
 
 def _log(scans: int) -> tuple[np.ndarray, np.ndarray, Any]:
-    from toolkit.align import scan as sc
+    from toolkit import se2
     from toolkit.poses import odometry_poses
     from toolkit.sim import simulate
 
     ds = simulate("building", seed=0).dataset
     odo = odometry_poses(ds)
     assert odo is not None
-    steps = sc.laser_motion(sc.between(odo[:-1], odo[1:]), ds.laser)
+    steps = se2.laser_motion(se2.between(odo[:-1], odo[1:]), ds.laser)
     copies = -(-scans // ds.n_scans)
     ranges = np.tile(ds.ranges, (copies, 1))[:scans]
     seeds = np.tile(np.vstack([steps, np.zeros((1, 3))]), (copies, 1))[: scans - 1]
     return np.ascontiguousarray(ranges), seeds, ds.laser
 
 
-def _single(ranges: np.ndarray, seeds: np.ndarray, laser: Any, repeats: int) -> list[dict]:
+def _single(
+    ranges: np.ndarray, seeds: np.ndarray, laser: LaserGeometry, repeats: int
+) -> list[dict[str, Any]]:
     import numba
 
     from toolkit.align import scan as sc

@@ -28,11 +28,14 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from bench import peak_rss_mb
+
+if TYPE_CHECKING:
+    from toolkit.dataset import Dataset
 
 REAL = Path(
     os.environ.get(
@@ -43,7 +46,7 @@ CARMEN = ("intel", "acapulco", "fhw", "orebro", "edmonton", "freiburg-101", "sea
 METHODS = ("odometry", "icp", "icp-point", "gaussian")  # numba's threads last (see child_speed)
 
 
-def _child(*args: str, timeout: float = 3600) -> Any:
+def _child(*args: str, timeout: float = 3600) -> dict[str, Any] | list[dict[str, Any]]:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "TOOLKIT_NO_PROGRESS": "1"}
     result = subprocess.run(
         [sys.executable, "-m", "bench.bench_scanmatch", *args],
@@ -55,13 +58,28 @@ def _child(*args: str, timeout: float = 3600) -> Any:
     )
     if result.returncode != 0:
         raise RuntimeError(f"bench child {args} failed: {result.stderr.strip()[-2000:]}")
-    return json.loads(result.stdout.strip().splitlines()[-1])
+    out: dict[str, Any] | list[dict[str, Any]] = json.loads(result.stdout.strip().splitlines()[-1])
+    return out
+
+
+def _child_row(*args: str) -> dict[str, Any]:
+    """A child that prints one row."""
+    out = _child(*args)
+    assert isinstance(out, dict), f"bench child {args} printed {type(out).__name__}, not a row"
+    return out
+
+
+def _child_rows(*args: str) -> list[dict[str, Any]]:
+    """A child that prints a list of rows."""
+    out = _child(*args)
+    assert isinstance(out, list), f"bench child {args} printed {type(out).__name__}, not rows"
+    return out
 
 
 # ---------------------------------------------------------------- children
 
 
-def _dataset(name: str, work: Path) -> Any:
+def _dataset(name: str, work: Path) -> Dataset:
     import toolkit
     from toolkit.poses import with_drift
 
@@ -82,13 +100,14 @@ def _dataset(name: str, work: Path) -> Any:
 def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
     import numba
 
+    from toolkit import se2
     from toolkit.align import scan as sc
     from toolkit.poses import odometry_poses
 
     ds = _dataset("building", Path())
     odo = odometry_poses(ds)
     assert odo is not None
-    seeds = sc.laser_motion(sc.between(odo[:-1], odo[1:]), ds.laser)
+    seeds = se2.laser_motion(se2.between(odo[:-1], odo[1:]), ds.laser)
     pairs = len(seeds)
     rates: dict[str, float] = {}
     # ICP as the matcher is run: the same odometry seeds, its gate as the correspondence
@@ -153,6 +172,7 @@ def child_accuracy(name: str, work: str) -> list[dict[str, Any]]:
     ds = _dataset(name, Path(work))
     truth = truth_poses(ds)
     assert truth is not None, f"{name} has no ground truth"
+    assert ds.odometry is not None, f"{name} has no odometry"
     warm = ds.__class__(t=ds.t[:3], ranges=ds.ranges[:3], laser=ds.laser, odometry=ds.odometry[:3])
     rows = []
     for method in METHODS:
@@ -186,10 +206,10 @@ def child_accuracy(name: str, work: str) -> list[dict[str, Any]]:
 
 def child_make_log(scans: int, out: str) -> dict[str, Any]:
     """A long log: the simulated building's scans repeated, its path continued lap after lap."""
-    import pandas as pd
 
     import toolkit
-    from toolkit.align import scan as sc
+    from toolkit import se2
+    from toolkit.dataset import pose_frame
     from toolkit.poses import compose_steps
 
     base = _dataset("building", Path())
@@ -197,15 +217,14 @@ def child_make_log(scans: int, out: str) -> dict[str, Any]:
     ranges = np.tile(base.ranges, (laps, 1))[:scans]
     frames = {}
     for name, frame in (("odometry", base.odometry), ("groundtruth", base.groundtruth)):
+        assert frame is not None, f"the simulation has no {name}"
         p = frame[["x", "y", "theta"]].to_numpy()
-        steps = sc.between(p[:-1], p[1:])
+        steps = se2.between(p[:-1], p[1:])
         steps = np.concatenate([steps, np.zeros((1, 3))])  # lap to lap: no motion
         poses = compose_steps(p[0], np.tile(steps, (laps, 1))[: scans - 1])
         dt = float(np.median(np.diff(base.t)))
         t = base.t[0] + dt * np.arange(scans)
-        frames[name] = pd.DataFrame(
-            {"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]}
-        )
+        frames[name] = pose_frame(t, poses)
     ds = toolkit.Dataset(
         t=frames["odometry"]["t"].to_numpy(),
         ranges=ranges,
@@ -261,19 +280,19 @@ def child_stream() -> dict[str, Any]:
 
 def run(out: Path, quick: bool) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
-    rows += _child("speed", "100" if quick else "400", "3" if quick else "9")
+    rows += _child_rows("speed", "100" if quick else "400", "3" if quick else "9")
     logs = ["corridor", "building"] + [n for n in CARMEN[: 1 if quick else None]]
     with tempfile.TemporaryDirectory(dir=out) as work:
         for name in logs:
             if name in CARMEN and not (REAL / "carmen_radish_corrected").is_dir():
                 continue
-            rows += _child("accuracy", name, work)
+            rows += _child_rows("accuracy", name, work)
         scans = 100_000 if quick else 1_000_000
         log = Path(work) / "long"
         _child("make-log", str(scans), str(log))
-        mem = _child("map", str(log), str(Path(work) / "run"), "0.1")
+        mem = _child_row("map", str(log), str(Path(work) / "run"), "0.1")
         rows.append({"table": "memory", "name": "toolkit map", "scans": scans, **mem})
-    rows.append(_child("stream"))
+    rows.append(_child_row("stream"))
     return rows
 
 

@@ -11,7 +11,7 @@ import importlib
 import pkgutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from importers.base import FLAGS, FormatOptions, Importer, ImportOptions, not_a_log
 from toolkit.errors import ToolkitError
@@ -52,7 +52,7 @@ def read_options(
     """The importer's typed options from what the user gave: parsed here, once. A `-O` key
     the format does not have, or a flag (--scan-topic) it does not take, is an error."""
     if isinstance(given, importer.Options):
-        return given
+        return cast(FormatOptions, given)
     if isinstance(given, FormatOptions):
         raise ToolkitError(f"{type(given).__name__} given to the {importer.name} importer")
     given = given or ImportOptions()
@@ -69,7 +69,7 @@ def read_options(
         if name in values:
             raise ToolkitError(f"{flag} and -O {name}= both given; give one")
         values[name] = value
-    return importer.Options.parse(values)
+    return cast(FormatOptions, importer.Options.parse(values))
 
 
 def write_options(
@@ -79,10 +79,10 @@ def write_options(
     if importer.WriteOptions is None:
         raise ToolkitError(f"format {importer.name!r} has no writer")
     if isinstance(given, importer.WriteOptions):
-        return given
+        return cast(FormatOptions, given)
     if isinstance(given, FormatOptions):
         raise ToolkitError(f"{type(given).__name__} given to the {importer.name} writer")
-    return importer.WriteOptions.parse(given or {})
+    return cast(FormatOptions, importer.WriteOptions.parse(given or {}))
 
 
 def _fields(cls: type[FormatOptions]) -> list[str]:

@@ -42,7 +42,7 @@ from rich.progress import TaskID
 from importers import register
 from importers.base import FormatOptions, Importer, head_bytes, open_text, option
 from toolkit.atomic import atomic_file
-from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
+from toolkit.dataset import Dataset, ImportReport, LaserGeometry, PoseStream, make_meta, pose_frame
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.progress import task
 
@@ -345,9 +345,7 @@ def _poses(t: np.ndarray, poses: list[tuple[float, float, float] | None]) -> pd.
     if not rows:
         return None
     xyz = np.array([poses[i] for i in rows], np.float64)
-    return pd.DataFrame(
-        {"t": t[rows], "x": xyz[:, 0] * MM, "y": xyz[:, 1] * MM, "theta": np.deg2rad(xyz[:, 2])}
-    )
+    return pose_frame(t[rows], np.column_stack([xyz[:, :2] * MM, np.deg2rad(xyz[:, 2])]))
 
 
 def _build(
@@ -430,14 +428,10 @@ def _build(
 
 
 def _at(frame: pd.DataFrame | None, t: np.ndarray) -> np.ndarray | None:
-    """A pose stream interpolated at times `t` (theta unwrapped first): S x 3, m and rad."""
+    """A pose stream at times `t` (S x 3, m and rad), or None when there is none."""
     if frame is None or len(frame) == 0:
         return None
-    ft = frame["t"].to_numpy()
-    theta = np.unwrap(frame["theta"].to_numpy())
-    cols = [np.interp(t, ft, frame[c].to_numpy()) for c in ("x", "y")]
-    wrapped = (np.interp(t, ft, theta) + np.pi) % (2 * np.pi) - np.pi
-    return np.column_stack([*cols, wrapped])
+    return PoseStream.from_frame(frame).at(t)
 
 
 def _pose_text(tag: str, poses: np.ndarray) -> np.ndarray:

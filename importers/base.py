@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, ClassVar, Generic, Self, TypeVar
+from typing import IO, ClassVar, Generic, Self, TypeVar, cast
 
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import Dataset, write_dataset_files
@@ -165,7 +165,7 @@ def open_binary(path: Path) -> IO[bytes]:
     for magic, opener in _MAGIC.items():
         if head.startswith(magic):
             f.close()
-            return opener(path, "rb")  # type: ignore[operator]
+            return cast("IO[bytes]", opener(path, "rb"))  # type: ignore[operator]
     return f
 
 

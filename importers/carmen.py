@@ -57,8 +57,17 @@ from rich.progress import TaskID
 
 from importers import register
 from importers.base import FormatOptions, Importer, head_bytes, open_text, option
+from toolkit import se2
 from toolkit.atomic import atomic_file
-from toolkit.dataset import Dataset, ImportReport, LaserGeometry, Scans, make_meta
+from toolkit.dataset import (
+    Dataset,
+    ImportReport,
+    LaserGeometry,
+    PoseStream,
+    Scans,
+    make_meta,
+    pose_frame,
+)
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.progress import task
 
@@ -372,13 +381,9 @@ def no_return_code(ranges: np.ndarray) -> float | None:
     return float(frequent[-1]) if frequent.size else None
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def _pose_frame(t: np.ndarray, pose: np.ndarray) -> pd.DataFrame:
     ok = np.isfinite(pose).all(axis=1)
-    return pd.DataFrame({"t": t[ok], "x": pose[ok, 0], "y": pose[ok, 1], "theta": pose[ok, 2]})
+    return pose_frame(t[ok], pose[ok])
 
 
 def _param_float(lines: _Lines, name: str, report: ImportReport) -> float | None:
@@ -575,7 +580,7 @@ class _Reader:
             ex, ey = lp[ok, 0] - rp[ok, 0], lp[ok, 1] - rp[ok, 1]
             dx = float(np.median(c * ex + sn * ey))
             dy = float(np.median(-sn * ex + c * ey))
-            dyaw = float(np.median(_wrap(lp[ok, 2] - rp[ok, 2])))
+            dyaw = float(np.median(se2.wrap(lp[ok, 2] - rp[ok, 2])))
         rear = s.name in REAR
         param_name = "robot_rearlaser_offset" if rear else "robot_frontlaser_offset"
         offset = _param_float(self.lines, param_name, self.report)
@@ -684,9 +689,7 @@ class _Reader:
         decisions[f"{msg.lower()}_lines_kept"] = int(keep.sum())
         if not len(values):
             return None
-        return pd.DataFrame(
-            {"t": values[:, 3], "x": values[:, 0], "y": values[:, 1], "theta": values[:, 2]}
-        )
+        return pose_frame(values[:, 3], values[:, :3])
 
 
 def _take(s: _LaserStream, keep: np.ndarray) -> _LaserStream:
@@ -723,17 +726,6 @@ def _rows(values: np.ndarray, fmt: str) -> list[str]:
     return [line % tuple(row) for row in values.tolist()]
 
 
-def _interp_pose(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
-    """A pose stream at times t (linear; theta unwrapped); clamped at the ends."""
-    ft = frame["t"].to_numpy()
-    theta = np.unwrap(frame["theta"].to_numpy())
-    out = np.column_stack(
-        [np.interp(t, ft, frame["x"].to_numpy()), np.interp(t, ft, frame["y"].to_numpy()),
-         _wrap(np.interp(t, ft, theta))]
-    )  # fmt: skip
-    return out
-
-
 def write_log(ds: Dataset, path: Path, host: str = "toolkit") -> None:
     """Write `ds` as one CARMEN log (see the module docstring)."""
     laser = ds.laser
@@ -746,14 +738,10 @@ def write_log(ds: Dataset, path: Path, host: str = "toolkit") -> None:
     ]
     t = ds.t
     if ds.odometry is not None and len(ds.odometry):
-        robot = _interp_pose(ds.odometry, t)
+        robot = PoseStream.from_frame(ds.odometry).at(t)
     else:
         robot = np.zeros((t.size, 3))
-    c, s = np.cos(robot[:, 2]), np.sin(robot[:, 2])
-    laser_pose = np.column_stack(
-        [robot[:, 0] + c * laser.x - s * laser.y, robot[:, 1] + s * laser.x + c * laser.y,
-         _wrap(robot[:, 2] + laser.yaw)]
-    )  # fmt: skip
+    laser_pose = se2.laser_poses(robot, laser)
     code = round(laser.range_max, 3)
     # a return just below range_max must not print as the code: keep it 1 mm below
     returns = np.minimum(ds.ranges.astype(np.float64), code - 1e-3)
@@ -787,7 +775,7 @@ def write_log(ds: Dataset, path: Path, host: str = "toolkit") -> None:
         g = ds.groundtruth
         gt_t = g["t"].to_numpy()
         odo = (
-            _interp_pose(ds.odometry, gt_t)
+            PoseStream.from_frame(ds.odometry).at(gt_t)
             if ds.odometry is not None and len(ds.odometry)
             else np.zeros((gt_t.size, 3))
         )

@@ -79,6 +79,7 @@ from toolkit.dataset import (
     ScansWriter,
     load,
     make_meta,
+    pose_frame,
     write_poses,
 )
 from toolkit.errors import FormatError, ToolkitError
@@ -329,7 +330,7 @@ def parse_chunk(
     }
     bad: list[tuple[int, str]] = []
 
-    def skip(row: Any) -> str:
+    def skip(row: pacsv.InvalidRow) -> str:
         bad.append((row.number if row.number is not None else 1 << 62, str(row.text)))
         return "skip"
 
@@ -571,9 +572,8 @@ def read_pose_stream(
     rows = read_rows(path, ncols, report, prefix)
     rows = rows[np.isfinite(rows[:, 0])]
     rows = rows[kept_in_order(rows[:, 0], -math.inf, math.inf, report, prefix, path)]
-    return pd.DataFrame(
-        {name: rows[:, c] for name, c in zip(("t", "x", "y", "theta"), columns, strict=True)}
-    )
+    t, x, y, theta = (rows[:, c] for c in columns)
+    return pose_frame(t, np.column_stack([x, y, theta]))
 
 
 # ---------------------------------------------------------------- the session

@@ -34,7 +34,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -50,8 +50,9 @@ from importers.base import (
     open_binary,
     option,
 )
+from toolkit import se2
 from toolkit.atomic import atomic_file
-from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
+from toolkit.dataset import Dataset, ImportReport, LaserGeometry, PoseStream, make_meta, pose_frame
 from toolkit.errors import FormatError, ToolkitError
 
 PRESETS: dict[str, dict[str, str]] = {
@@ -196,7 +197,7 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
     ncols = int(counts.iloc[0])
     bad: list[int] = []
 
-    def invalid(row: Any) -> str:
+    def invalid(row: pacsv.InvalidRow) -> str:
         bad.append(int(row.number) if row.number is not None else -1)
         return "skip"
 
@@ -556,7 +557,7 @@ def _poses(
 
 
 def _frame(t: np.ndarray, x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> pd.DataFrame:
-    frame = pd.DataFrame({"t": t, "x": x, "y": y, "theta": np.angle(np.exp(1j * theta))})
+    frame = pose_frame(t, np.column_stack([x, y, se2.wrap(theta)]))
     return frame[np.isfinite(frame.to_numpy()).all(axis=1)].reset_index(drop=True)
 
 
@@ -614,10 +615,5 @@ def _odometry_file(
 
 
 def _interpolate_pose(odometry: pd.DataFrame, t: np.ndarray) -> dict[str, np.ndarray]:
-    ot = odometry.t.to_numpy()
-    theta = np.unwrap(odometry.theta.to_numpy())
-    return {
-        "x": np.interp(t, ot, odometry.x.to_numpy()),
-        "y": np.interp(t, ot, odometry.y.to_numpy()),
-        "theta": np.angle(np.exp(1j * np.interp(t, ot, theta))),
-    }
+    x, y, theta = PoseStream.from_frame(odometry).at(t).T
+    return {"x": x, "y": y, "theta": theta}

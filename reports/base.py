@@ -109,7 +109,7 @@ class Section:
 
 
 def save_figure(
-    fig: MplFigure, out: Path, name: str, title: str, caption: str, data: Any = None
+    fig: MplFigure, out: Path, name: str, title: str, caption: str, data: object = None
 ) -> Figure:
     """Write `fig` as figures/NAME.png and figures/NAME.svg and close it."""
     import matplotlib.pyplot as plt
@@ -144,20 +144,20 @@ def save_table(
     return Table(name, title, caption, frame, files, formats)
 
 
-def new_figure(width: float = 7.0, height: float = 4.0, **kw: Any) -> Any:
+def new_figure(width: float = 7.0, height: float = 4.0) -> MplFigure:
     """A matplotlib figure on the Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    return plt.figure(figsize=(width, height), **kw)
+    return plt.figure(figsize=(width, height))
 
 
 # ---------------------------------------------------------------- table text
 
 
-def cell(value: Any, fmt: str | None = None) -> str:
+def cell(value: object, fmt: str | None = None) -> str:
     """A value as table text: numbers by `fmt` (default 4 significant digits), NaN as '–'."""
     if value is None:
         return "–"

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Hashable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 import pandas as pd
@@ -22,6 +22,13 @@ import pandas as pd
 from reports.base import NotAvailable, require
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
+
+if TYPE_CHECKING:
+    from reports.base import Section
+    from reports.runs import LabelRun
+    from toolkit.sim import Simulation
+
+T = TypeVar("T")
 
 ROOT = Path(__file__).resolve().parents[1]
 CORRIDOR = "corridor"
@@ -148,7 +155,7 @@ class Context:
 
     # ------------------------------------------------------------ logs
 
-    def cached(self, key: Any, make: Callable[[], Any]) -> Any:
+    def cached(self, key: Hashable, make: Callable[[], T]) -> T:
         """`make()` once per key; a NotAvailable is remembered too, and raised again."""
         if key not in self._cache:
             try:
@@ -158,12 +165,12 @@ class Context:
         value = self._cache[key]
         if isinstance(value, NotAvailable):
             raise value
-        return value
+        return cast(T, value)
 
-    def corridor(self) -> Any:
+    def corridor(self) -> Simulation:
         """The simulator's corridor (8 sections x 250 scans), with ground truth and labels."""
 
-        def make() -> Any:
+        def make() -> Simulation:
             sim_mod = require("toolkit.sim", "simulate")
             self.step("simulate the corridor")
             extra = {"scans": QUICK_CORRIDOR_SCANS} if self.quick else {}
@@ -287,11 +294,11 @@ class Context:
         self.step(f"map {name} ({method})")
         return runs.map_run(self, name, ds, method)
 
-    def labels(self, name: str) -> Any:
+    def labels(self, name: str) -> LabelRun:
         """Labels of log `name` from its training regions, computed once."""
         from reports import runs
 
-        def make() -> Any:
+        def make() -> LabelRun:
             ds = self.dataset(name)
             self.step(f"label {name}")
             return runs.label_run(self, name, ds)
@@ -333,7 +340,7 @@ class Context:
         return self.real_log(name, fmt, relpath, **options)
 
     @contextmanager
-    def part(self, section: Any, what: str) -> Iterator[None]:
+    def part(self, section: Section, what: str) -> Iterator[None]:
         """Run one part of a section; a missing piece marks only that part not available."""
         try:
             yield

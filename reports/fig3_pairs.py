@@ -15,6 +15,7 @@ import numpy as np
 from reports.base import NotAvailable, Section, new_figure, require, save_figure
 from reports.context import CORRIDOR, Context
 from reports.runs import safe_name
+from toolkit.dataset import Dataset
 
 VIEW = 6.0  # m: the panels show the returns within this range of the laser
 
@@ -39,14 +40,15 @@ def pick_pairs(ranges: np.ndarray, sections: np.ndarray) -> dict[str, int]:
     return out
 
 
-def align_pair(ds: Any, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
+def align_pair(ds: Dataset, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
     """Relative laser pose (x, y, theta) of scan k in scan k-1's frame by each method."""
-    sc = require("toolkit.align.scan", "match_pairs", "match_pairs_icp", "laser_motion")
+    sc = require("toolkit.align.scan", "match_pairs", "match_pairs_icp")
+    se2 = require("toolkit.se2", "between", "laser_motion", "wrap")
     traj = require("toolkit.poses", "odometry_poses", "truth_poses")
     odo = traj.odometry_poses(ds)[k - 1 : k + 1]
     gt = traj.truth_poses(ds)[k - 1 : k + 1]
-    seed = sc.laser_motion(sc.between(odo[:1], odo[1:]), ds.laser)
-    truth = sc.laser_motion(sc.between(gt[:1], gt[1:]), ds.laser)[0]
+    seed = se2.laser_motion(se2.between(odo[:1], odo[1:]), ds.laser)
+    truth = se2.laser_motion(se2.between(gt[:1], gt[1:]), ds.laser)[0]
     ranges = ds.ranges[k - 1 : k + 1]
     est = {"odometry": seed[0]}
     for method in methods:
@@ -56,9 +58,7 @@ def align_pair(ds: Any, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
             kind = "point_to_line" if method == "icp" else "point_to_point"
             est[method] = sc.match_pairs_icp(ranges, seed, ds.laser, kind).pose[0]
     error_cm = {m: 100 * float(np.hypot(*(p[:2] - truth[:2]))) for m, p in est.items()}
-    error_deg = {
-        m: float(np.rad2deg(abs(np.angle(np.exp(1j * (p[2] - truth[2])))))) for m, p in est.items()
-    }
+    error_deg = {m: float(np.rad2deg(abs(se2.wrap(p[2] - truth[2])))) for m, p in est.items()}
     return {"k": k, "truth": truth, "estimate": est, "error_cm": error_cm, "error_deg": error_deg}
 
 
@@ -84,7 +84,9 @@ def generate(ctx: Context, section: Section) -> None:
             section.data[name] = _pairs(ctx, section, name, ds, pairs)
 
 
-def _pairs(ctx: Context, section: Section, name: str, ds: Any, pairs: dict[str, int]) -> Any:
+def _pairs(
+    ctx: Context, section: Section, name: str, ds: Dataset, pairs: dict[str, int]
+) -> dict[str, Any]:
     sc = require("toolkit.align.scan", "scan_points")
     methods = ("odometry", *ctx.matchers, "truth")
     fig = new_figure(3.6 * len(methods), 3.6 * len(pairs))

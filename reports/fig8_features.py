@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports.base import NotAvailable, Section, new_figure, save_figure, save_table
+from reports.base import Figure, NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import Context
 from reports.runs import LabelRun, poses_at, safe_name, world_points
-from toolkit.dataset import path_distance
+from toolkit.dataset import Dataset, path_distance
 
 KEY = "features"
 TITLE = "Fig. 8-10: learnt features"
@@ -55,7 +55,13 @@ def generate(ctx: Context, section: Section) -> None:
 
 
 def _features(
-    ctx: Context, section: Section, name: str, run: LabelRun, ds: Any, poses: np.ndarray, how: str
+    ctx: Context,
+    section: Section,
+    name: str,
+    run: LabelRun,
+    ds: Dataset,
+    poses: np.ndarray,
+    how: str,
 ) -> dict[str, Any]:
     features = list(run.training)
     label = np.asarray(run.labels.label).astype(str)
@@ -113,7 +119,7 @@ def _features(
     return data
 
 
-def _fig8(ctx: Context, name: str, data: dict[str, Any], run: LabelRun, how: str) -> Any:
+def _fig8(ctx: Context, name: str, data: dict[str, Any], run: LabelRun, how: str) -> Figure:
     features, distance = data["features"], data["distance"]
     fig = new_figure(8.0, 1.5 + 1.3 * len(features))
     axes = fig.subplots(len(features), 1, sharex=True, squeeze=False)[:, 0]
@@ -155,8 +161,8 @@ def _fig8(ctx: Context, name: str, data: dict[str, Any], run: LabelRun, how: str
 
 
 def _fig9(
-    ctx: Context, name: str, data: dict[str, Any], ds: Any, poses: np.ndarray, how: str
-) -> Any:
+    ctx: Context, name: str, data: dict[str, Any], ds: Dataset, poses: np.ndarray, how: str
+) -> Figure:
     features = data["features"]
     cols = min(3, len(features))
     rows = int(np.ceil(len(features) / cols))
@@ -192,8 +198,8 @@ def _fig9(
 
 
 def _fig10(
-    ctx: Context, name: str, data: dict[str, Any], ds: Any, poses: np.ndarray, how: str
-) -> Any:
+    ctx: Context, name: str, data: dict[str, Any], ds: Dataset, poses: np.ndarray, how: str
+) -> Figure:
     points, scan_of_point = world_points(ds, poses)
     fig = new_figure(8.0, 6.0)
     ax = fig.add_subplot(projection="3d")

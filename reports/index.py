@@ -37,7 +37,7 @@ code{background:#f4f4f4;padding:0 .2em}
 STATUS_CLASS = {"ok": "ok", "partial": "partial", "not available": "na", "failed": "failed"}
 
 
-def _e(text: Any) -> str:
+def _e(text: object) -> str:
     return html.escape(str(text), quote=True)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from reports.base import NotAvailable, require
-from toolkit.dataset import Dataset, write_described
+from toolkit.dataset import Dataset, pose_frame, write_described
 
 RUNS = "runs"  # the report's folder of run outputs (trajectories, metrics, labels)
 
@@ -67,7 +67,7 @@ def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
     return LabelRun(name, spans, training, model, labels, seconds, truth, files)
 
 
-def truth_labels(path: Any, t: np.ndarray) -> np.ndarray | None:
+def truth_labels(path: Path | None, t: np.ndarray) -> np.ndarray | None:
     """True labels of the scans at times `t` from a simulated log's truth.parquet (given, or
     inside or beside its folder), matched by time: a capture that lost frames keeps the rest."""
     if path is None:
@@ -164,7 +164,7 @@ def with_drift(ds: Dataset, seed: int = 0) -> Dataset:
     if truth is None:
         raise NotAvailable("no ground truth to add drift to")
     odo = sim.OdometryModel().integrate(truth, np.random.default_rng(seed))
-    frame = pd.DataFrame({"t": ds.t, "x": odo[:, 0], "y": odo[:, 1], "theta": odo[:, 2]})
+    frame = pose_frame(ds.t, odo)
     meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
     return Dataset(
         t=ds.t,

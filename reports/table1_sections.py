@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports.base import NotAvailable, Section, new_figure, require, save_figure, save_table
+from reports.base import Figure, NotAvailable, Section, new_figure, require, save_figure, save_table
 from reports.context import CORRIDOR, Context
 from reports.runs import safe_name, slice_scans, warm_up
 
@@ -125,7 +125,7 @@ def _table1(ctx: Context, section: Section, name: str) -> dict[str, Any]:
 
 def _figure(
     ctx: Context, rows: pd.DataFrame, matchers: tuple[str, ...], name: str, suffix: str
-) -> Any:
+) -> Figure:
     fig = new_figure(7.5, 3.8)
     ax = fig.add_subplot()
     methods = ["odometry", *matchers]

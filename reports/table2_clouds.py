@@ -7,12 +7,10 @@ writes the report.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pandas as pd
 
-from reports.base import Section, new_figure, save_figure, save_table
+from reports.base import Figure, Section, new_figure, save_figure, save_table
 from reports.context import Context
 from toolkit.align.protocol import SIZES, TRIALS, random_cloud_trials, summarize
 
@@ -64,7 +62,7 @@ def generate(ctx: Context, section: Section) -> None:
     section.figures.append(_time_figure(ctx, table, ours_only=True))
 
 
-def _time_figure(ctx: Context, table: pd.DataFrame, ours_only: bool) -> Any:
+def _time_figure(ctx: Context, table: pd.DataFrame, ours_only: bool) -> Figure:
     fig = new_figure(6.0, 4.0)
     ax = fig.add_subplot()
     data: dict[str, dict[str, list[float]]] = {}

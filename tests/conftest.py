@@ -10,16 +10,40 @@ from pathlib import Path
 
 import pytest
 
+from toolkit.sim import Simulation, simulate
+
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 
 
 @pytest.fixture(scope="session")
 def real() -> Path:
-    """The folder of real logs; tests that need it fail loudly if it is missing."""
+    """The folder of real logs; tests that need it (marked `real` by the hook below) are
+    skipped when it is missing (a clone without ../shared; TOOLKIT_REAL_DATA=/elsewhere)."""
     if not REAL.is_dir():
-        pytest.fail(f"real logs not found at {REAL} (set TOOLKIT_REAL_DATA)")
+        pytest.skip(f"real logs not found at {REAL} (set TOOLKIT_REAL_DATA)")
     return REAL
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark `real` every test that reaches the `real` fixture, directly or through other
+    fixtures, so that `-m "not real"` leaves out all that read ../shared."""
+    for item in items:
+        if "real" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.real)
+
+
+@pytest.fixture(scope="session")
+def corridor_sim() -> Simulation:
+    """The simulator's corridor, seed 0 (2000 scans), simulated once per session: read it,
+    do not change it (`dataclasses.replace` for a variant)."""
+    return simulate("corridor", seed=0)
+
+
+@pytest.fixture(scope="session")
+def building_sim() -> Simulation:
+    """The simulator's building, seed 0 (4000 scans), simulated once per session; read only."""
+    return simulate("building", seed=0)
 
 
 @pytest.fixture(autouse=True)

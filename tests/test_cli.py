@@ -21,6 +21,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: st
         assert needle in lines[0]
 
 
+@pytest.mark.slow
 def test_every_command_answers_help() -> None:
     names = [c.name for c in app.registered_commands]
     assert {"import", "info"} <= set(names)

@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import toolkit
-from toolkit.atomic import atomic_dir
+from toolkit.atomic import atomic_dir, atomic_path
 from toolkit.dataset import Dataset, LaserGeometry, ScansWriter, read_scans
 from toolkit.errors import OutputExistsError
 
@@ -92,3 +92,26 @@ def test_outputs_get_ordinary_permissions(tmp_path: Path) -> None:
         os.umask(mask)
     assert stat.S_IMODE((tmp_path / "d").stat().st_mode) == 0o755
     assert stat.S_IMODE((tmp_path / "f.txt").stat().st_mode) == 0o644
+
+
+@pytest.mark.parametrize("kind", ["file", "directory"])
+def test_atomic_path_replaces_a_file_or_directory_whole(tmp_path: Path, kind: str) -> None:
+    out = tmp_path / "runs" / "log.bag"
+
+    def make(path: Path, text: str) -> None:
+        if kind == "file":
+            path.write_text(text)
+        else:
+            path.mkdir()
+            (path / "part").write_text(text)
+
+    for text in ("old", "new"):
+        with atomic_path(out) as path:
+            assert not path.exists() and path.parent != out.parent
+            make(path, text)
+    assert (out.read_text() if kind == "file" else (out / "part").read_text()) == "new"
+    with pytest.raises(RuntimeError), atomic_path(out) as path:
+        make(path, "half")
+        raise RuntimeError("interrupted")
+    assert (out.read_text() if kind == "file" else (out / "part").read_text()) == "new"
+    assert sorted(p.name for p in out.parent.iterdir()) == ["log.bag"]

@@ -284,7 +284,7 @@ def cli_options() -> dict[str, set[str]]:
     group = typer.main.get_command(app)  # a click group (typer may bundle its own click)
     ctx = group.make_context("toolkit", ["--help"], resilient_parsing=True)
 
-    def opts(cmd: Any) -> set[str]:
+    def opts(cmd: Any) -> set[str]:  # noqa: ANN401 (a click command)
         found = {"--help"}
         for p in cmd.get_params(ctx):
             if p.param_type_name == "option":

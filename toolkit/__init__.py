@@ -8,7 +8,7 @@ learned place features, after Aznar, Pujol et al., PLoS ONE 2014.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from toolkit.poses import trajectory
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> object:
     """`toolkit.align` and `toolkit.trajectory(ds, method)` load the numba matcher on first
     use, so that commands which do not align (info, import, ...) start without it."""
     if name == "align":

@@ -42,19 +42,40 @@ def atomic_dir(out: str | Path, force: bool = False) -> Iterator[Path]:
     try:
         _publish_mode(tmp, 0o777)
         yield tmp
-        if out.exists():
-            trash = out.with_name(f".{out.name}.old-{os.getpid()}")
-            os.replace(out, trash)
-            os.replace(tmp, out)
-            if trash.is_dir():
-                shutil.rmtree(trash, ignore_errors=True)
-            else:
-                trash.unlink(missing_ok=True)
-        else:
-            os.replace(tmp, out)
+        _replace(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _replace(tmp: Path, out: Path) -> None:
+    """Rename `tmp` (a file or a directory) to `out`, replacing whatever `out` is."""
+    if out.exists():
+        trash = out.with_name(f".{out.name}.old-{os.getpid()}")
+        os.replace(out, trash)
+        os.replace(tmp, out)
+        if trash.is_dir():
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            trash.unlink(missing_ok=True)
+    else:
+        os.replace(tmp, out)
+
+
+@contextmanager
+def atomic_path(out: str | Path) -> Iterator[Path]:
+    """Yield a path beside `out` that does not exist yet, for a writer that must create it
+    itself (a ROS bag: a file, or a directory for ROS 2); it replaces `out`, file or
+    directory, only if the block succeeds, and nothing is left behind otherwise."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    box = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        tmp = box / out.name
+        yield tmp
+        _replace(tmp, out)
+    finally:
+        shutil.rmtree(box, ignore_errors=True)
 
 
 @contextmanager

@@ -28,6 +28,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from toolkit import se2
 from toolkit.atomic import atomic_dir
 from toolkit.errors import FormatError, ToolkitError
 
@@ -201,6 +202,54 @@ class Dataset:
         )
 
 
+@dataclass(frozen=True)
+class PoseStream:
+    """Timed robot poses: `t` (N,) s and `xyt` (N x 3) x, y, theta (m, rad); the odometry,
+    the ground truth or a trajectory, read from and written as t, x, y, theta frames."""
+
+    t: np.ndarray
+    xyt: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.ascontiguousarray(self.t, dtype=np.float64).reshape(-1)
+        xyt = np.ascontiguousarray(self.xyt, dtype=np.float64).reshape(-1, 3)
+        if len(t) != len(xyt):
+            raise ValueError(f"{len(t)} times but {len(xyt)} poses")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "xyt", xyt)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        """Poses at times `t` (len(t) x 3) by `toolkit.se2.interpolate` (heading on the
+        circle, clamped at the ends); a copy of the poses when `t` are the stream's times."""
+        t = np.asarray(t, dtype=np.float64)
+        if len(t) == len(self.t) and np.array_equal(t, self.t):
+            return self.xyt.copy()
+        if len(self.t) == 0:
+            raise ToolkitError("pose stream is empty")
+        return se2.interpolate(self.t, self.xyt, t)
+
+    def frame(self) -> pd.DataFrame:
+        """DataFrame t, x, y, theta (float64)."""
+        x, y, theta = self.xyt.T
+        return pd.DataFrame({"t": self.t, "x": x, "y": y, "theta": theta})
+
+    @classmethod
+    def from_frame(cls, frame: pd.DataFrame) -> PoseStream:
+        """The stream of a t, x, y, theta frame (rows in their order)."""
+        missing = [c for c in POSE_COLUMNS if c not in frame.columns]
+        if missing:
+            raise ValueError(f"pose table lacks columns {missing}")
+        return cls(frame["t"].to_numpy(np.float64), frame[["x", "y", "theta"]].to_numpy(np.float64))
+
+
+def pose_frame(t: np.ndarray, xyt: np.ndarray) -> pd.DataFrame:
+    """DataFrame t, x, y, theta of poses `xyt` (N x 3) at times `t`."""
+    return PoseStream(t, xyt).frame()
+
+
 def _poses_frame(frame: pd.DataFrame | None) -> pd.DataFrame | None:
     if frame is None:
         return None
@@ -254,7 +303,7 @@ def _column_doc(name: str) -> tuple[str, str] | None:
     return COLUMNS.get(name)
 
 
-def describe(table: pa.Table, kind: str, **schema_meta: Any) -> pa.Table:
+def describe(table: pa.Table, kind: str, **schema_meta: object) -> pa.Table:
     """`table` with each known column's unit and meaning as Arrow field metadata, and `kind`,
     its frame and `schema_meta` (JSON unless a string) as schema metadata, so that
     `pyarrow.parquet.read_schema` of the file says what meta.json says. No data is copied."""
@@ -263,7 +312,7 @@ def describe(table: pa.Table, kind: str, **schema_meta: Any) -> pa.Table:
     )
 
 
-def describe_schema(schema: pa.Schema, kind: str, **schema_meta: Any) -> pa.Schema:
+def describe_schema(schema: pa.Schema, kind: str, **schema_meta: object) -> pa.Schema:
     """The schema `describe` gives a table of `schema`."""
     fields, units = [], {}
     for f in schema:
@@ -273,7 +322,7 @@ def describe_schema(schema: pa.Schema, kind: str, **schema_meta: Any) -> pa.Sche
             meta = {**(f.metadata or {}), b"unit": doc[0].encode(), b"description": doc[1].encode()}
             f = f.with_metadata(meta)
         fields.append(f)
-    extra = {"toolkit_table": kind, "units": units}
+    extra: dict[str, object] = {"toolkit_table": kind, "units": units}
     if FRAMES.get(kind):
         extra["frame"] = FRAMES[kind]
     extra.update(schema_meta)
@@ -306,7 +355,7 @@ def scans_metadata(laser: LaserGeometry, source: Mapping[str, Any] | None = None
 
 
 def write_described(
-    path: Path, data: pd.DataFrame | pa.Table, kind: str, **schema_meta: Any
+    path: Path, data: pd.DataFrame | pa.Table, kind: str, **schema_meta: object
 ) -> None:
     """Write a table to Parquet with its units, meaning and frame (`describe`); zstd."""
     table = data if isinstance(data, pa.Table) else pa.Table.from_pandas(data, preserve_index=False)
@@ -424,7 +473,7 @@ def _ranges(table: pa.Table, path: Path) -> np.ndarray:
         raise FormatError("ranges is not a fixed-size list", file=path)
     beams = list_type.list_size
     flat = ranges_col.combine_chunks().flatten() if len(table) else pa.array([], pa.float32())
-    return flat.to_numpy(zero_copy_only=False).reshape(len(table), beams)
+    return np.asarray(flat.to_numpy(zero_copy_only=False)).reshape(len(table), beams)
 
 
 def write_scans(
@@ -483,7 +532,7 @@ def make_meta(
     *,
     time_source: str = "log",
     lasers: Mapping[str, LaserGeometry] | None = None,
-    **extra: Any,
+    **extra: object,
 ) -> dict[str, Any]:
     """meta.json content: geometry, provenance, import report, and format-specific decisions."""
     from toolkit import __version__

@@ -27,25 +27,21 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import Dataset, LaserGeometry, load, write_described
 from toolkit.metrics import evaluate
-from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 
 CHUNK = 20_000  # scans per chunk of map building
-
-
-def laser_poses(robot: np.ndarray, laser: LaserGeometry) -> np.ndarray:
-    """World poses of the laser (S x 3) for robot poses (S x 3)."""
-    return sc.compose(robot, np.broadcast_to(sc.mount_pose(laser), robot.shape))
 
 
 def world_points(
     ranges: np.ndarray, robot: np.ndarray, laser: LaserGeometry
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every return of `ranges` (S x B) in world x, y (N x 2) and the scan it came from (N,)."""
-    lp = laser_poses(robot, laser)
+    lp = se2.laser_poses(robot, laser)
     scan, beam = np.nonzero(np.isfinite(ranges))
     r = ranges[scan, beam].astype(np.float64)
     bearing = lp[scan, 2] + laser.angles[beam]
@@ -190,7 +186,7 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
         "seconds_aligning": result.seconds,
         "pairs_per_second": result.pairs_per_second,
     }
-    if result.matches is not None and result.method == "gaussian":
+    if result.matches is not None and result.method == Method.GAUSSIAN:
         out["degenerate_pairs"] = {
             "one_direction_from_odometry": int((result.matches.degenerate == 1).sum()),
             "all_from_odometry": int((result.matches.degenerate == 2).sum()),
@@ -202,7 +198,7 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
     out["groundtruth"] = True
     out.update(evaluate(result.poses, truth))
     odo = odometry_poses(ds)
-    if odo is not None and result.method != "odometry":
+    if odo is not None and result.method != Method.ODOMETRY:
         out["odometry"] = evaluate(odo, truth)
     return out
 
@@ -219,7 +215,7 @@ def _meta_digest(ds: Dataset) -> str | None:
 def write_run(
     ds: Dataset,
     out: str | Path,
-    method: str = "gaussian",
+    method: Method | str = Method.GAUSSIAN,
     voxel: float = 0.0,
     config: sc.MatchConfig | None = None,
     force: bool = False,
@@ -230,6 +226,7 @@ def write_run(
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
+    method = Method.parse(method)
     from toolkit.progress import task
 
     with task(f"map ({method})", 4) as (progress, bar):
@@ -267,7 +264,7 @@ def write_run(
 def map_dataset(
     dataset: str | Path,
     out: str | Path,
-    method: str = "gaussian",
+    method: Method | str = Method.GAUSSIAN,
     voxel: float = 0.0,
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from toolkit.align.scan import between, compose, wrap
+from toolkit.se2 import between, compose, wrap
 
 FAIL_TRANSLATION = 0.2  # m
 FAIL_ROTATION = float(np.deg2rad(5.0))  # rad

@@ -12,22 +12,42 @@ steps), with keyframes one pass per scan. The trajectory starts at the odometry'
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Literal
 
 import numba as nb
 import numpy as np
 import pandas as pd
 
+from toolkit import se2
 from toolkit.align import scan as sc
-from toolkit.dataset import Dataset
+from toolkit.align import se2_jit
+from toolkit.dataset import Dataset, PoseStream, pose_frame
 from toolkit.errors import ToolkitError
 
-Method = Literal["gaussian", "icp", "icp-point", "odometry"]
-METHODS: tuple[str, ...] = ("gaussian", "icp", "icp-point", "odometry")
+
+class Method(StrEnum):
+    """How a trajectory is obtained; the values are the CLI's `--method` names."""
+
+    GAUSSIAN = "gaussian"  # the paper's scan matcher
+    ICP = "icp"  # 2D point-to-line ICP
+    ICP_POINT = "icp-point"  # Open3D point-to-point ICP
+    ODOMETRY = "odometry"  # no matching
+
+    @classmethod
+    def parse(cls, name: str) -> Method:
+        """The method called `name`; a ToolkitError naming the known ones otherwise."""
+        try:
+            return cls(name)
+        except ValueError:
+            known = ", ".join(m.value for m in cls)
+            raise ToolkitError(f"unknown method {name!r}; known: {known}") from None
+
+
+METHODS: tuple[str, ...] = tuple(m.value for m in Method)
 
 
 @dataclass
@@ -35,7 +55,7 @@ class TrajectoryResult:
     """Poses per scan and how they were obtained."""
 
     frame: pd.DataFrame  # t, x, y, theta
-    method: str
+    method: Method
     matches: sc.PairMatches | None = None  # per pair, for the matching methods
     seconds: float = 0.0  # time spent aligning scan pairs
     config: dict[str, object] = field(default_factory=dict)
@@ -52,22 +72,8 @@ class TrajectoryResult:
 
 
 def poses_at(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
-    """A pose stream (t, x, y, theta) interpolated at times `t` (S x 3); the heading is
-    unwrapped before interpolating. Times outside the stream take its first/last pose."""
-    ft = frame["t"].to_numpy(np.float64)
-    xyth = frame[["x", "y", "theta"]].to_numpy(np.float64)
-    if len(ft) == len(t) and np.array_equal(ft, t):
-        return xyth.copy()
-    if len(ft) == 0:
-        raise ToolkitError("pose stream is empty")
-    order = np.argsort(ft, kind="stable")
-    ft, xyth = ft[order], xyth[order]
-    th = np.unwrap(xyth[:, 2])
-    out = np.column_stack(
-        [np.interp(t, ft, xyth[:, 0]), np.interp(t, ft, xyth[:, 1]), np.interp(t, ft, th)]
-    )
-    out[:, 2] = sc.wrap(out[:, 2])
-    return out
+    """A pose stream (t, x, y, theta) at times `t` (S x 3): `PoseStream.at`."""
+    return PoseStream.from_frame(frame).at(t)
 
 
 def compose_steps(start: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -78,7 +84,7 @@ def compose_steps(start: np.ndarray, steps: np.ndarray) -> np.ndarray:
     c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
     moves = np.column_stack([c * steps[:, 0] - s * steps[:, 1], s * steps[:, 0] + c * steps[:, 1]])
     xy = start[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(moves, axis=0)])
-    return np.column_stack([xy, sc.wrap(theta)])
+    return np.column_stack([xy, se2.wrap(theta)])
 
 
 def compose_refs(start: np.ndarray, ref: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -94,11 +100,7 @@ def _compose_refs(start: np.ndarray, ref: np.ndarray, steps: np.ndarray) -> np.n
     poses = np.empty((len(ref), 3))
     poses[0] = start
     for k in range(1, len(ref)):  # truly sequential: each pose hangs from an earlier one
-        x, y, th = poses[ref[k]]
-        c, s = math.cos(th), math.sin(th)
-        poses[k, 0] = x + c * steps[k - 1, 0] - s * steps[k - 1, 1]
-        poses[k, 1] = y + s * steps[k - 1, 0] + c * steps[k - 1, 1]
-        poses[k, 2] = math.atan2(math.sin(th + steps[k - 1, 2]), math.cos(th + steps[k - 1, 2]))
+        se2_jit.compose_into(poses[ref[k]], steps[k - 1], poses[k])
     return poses
 
 
@@ -118,7 +120,7 @@ def truth_poses(ds: Dataset) -> np.ndarray | None:
 
 def build(
     ds: Dataset,
-    method: str = "gaussian",
+    method: Method | str = Method.GAUSSIAN,
     config: sc.MatchConfig | None = None,
     matcher: Callable[..., sc.PairMatches] | None = None,
 ) -> TrajectoryResult:
@@ -127,50 +129,45 @@ def build(
 
     `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
     runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`)."""
-    if method not in METHODS:
-        raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    method = Method.parse(method)
     odo = odometry_poses(ds)
     n = ds.n_scans
-    if method == "odometry":
+    if method == Method.ODOMETRY:
         if odo is None:
             raise ToolkitError("method odometry needs odometry; the dataset has none", file=ds.path)
-        return TrajectoryResult(_frame(ds.t, odo), method)
+        return TrajectoryResult(pose_frame(ds.t, odo), method)
     start = odo[0] if odo is not None else np.zeros(3)
     if n < 2:
-        return TrajectoryResult(_frame(ds.t, np.tile(start, (n, 1))), method)
+        return TrajectoryResult(pose_frame(ds.t, np.tile(start, (n, 1))), method)
     config = config or sc.MatchConfig()
     if odo is not None:
         ref = sc.keyframes(odo, config.keyframe_distance, config.keyframe_angle)
-        robot_seed = sc.between(odo[ref[1:]], odo[1:])
+        robot_seed = se2.between(odo[ref[1:]], odo[1:])
     else:  # no odometry: consecutive scans, seeded with "no motion" (the motion model bounds it)
         ref = np.maximum(np.arange(n) - 1, 0)
         robot_seed = np.zeros((n - 1, 3))
-    seeds = sc.laser_motion(robot_seed, ds.laser)
+    seeds = se2.laser_motion(robot_seed, ds.laser)
     t0 = time.perf_counter()
-    if method == "gaussian":
+    if method == Method.GAUSSIAN:
         matches = (matcher or sc.match_pairs)(ds.ranges, seeds, ds.laser, config, ref)
         used: dict[str, object] = config.to_dict()
     else:
         icp_method: Literal["point_to_line", "point_to_point"] = (
-            "point_to_line" if method == "icp" else "point_to_point"
+            "point_to_line" if method == Method.ICP else "point_to_point"
         )
         matches = sc.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
         used = {"icp": icp_method, "max_distance": 0.5, "iterations": 30}
         used |= {k: getattr(config, k) for k in ("keyframe_distance", "keyframe_angle")}
     seconds = time.perf_counter() - t0
-    poses = compose_refs(start, ref, sc.robot_motion(matches.pose, ds.laser))
-    return TrajectoryResult(_frame(ds.t, poses), method, matches, seconds, used)
+    poses = compose_refs(start, ref, se2.robot_motion(matches.pose, ds.laser))
+    return TrajectoryResult(pose_frame(ds.t, poses), method, matches, seconds, used)
 
 
 def trajectory(
-    ds: Dataset, method: str = "gaussian", config: sc.MatchConfig | None = None
+    ds: Dataset, method: Method | str = Method.GAUSSIAN, config: sc.MatchConfig | None = None
 ) -> pd.DataFrame:
     """DataFrame t, x, y, theta: the robot's pose at every scan by `method`."""
     return build(ds, method, config).frame
-
-
-def _frame(t: np.ndarray, poses: np.ndarray) -> pd.DataFrame:
-    return pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
 
 
 #: Wheel-odometry errors added to real logs whose poses are corrected (no raw odometry):
@@ -197,4 +194,4 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
         raise ToolkitError("adding drift needs ground truth; the dataset has none", file=ds.path)
     model = OdometryModel(**{**REAL_LOG_DRIFT, **params})
     odo = model.integrate(truth, np.random.default_rng(seed))
-    return replace(ds, odometry=_frame(ds.t, odo), groundtruth=_frame(ds.t, truth))
+    return replace(ds, odometry=pose_frame(ds.t, odo), groundtruth=pose_frame(ds.t, truth))

@@ -35,13 +35,16 @@ def field_types(cls: type) -> dict[str, Any]:
     return _FIELD_TYPES[cls]
 
 
+_LITERAL: object = Literal  # compared by identity with get_origin()
+
+
 def _members(kind: object) -> list[Any]:
     """A union's members (Literal choices first, None last), or [kind]."""
     if get_origin(kind) in (Union, types.UnionType):
         members = list(get_args(kind))
     else:
         members = [kind]
-    return sorted(members, key=lambda m: (m is type(None), get_origin(m) is not Literal))
+    return sorted(members, key=lambda m: (m is type(None), get_origin(m) is not _LITERAL))
 
 
 def choices(kind: object) -> tuple[object, ...]:

@@ -21,13 +21,10 @@ truth as nav_msgs/Odometry on /ground_truth and the mounting as a static tf.
 from __future__ import annotations
 
 import math
-import os
-import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import pandas as pd
@@ -53,7 +50,14 @@ def _bare(name: str) -> str:
     return name.strip("/")
 
 
-def _yaw(q: Any) -> float:
+class _Quaternion(Protocol):
+    x: float
+    y: float
+    z: float
+    w: float
+
+
+def _yaw(q: _Quaternion) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
@@ -480,17 +484,3 @@ def _files(paths: Sequence[Path]) -> list[Path]:
     for p in paths:
         out.extend(sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p])
     return out
-
-
-def replace_dir(tmp: Path, final: Path) -> None:
-    """Move a finished bag (file or directory) into place."""
-    if final.is_dir():
-        shutil.rmtree(final)
-    elif final.exists():
-        final.unlink()
-    os.replace(tmp, final)
-
-
-def temp_dir_beside(out: Path) -> Path:
-    out.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=".bag.", suffix=".tmp", dir=out))

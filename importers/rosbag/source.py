@@ -10,11 +10,14 @@ from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from importers.base import head_bytes
 from importers.rosbag import ros1raw
 from toolkit.errors import FormatError, ToolkitError
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 ROS1_MAGICS = (ros1raw.V2_MAGIC[:-1], b"#ROSRECORD")
 MCAP_MAGIC = b"\x89MCAP"
@@ -65,7 +68,7 @@ class BagSource:
         for conn, stamp, raw in self._any.messages(connections=conns):
             yield conn.topic, stamp, raw
 
-    def deserialize(self, raw: bytes | memoryview, msgtype: str) -> Any:
+    def deserialize(self, raw: bytes | memoryview, msgtype: str) -> object:
         if self.cdr:
             return self.typestore.deserialize_cdr(raw, msgtype)
         return self.typestore.deserialize_ros1(raw, msgtype)
@@ -136,7 +139,7 @@ def open_bag(paths: Sequence[Path]) -> BagSource:
     return open_recovery(first, store, error)
 
 
-def _open_rosbags(paths: list[Path], ros2: bool, store: Any) -> BagSource:
+def _open_rosbags(paths: list[Path], ros2: bool, store: Typestore) -> BagSource:
     from rosbags.highlevel import AnyReader
 
     stack = ExitStack()
@@ -154,7 +157,7 @@ def _open_rosbags(paths: list[Path], ros2: bool, store: Any) -> BagSource:
     )
 
 
-def open_recovery(path: Path, store: Any, why: str | None) -> BagSource:
+def open_recovery(path: Path, store: Typestore, why: str | None) -> BagSource:
     from rosbags.typesys import get_types_from_msg
 
     raw = ros1raw.read_bag(path)

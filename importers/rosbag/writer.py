@@ -9,22 +9,24 @@ transform base_link -> frame_id on /tf_static.
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
-from importers.rosbag.importer import replace_dir, temp_dir_beside
-from toolkit.dataset import Dataset
+from toolkit.atomic import atomic_path
+from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.errors import ToolkitError
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Msg, Typestore
 
 VERSIONS = ("ros1", "ros2", "mcap")
 TFMESSAGE = "tf2_msgs/msg/TFMessage"
 
 
-def _typestore(ros1: bool) -> Any:
+def _typestore(ros1: bool) -> Typestore:
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
@@ -36,12 +38,12 @@ def _typestore(ros1: bool) -> Any:
 class _Messages:
     """Message objects of one typestore, ROS1 or ROS2 header conventions."""
 
-    def __init__(self, store: Any, ros1: bool) -> None:
+    def __init__(self, store: Typestore, ros1: bool) -> None:
         self.store = store
         self.ros1 = ros1
         self.types = store.types
 
-    def header(self, t: float, frame: str, seq: int = 0) -> Any:
+    def header(self, t: float, frame: str, seq: int = 0) -> Msg:
         sec = math.floor(t)
         nsec = min(round((t - sec) * 1e9), 999_999_999)
         stamp = self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
@@ -49,12 +51,12 @@ class _Messages:
             return self.types["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id=frame)
         return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
 
-    def quaternion(self, yaw: float) -> Any:
+    def quaternion(self, yaw: float) -> Msg:
         return self.types["geometry_msgs/msg/Quaternion"](
             x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)
         )
 
-    def odometry(self, t: float, x: float, y: float, theta: float, parent: str, seq: int) -> Any:
+    def odometry(self, t: float, x: float, y: float, theta: float, parent: str, seq: int) -> object:
         ty = self.types
         pose = ty["geometry_msgs/msg/Pose"](
             position=ty["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
@@ -73,7 +75,7 @@ class _Messages:
             ),
         )
 
-    def mounting(self, t: float, frame: str, laser: Any) -> Any:
+    def mounting(self, t: float, frame: str, laser: LaserGeometry) -> Msg:
         ty = self.types
         transform = ty["geometry_msgs/msg/TransformStamped"](
             header=self.header(t, "base_link"),
@@ -85,7 +87,7 @@ class _Messages:
         )
         return ty[TFMESSAGE](transforms=[transform])
 
-    def serialize(self, msg: Any, msgtype: str) -> bytes | memoryview:
+    def serialize(self, msg: object, msgtype: str) -> bytes | memoryview:
         if self.ros1:
             return self.store.serialize_ros1(msg, msgtype)
         return self.store.serialize_cdr(msg, msgtype)
@@ -106,9 +108,7 @@ def write_bag(
         raise ToolkitError(f"rosbag version {version!r}: expected one of {', '.join(VERSIONS)}")
     ros1 = version == "ros1"
     final = out / (f"{name}.bag" if ros1 else name)
-    tmp = temp_dir_beside(out)
-    try:
-        path = tmp / final.name
+    with atomic_path(final) as path:
         msgs = _Messages(_typestore(ros1), ros1)
         streams = _streams(ds, msgs, scan_topic, odom_topic, gt_topic, frame_id)
         if ros1:
@@ -133,9 +133,6 @@ def write_bag(
                 }
                 for topic, stamp, raw in streams.ordered():
                     w2.write(conns2[topic], stamp, raw)
-        replace_dir(path, final)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return final
 
 
@@ -195,9 +192,9 @@ def _streams(
         if frame_poses is None:
             continue
         for i, row in enumerate(_rows(frame_poses)):
-            msg = msgs.odometry(*row, parent=parent, seq=i)
+            odo = msgs.odometry(*row, parent=parent, seq=i)
             streams.add(
-                topic, "nav_msgs/msg/Odometry", row[0], msgs.serialize(msg, "nav_msgs/msg/Odometry")
+                topic, "nav_msgs/msg/Odometry", row[0], msgs.serialize(odo, "nav_msgs/msg/Odometry")
             )
     return streams
 

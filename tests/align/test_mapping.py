@@ -23,6 +23,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     result = toolkit_process("map", dataset, "--out", out)
@@ -88,6 +89,7 @@ def test_voxel_and_odometry_method(dataset: Path, tmp_path: Path) -> None:
     assert json.loads((out / "metrics.json").read_text())["pairs"] == 0
 
 
+@pytest.mark.slow
 def test_errors_are_one_line_and_leave_nothing(dataset: Path, tmp_path: Path) -> None:
     for args, needle in [
         (("map", tmp_path / "missing", "--out", tmp_path / "r1"), "not a dataset directory"),

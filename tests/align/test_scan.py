@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.poses import odometry_poses, truth_poses
 from toolkit.sim import LaserModel, simulate
@@ -19,26 +18,6 @@ def building() -> object:
     return simulate("building", seed=3, scans=400).dataset
 
 
-pose = st.tuples(st.floats(-5, 5), st.floats(-5, 5), st.floats(-3.1, 3.1))
-
-
-@settings(max_examples=60, deadline=None)
-@given(pose, pose)
-def test_se2_compose_inverse_between(a: tuple[float, ...], b: tuple[float, ...]) -> None:
-    pa, pb = np.array(a), np.array(b)
-    assert np.allclose(sc.compose(pa, sc.between(pa, pb)), pb, atol=1e-9)
-    assert np.allclose(sc.compose(pa, sc.inverse(pa)), 0, atol=1e-9)
-
-
-def test_mount_conversion_round_trips() -> None:
-    laser = LaserModel(mount_x=0.3).geometry()
-    steps = np.array([[0.5, 0.1, 0.3], [1.0, -0.2, -0.5]])
-    assert np.allclose(sc.robot_motion(sc.laser_motion(steps, laser), laser), steps)
-    # a pure turn of the robot moves a laser mounted ahead of the centre sideways
-    turn = sc.laser_motion(np.array([[0.0, 0.0, 0.5]]), laser)[0]
-    assert abs(turn[1]) > 0.05 and abs(turn[2] - 0.5) < 1e-12
-
-
 def perturbed_seeds(truth_steps: np.ndarray, laser: object, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     noise = np.column_stack(
@@ -47,19 +26,19 @@ def perturbed_seeds(truth_steps: np.ndarray, laser: object, seed: int) -> np.nda
             rng.uniform(-0.05, 0.05, len(truth_steps)),
         ]
     )
-    return sc.laser_motion(truth_steps, laser) + noise  # type: ignore[arg-type]
+    return se2.laser_motion(truth_steps, laser) + noise  # type: ignore[arg-type]
 
 
 def test_recovers_true_motion_from_odometry_off_by_6cm_and_3deg(building: object) -> None:
     ds = building
     truth = truth_poses(ds)  # type: ignore[arg-type]
-    steps = sc.between(truth[:-1], truth[1:])
+    steps = se2.between(truth[:-1], truth[1:])
     seeds = perturbed_seeds(steps, ds.laser, seed=1)  # type: ignore[attr-defined]
     m = sc.match_pairs(ds.ranges, seeds, ds.laser)  # type: ignore[attr-defined]
-    est = sc.robot_motion(m.pose, ds.laser)  # type: ignore[attr-defined]
-    err = sc.between(steps, est)
+    est = se2.robot_motion(m.pose, ds.laser)  # type: ignore[attr-defined]
+    err = se2.between(steps, est)
     et, er = np.hypot(err[:, 0], err[:, 1]), np.abs(err[:, 2])
-    seed_err = np.hypot(*(seeds - sc.laser_motion(steps, ds.laser))[:, :2].T)  # type: ignore[attr-defined]
+    seed_err = np.hypot(*(seeds - se2.laser_motion(steps, ds.laser))[:, :2].T)  # type: ignore[attr-defined]
     assert np.median(seed_err) > 0.03
     # where the scans fix both directions the estimate is within a centimetre; in corridors
     # (degenerate) the motion along the corridor stays the odometry's, by design
@@ -84,7 +63,7 @@ def featureless_corridor() -> tuple[object, np.ndarray, np.ndarray]:
 
 def test_corridor_keeps_odometry_along_the_unobservable_direction() -> None:
     laser, ranges, truth = featureless_corridor()
-    step = sc.laser_motion(sc.between(truth[:1], truth[1:]), laser)[0]
+    step = se2.laser_motion(se2.between(truth[:1], truth[1:]), laser)[0]
     seed = step + np.array([0.25, -0.08, 0.04])  # odometry: 25 cm too far, 8 cm aside, 2.3°
     m = sc.match_pairs(ranges, seed[None], laser)
     p = m.pose[0]
@@ -103,7 +82,7 @@ def test_corridor_keeps_odometry_along_the_unobservable_direction() -> None:
 def test_a_wheel_slip_of_34_degrees_is_rescued(building: object) -> None:
     ds = building
     truth = truth_poses(ds)  # type: ignore[arg-type]
-    steps = sc.laser_motion(sc.between(truth[:-1], truth[1:]), ds.laser)[::40]  # type: ignore[attr-defined]
+    steps = se2.laser_motion(se2.between(truth[:-1], truth[1:]), ds.laser)[::40]  # type: ignore[attr-defined]
     seeds = steps + np.array([0.0, 0.0, 0.6])
     ranges = ds.ranges  # type: ignore[attr-defined]
     idx = np.arange(0, len(truth) - 1, 40)
@@ -116,21 +95,21 @@ def test_a_wheel_slip_of_34_degrees_is_rescued(building: object) -> None:
     all_seeds[0::2] = seeds
     ref[0::2] = np.maximum(np.arange(0, len(pairs), 2) - 1, 0)
     m = sc.match_pairs(pairs, all_seeds, ds.laser, ref=ref)  # type: ignore[attr-defined]
-    err = np.abs(sc.wrap(m.pose[0::2, 2] - steps[:, 2]))
+    err = np.abs(se2.wrap(m.pose[0::2, 2] - steps[:, 2]))
     assert np.median(err) < np.deg2rad(0.5) and err.max() < np.deg2rad(2.0)
     for config, least in (
         (sc.MatchConfig(rescue_step=0, restart_turn=-1), 3),  # no ladder, no restart
         (sc.MatchConfig(rescue_step=0), 1),  # a restart from the estimate alone
     ):
         off = sc.match_pairs(pairs, all_seeds, ds.laser, config, ref=ref)  # type: ignore[attr-defined]
-        stuck = np.abs(sc.wrap(off.pose[0::2, 2] - steps[:, 2])) > np.deg2rad(10)
+        stuck = np.abs(se2.wrap(off.pose[0::2, 2] - steps[:, 2])) > np.deg2rad(10)
         assert stuck.sum() >= least  # without the ladder, pairs stay stuck
 
 
 def test_paper_variant_and_bad_arguments(building: object) -> None:
     ds = building
     odo = odometry_poses(ds)  # type: ignore[arg-type]
-    seeds = sc.laser_motion(sc.between(odo[:-1], odo[1:]), ds.laser)  # type: ignore[attr-defined]
+    seeds = se2.laser_motion(se2.between(odo[:-1], odo[1:]), ds.laser)  # type: ignore[attr-defined]
     paper = sc.match_pairs(ds.ranges, seeds, ds.laser, sc.MatchConfig(variant="paper"))  # type: ignore[attr-defined]
     text = sc.match_pairs(ds.ranges, seeds, ds.laser)  # type: ignore[attr-defined]
     assert not np.allclose(paper.pose, text.pose)
@@ -159,3 +138,13 @@ def test_keyframes_follow_odometry() -> None:
     odo = np.column_stack([np.arange(10) * 0.1, np.zeros(10), np.zeros(10)])
     assert list(sc.keyframes(odo, 0.25, 1.0)) == [0, 0, 0, 0, 3, 3, 3, 6, 6, 6]
     assert list(sc.keyframes(odo, 0.0, 0.0)) == [0, 0, 1, 2, 3, 4, 5, 6, 7, 8]
+
+
+def test_kernel_parameters_fill_every_named_slot() -> None:
+    laser = LaserModel().geometry()
+    config = sc.MatchConfig(variant="paper", odometry_sigma=(0.07, 0.03), restart_turn=-1.0)
+    params = sc._params(config, laser)
+    assert params.shape == (sc._PARAMS,) and np.isfinite(params).all()
+    assert params[sc._P_PAPER] == 1.0 and params[sc._P_RESTART_TURN] == -1.0
+    assert params[sc._P_ODOMETRY_SIGMA_T] == 0.07 and params[sc._P_ODOMETRY_SIGMA_R] == 0.03
+    assert params[sc._P_BEAM_STEP] == abs(laser.angle_increment)

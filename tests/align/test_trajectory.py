@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 import toolkit
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.metrics import ATE, RPE, Failures, align_se2, evaluate
 from toolkit.poses import build, compose_refs, compose_steps, poses_at, truth_poses, with_drift
@@ -47,10 +48,10 @@ def test_compose_steps_matches_pose_by_pose_composition() -> None:
     poses = compose_steps(start, steps)
     slow = [start]
     for s in steps:
-        slow.append(sc.compose(slow[-1], s))
+        slow.append(se2.compose(slow[-1], s))
     assert np.allclose(poses, np.array(slow), atol=1e-9)
     ref = sc.keyframes(poses, 0.6, 0.5)
-    rel = sc.between(poses[ref[1:]], poses[1:])
+    rel = se2.between(poses[ref[1:]], poses[1:])
     assert np.allclose(compose_refs(start, ref, rel), poses, atol=1e-9)
 
 
@@ -58,19 +59,19 @@ def test_poses_at_interpolates_across_the_heading_wrap() -> None:
     frame = pd.DataFrame({"t": [0.0, 1.0], "x": [0.0, 2.0], "y": [0.0, 0.0], "theta": [3.1, -3.1]})
     p = poses_at(frame, np.array([0.5, 2.0]))
     assert p[0, 0] == pytest.approx(1.0)
-    assert abs(sc.wrap(p[0, 2] - np.pi)) < 1e-9  # through pi, not through 0
+    assert abs(se2.wrap(p[0, 2] - np.pi)) < 1e-9  # through pi, not through 0
     assert p[1, 0] == pytest.approx(2.0)
 
 
 def test_metrics_on_known_errors() -> None:
     truth = random_walk(200, 1)
     # a rigidly moved copy: ATE 0 after SE(2) alignment, RPE 0
-    moved = sc.compose(np.broadcast_to([3.0, -1.0, 0.7], truth.shape), truth)
-    assert np.allclose(align_se2(moved, truth), sc.inverse(np.array([3.0, -1.0, 0.7])))
+    moved = se2.compose(np.broadcast_to([3.0, -1.0, 0.7], truth.shape), truth)
+    assert np.allclose(align_se2(moved, truth), se2.inverse(np.array([3.0, -1.0, 0.7])))
     assert ATE.compute(moved, truth).rmse < 1e-9
     assert RPE.compute(moved, truth).translation < 1e-9
     # one step 0.3 m off and one 6° off: two failures, and the RPE counts them
-    steps = sc.between(truth[:-1], truth[1:])
+    steps = se2.between(truth[:-1], truth[1:])
     steps[10, 0] += 0.3
     steps[50, 2] += np.deg2rad(6)
     bad = compose_steps(truth[0], steps)
@@ -132,13 +133,13 @@ def test_real_acapulco_hall_heading_does_not_lean_on_the_odometry(
     # A convention hall, scans ~1 m apart: a tenth of the seed's heading error used to survive
     # each match, and the drift's bias piled up (ATE 14 m against odometry's 31 m).
     ds, truth = drifted_radish(real, tmp_path, "acapulco")
-    steps = sc.laser_motion(sc.between(truth[:-1], truth[1:]), ds.laser)
+    steps = se2.laser_motion(se2.between(truth[:-1], truth[1:]), ds.laser)
     off = np.deg2rad(0.8)
 
     def pull(config: sc.MatchConfig) -> float:
         """How far the mean heading follows a +-0.8° seed error (0: not at all, 1: fully)."""
         lean = [
-            sc.wrap(
+            se2.wrap(
                 sc.match_pairs(ds.ranges, steps + np.array([0, 0, s]), ds.laser, config).pose[:, 2]
                 - steps[:, 2]
             ).mean()

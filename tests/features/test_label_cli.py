@@ -15,10 +15,15 @@ import pytest
 
 from tests.conftest import Cli
 from toolkit.features import FeatureModel
+from toolkit.sim import Simulation
+
+pytestmark = pytest.mark.slow  # `toolkit label` end to end, five runs of ~5-15 s
 
 
 @pytest.fixture(scope="module")
-def sim_dirs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+def sim_dirs(
+    tmp_path_factory: pytest.TempPathFactory, corridor_sim: Simulation
+) -> tuple[Path, Path]:
     """Two simulated corridor logs (seeds 0 and 1) as `toolkit simulate --format dataset`
     writes them: a dataset directory with regions.csv and truth.parquet."""
     from toolkit.app.simulation import write_simulation
@@ -28,7 +33,8 @@ def sim_dirs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     dirs = []
     for seed in (0, 1):
         out = root / f"corridor-{seed}"
-        write_simulation(simulate("corridor", seed=seed), out, "dataset")
+        sim = corridor_sim if seed == 0 else simulate("corridor", seed=seed)
+        write_simulation(sim, out, "dataset")
         dirs.append(out)
     return dirs[0], dirs[1]
 

@@ -263,4 +263,16 @@ def test_balanced_accuracy_and_ece_by_hand() -> None:
     correct = np.array([1, 1, 1, 0])
     # bin (0.933, 1]: acc 1 vs conf 0.95; bin (0.533, 0.6]: acc 0.5 vs conf 0.55
     assert expected_calibration_error(conf, correct) == pytest.approx(0.5 * 0.05 + 0.5 * 0.05)
-    assert loglik is not None
+
+
+def test_loglik_scores_taught_scans_highest_under_their_own_feature(world) -> None:  # type: ignore[no-untyped-def]
+    ranges, _, _, training = world
+    for config in (PAPER, Config()):  # the plain and the robust kernels
+        model = fit(ranges, LASER, training, config)
+        ll = loglik(model, ranges)
+        rows = list(model.features)
+        assert ll.shape == (len(ranges), len(rows) + int(config.none_class))
+        assert np.isfinite(ll).all()
+        for feature, idx in training.items():
+            best = np.argmax(ll[idx, : len(rows)], axis=1)
+            assert np.mean([rows[b] == feature for b in best]) >= 0.9, (config, feature)

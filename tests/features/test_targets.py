@@ -8,13 +8,12 @@ import pytest
 
 from toolkit.features.evaluate import score
 from toolkit.features.model import PAPER, SURROUNDINGS
-from toolkit.sim import simulate
 
 
 @pytest.mark.parametrize("scenario", ["corridor", "building"])
-def test_surroundings_meet_the_targets(scenario: str) -> None:
+def test_surroundings_meet_the_targets(scenario: str, request: pytest.FixtureRequest) -> None:
     """`--none-model surroundings`: the lateral weight its spans choose is 2 (beside the robot)."""
-    sim = simulate(scenario, seed=0)
+    sim = request.getfixturevalue(f"{scenario}_sim")  # seed 0, shared with other tests
     ours, paper = (score(scenario, config, sim=sim) for config in (SURROUNDINGS, PAPER))
     assert ours.lateral_weight == 2.0
     assert ours.balanced_accuracy >= 0.95 and ours.ece <= 0.05

@@ -1,5 +1,5 @@
-"""CARMEN importer and writer: the real logs (Radish corrected, CSM, DP-SLAM), damaged copies of
-them, the writer -> reader round trip, and the CLI."""
+"""CARMEN importer and writer: the real logs (Radish corrected, CSM, DP-SLAM), damaged copies
+of a simulated log written by the writer, the writer -> reader round trip, and the CLI."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ from tests.conftest import Cli
 from tests.importers.checks import assert_bad_input_is_one_line
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError
+from toolkit.sim import Simulation
 
-pytestmark = pytest.mark.real
 ROOT = Path(__file__).resolve().parents[2]
 RADISH = "carmen_radish_corrected"
 RADISH_LOGS = [
@@ -345,11 +345,20 @@ def test_every_message_of_a_known_log(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- damaged copies
+# of a simulated log written by the CARMEN writer (its every line is known)
 
 
 @pytest.fixture(scope="module")
-def intel_lines(real: Path) -> list[str]:
-    return _text_lines(real / RADISH / "intel-corrected.log.gz")
+def sim_log(tmp_path_factory: pytest.TempPathFactory, corridor_sim: Simulation) -> Path:
+    """The simulated corridor (2000 scans of 181 beams, odometry, truth) as a CARMEN log."""
+    out = tmp_path_factory.mktemp("carmen-sim")
+    (path,) = importers.get("carmen").write(corridor_sim.dataset, out)
+    return Path(path)
+
+
+@pytest.fixture(scope="module")
+def sim_lines(sim_log: Path) -> list[str]:
+    return _text_lines(sim_log)
 
 
 def _write(tmp: Path, lines: list[str], name: str = "d.log", newline: bool = True) -> Path:
@@ -362,9 +371,14 @@ def _laser_numbers(lines: list[str]) -> list[int]:
     return [i for i, ln in enumerate(lines) if ln.startswith("FLASER ")]
 
 
-def test_truncated_last_line_is_skipped_and_counted(tmp_path: Path, intel_lines: list[str]) -> None:
-    k = _laser_numbers(intel_lines)[20]
-    cut = [*intel_lines[:k], intel_lines[k][: len(intel_lines[k]) // 2]]
+def test_the_simulated_log_reads_whole(sim_lines: list[str], corridor_sim: Simulation) -> None:
+    assert len(_laser_numbers(sim_lines)) == corridor_sim.dataset.n_scans == 2000
+    assert sim_lines[_laser_numbers(sim_lines)[0]].startswith("FLASER 181 ")
+
+
+def test_truncated_last_line_is_skipped_and_counted(tmp_path: Path, sim_lines: list[str]) -> None:
+    k = _laser_numbers(sim_lines)[20]
+    cut = [*sim_lines[:k], sim_lines[k][: len(sim_lines[k]) // 2]]
     ds = Carmen().read([_write(tmp_path, cut, newline=False)], CarmenOptions())
     assert ds.report.dropped == {"truncated last line": 1} | {
         k: v for k, v in ds.report.dropped.items() if k.startswith("ODOM")
@@ -374,22 +388,22 @@ def test_truncated_last_line_is_skipped_and_counted(tmp_path: Path, intel_lines:
 
 
 def test_wrong_number_of_ranges_is_skipped_with_its_line(
-    tmp_path: Path, intel_lines: list[str]
+    tmp_path: Path, sim_lines: list[str]
 ) -> None:
-    lines = list(intel_lines)
+    lines = list(sim_lines)
     k = _laser_numbers(lines)[5]
     tok = lines[k].split()
-    lines[k] = " ".join(tok[:10] + tok[11:])  # n says 180, 179 values follow
+    lines[k] = " ".join(tok[:10] + tok[11:])  # n says 181, 180 values follow
     path = _write(tmp_path, lines)
     ds = Carmen().read([path], CarmenOptions())
     assert ds.report.dropped["wrong number of ranges"] == 1
     assert ds.report.examples["wrong number of ranges"] == f"{path}:{k + 1}"
-    assert ds.n_scans == 905
+    assert ds.n_scans == 1999
     assert float(tok[-3]) not in set(ds.t)
 
 
-def test_non_numeric_value_is_skipped_with_its_line(tmp_path: Path, intel_lines: list[str]) -> None:
-    lines = list(intel_lines)
+def test_non_numeric_value_is_skipped_with_its_line(tmp_path: Path, sim_lines: list[str]) -> None:
+    lines = list(sim_lines)
     k = _laser_numbers(lines)[7]
     tok = lines[k].split()
     tok[50] = "1.2x"
@@ -398,49 +412,53 @@ def test_non_numeric_value_is_skipped_with_its_line(tmp_path: Path, intel_lines:
     ds = Carmen().read([path], CarmenOptions())
     assert ds.report.dropped["non-numeric value"] == 1
     assert ds.report.examples["non-numeric value"] == f"{path}:{k + 1}"
-    assert ds.n_scans == 905
+    assert ds.n_scans == 1999
 
 
-def test_nan_inf_and_negative_ranges_become_nan(tmp_path: Path, intel_lines: list[str]) -> None:
-    lines = list(intel_lines)
-    k = _laser_numbers(lines)[0]
+def test_nan_inf_and_negative_ranges_become_nan(
+    tmp_path: Path, sim_lines: list[str], corridor_sim: Simulation
+) -> None:
+    lines = list(sim_lines)
+    ranges = corridor_sim.dataset.ranges
+    j = int(np.flatnonzero(np.isfinite(ranges[:, :4]).all(axis=1))[0])  # beams 0..3 return
+    k = _laser_numbers(lines)[j]
     tok = lines[k].split()
     tok[2], tok[3], tok[4] = "nan", "inf", "-0.5"
     lines[k] = " ".join(tok)
     ds = Carmen().read([_write(tmp_path, lines)], CarmenOptions())
-    assert np.isnan(ds.ranges[0, :3]).all()
-    assert ds.ranges[0, 3] == np.float32(tok[5])
+    assert np.isnan(ds.ranges[j, :3]).all()
+    assert ds.ranges[j, 3] == np.float32(tok[5])
     assert "FLASER: 3 range values NaN, inf or negative -> NaN" in ds.report.notes
-    assert ds.n_scans == 906
+    assert ds.n_scans == 2000
 
 
-def test_beam_count_changing_keeps_the_majority(tmp_path: Path, intel_lines: list[str]) -> None:
-    lines = list(intel_lines)
+def test_beam_count_changing_keeps_the_majority(tmp_path: Path, sim_lines: list[str]) -> None:
+    lines = list(sim_lines)
     ks = _laser_numbers(lines)[10:13]
     for k in ks:
         tok = lines[k].split()
-        lines[k] = " ".join(["FLASER", "181", *tok[2:182], "1.0", *tok[182:]])
+        lines[k] = " ".join(["FLASER", "182", *tok[2:183], "1.0", *tok[183:]])
     path = _write(tmp_path, lines)
     ds = Carmen().read([path], CarmenOptions())
-    assert ds.n_beams == 180 and ds.n_scans == 903
-    assert ds.report.dropped["beam count 181 (the log's is 180)"] == 3
-    assert ds.report.examples["beam count 181 (the log's is 180)"] == f"{path}:{ks[0] + 1}"
+    assert ds.n_beams == 181 and ds.n_scans == 1997
+    assert ds.report.dropped["beam count 182 (the log's is 181)"] == 3
+    assert ds.report.examples["beam count 182 (the log's is 181)"] == f"{path}:{ks[0] + 1}"
 
 
-def test_compressed_damaged_copy(tmp_path: Path, intel_lines: list[str]) -> None:
-    path = tmp_path / "intel.log.bz2"
-    path.write_bytes(bz2.compress(("\n".join(intel_lines[:400]) + "\n").encode()))
+def test_compressed_damaged_copy(tmp_path: Path, sim_lines: list[str]) -> None:
+    path = tmp_path / "sim.log.bz2"
+    path.write_bytes(bz2.compress(("\n".join(sim_lines[:400]) + "\n").encode()))
     ds = Carmen().read([path], CarmenOptions())
-    assert ds.n_scans == sum(ln.startswith("FLASER ") for ln in intel_lines[:400])
+    assert ds.n_scans == sum(ln.startswith("FLASER ") for ln in sim_lines[:400]) > 100
     assert Carmen().sniff(path)
 
 
-def test_truncated_gzip_keeps_the_lines_before_the_damage(real: Path, tmp_path: Path) -> None:
-    data = (real / RADISH / "intel-corrected.log.gz").read_bytes()
+def test_truncated_gzip_keeps_the_lines_before_the_damage(sim_log: Path, tmp_path: Path) -> None:
+    data = gzip.compress(sim_log.read_bytes())
     path = tmp_path / "cut.log.gz"
     path.write_bytes(data[: len(data) // 2])
     ds = Carmen().read([path], CarmenOptions())
-    assert 300 < ds.n_scans < 906
+    assert 500 < ds.n_scans < 2000
     assert any("compressed stream is damaged" in n for n in ds.report.notes)
     assert ds.report.dropped.get("truncated last line", 0) <= 1
 

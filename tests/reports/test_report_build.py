@@ -12,6 +12,9 @@ import pytest
 
 import reports
 from reports import Report
+from toolkit.sim import Simulation, simulate
+
+pytestmark = pytest.mark.slow  # the report built end to end (~75 s loaded)
 
 GIVEN_SCANS = 300
 
@@ -28,6 +31,14 @@ def given(tmp_path_factory: pytest.TempPathFactory) -> Path:
     sim.regions.to_csv(path / "regions.csv", index=False, float_format="%.6f")
     sim.truth().to_parquet(path / "truth.parquet")
     return path
+
+
+@pytest.fixture(scope="module")
+def quick_corridor() -> Simulation:
+    """The corridor as the quick report simulates it (seed 0, QUICK_CORRIDOR_SCANS), once."""
+    from reports.context import QUICK_CORRIDOR_SCANS
+
+    return simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS)
 
 
 @pytest.fixture(scope="module")
@@ -166,15 +177,15 @@ def test_table1_and_fig3_on_the_intel_log_with_drift(report: Report) -> None:
     assert "fig3_pairs_intel_drift" in {f.name for f in report.section("pairs").figures}
 
 
-def test_table1_errors_are_the_metric_of_the_runs(report: Report) -> None:
+def test_table1_errors_are_the_metric_of_the_runs(
+    report: Report, quick_corridor: Simulation
+) -> None:
     """Recompute one section's error from scratch with the toolkit and compare."""
-    from reports.context import QUICK_CORRIDOR_SCANS
     from reports.runs import slice_scans
     from toolkit.metrics import RPE
     from toolkit.poses import build, truth_poses
-    from toolkit.sim import simulate
 
-    sim = simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS)
+    sim = quick_corridor
     part = slice_scans(sim.dataset, np.flatnonzero(sim.sections == 3))
     err, _ = RPE.step_errors(build(part, "gaussian").poses, truth_poses(part))
     rows = report.section("table1").data["corridor"]["rows"]
@@ -197,14 +208,14 @@ def test_fig3_pairs_close_and_distant(report: Report) -> None:
         assert max(pair["error_cm"].values()) < 10
 
 
-def test_fig6_odometry_map_against_corrected(report: Report) -> None:
+def test_fig6_odometry_map_against_corrected(report: Report, quick_corridor: Simulation) -> None:
     from toolkit.metrics import ATE
     from toolkit.poses import truth_poses
 
     section = report.section("maps")
     data = section.data["corridor"]
     assert data["methods"][0] == "odometry"
-    ds = report_dataset(report)
+    ds = quick_corridor.dataset
     gt = truth_poses(ds)
     for method in data["methods"]:
         poses = data["trajectories"][method]
@@ -216,13 +227,6 @@ def test_fig6_odometry_map_against_corrected(report: Report) -> None:
     # the paper's claim, measured: the Gaussian-corrected map beats odometry alone
     assert data["ate"]["gaussian"] < data["ate"]["odometry"]
     assert section.figure("fig6_maps_corridor").files
-
-
-def report_dataset(report: Report) -> object:
-    from reports.context import QUICK_CORRIDOR_SCANS
-    from toolkit.sim import simulate
-
-    return simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS).dataset
 
 
 @pytest.mark.real
@@ -344,11 +348,10 @@ def test_logs_table_names_every_log(report: Report) -> None:
     assert logs.loc["building", "regions"] == "regions.csv"
 
 
-def test_fig10_map3d_every_return_at_the_laser_height(report: Report) -> None:
-    from reports.context import QUICK_CORRIDOR_SCANS
-    from toolkit.sim import simulate
-
-    ds = simulate("corridor", seed=0, scans=QUICK_CORRIDOR_SCANS).dataset
+def test_fig10_map3d_every_return_at_the_laser_height(
+    report: Report, quick_corridor: Simulation
+) -> None:
+    ds = quick_corridor.dataset
     data = report.section("features").figure("fig10_map3d_corridor").data
     assert data["points"] == int(np.isfinite(ds.ranges).sum())  # every return, none invented
     assert np.allclose(data["z"], [ds.laser.z])

@@ -89,6 +89,7 @@ def test_each_reports_the_damaged_log_and_writes_the_others(
     assert again.n_scans != load(tmp_path / "alone").n_scans
 
 
+@pytest.mark.slow
 def test_local_cluster_writes_the_same_datasets(fleet: Path, tmp_path: Path, cli: Cli) -> None:
     one, two = tmp_path / "one", tmp_path / "two"
     pattern = str(fleet / "robot*" / "*.log.gz")  # quoted glob: the toolkit expands it

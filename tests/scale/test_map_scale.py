@@ -140,6 +140,7 @@ def test_cluster_matching_is_real_work(log: Dataset, client: object) -> None:
     assert not np.array_equal(good.pose, shuffled.pose)
 
 
+@pytest.mark.slow
 def test_map_cli_local_cluster_same_trajectory(
     single: tuple[Path, pd.DataFrame], tmp_path: Path, cli: Cli
 ) -> None:
@@ -179,6 +180,7 @@ def fleet(log: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_map_fleet_damaged_dataset_by_name_cluster_same_runs_rerun_skips(
     fleet: Path, tmp_path: Path, cli: Cli
 ) -> None:
@@ -253,6 +255,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.mark.slow
 def test_map_on_dask_scheduler_and_two_workers(
     single: tuple[Path, pd.DataFrame], fleet: Path, tmp_path: Path, cli: Cli
 ) -> None:

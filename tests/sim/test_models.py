@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from toolkit.errors import ToolkitError
-from toolkit.sim import LaserModel, OdometryModel, simulate
+from toolkit.sim import LaserModel, OdometryModel, Simulation, simulate
 from toolkit.sim.geometry import GLASS, WorldBuilder, cast
 from toolkit.sim.scenarios import sample_path
 from toolkit.sim.truth import runs, training_regions
@@ -192,8 +192,8 @@ def test_regions_standing_still_fall_back_to_scan_order() -> None:
     assert moving[["start", "end"]].values.tolist() == [[18, 22], [32, 36]]  # sqrt(1/4, 3/4)*39
 
 
-def test_corridor_has_the_papers_sections_and_features() -> None:
-    sim = simulate("corridor", seed=0)
+def test_corridor_has_the_papers_sections_and_features(corridor_sim: Simulation) -> None:
+    sim = corridor_sim
     assert sim.dataset.ranges.shape == (2000, 181)
     assert np.bincount(sim.sections).tolist() == [250] * 8
     assert set(sim.regions.feature) == {"window_a", "window_b", "door", "corner"}
@@ -201,11 +201,11 @@ def test_corridor_has_the_papers_sections_and_features() -> None:
     assert 4 < rate < 10
 
 
-def test_labels_are_geometrically_honest() -> None:
+def test_labels_are_geometrically_honest(corridor_sim: Simulation) -> None:
     """Every door scan sees into a room on the right, window_b scans see through the glass;
     plain corridor scans mostly do not. The scans beside a column (a landmark, not a place)
     are plain corridor, "none", and have the column close on their left."""
-    sim = simulate("corridor", seed=0)
+    sim = corridor_sim
     r = sim.dataset.ranges
     deg = np.rad2deg(sim.dataset.angles)
     gt = sim.dataset.groundtruth

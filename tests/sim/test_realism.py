@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from toolkit.sim import simulate
+from toolkit.sim import Simulation
 
 
 def _speeds(
@@ -24,7 +24,9 @@ def _speeds(
 
 
 @pytest.mark.real
-def test_building_robot_drives_like_the_real_bicocca_robot(real: Path) -> None:
+def test_building_robot_drives_like_the_real_bicocca_robot(
+    real: Path, building_sim: Simulation
+) -> None:
     sessions = sorted((real / "rawseeds_bicocca_groundtruth").glob("*/*-GT-extended.csv"))
     assert len(sessions) == 5
     stats = np.array(
@@ -33,7 +35,7 @@ def test_building_robot_drives_like_the_real_bicocca_robot(real: Path) -> None:
             for p in sessions
         ]
     )
-    sim = simulate("building", seed=0)
+    sim = building_sim
     gt = sim.dataset.groundtruth
     assert gt is not None
     v, w, _ = _speeds(sim.dataset.t, gt.x.to_numpy(), gt.y.to_numpy(), gt.theta.to_numpy())

@@ -134,7 +134,7 @@ def ordered_normals(points: np.ndarray, max_gap: float = 0.5) -> np.ndarray:
         length = np.linalg.norm(tangent, axis=1)
         normal = np.column_stack([-tangent[:, 1], tangent[:, 0]]) / length[:, None]
     normal[~(length > 1e-9)] = np.nan
-    return normal
+    return np.asarray(normal)
 
 
 def register_point_to_line(

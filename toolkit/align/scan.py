@@ -36,6 +36,8 @@ from typing import Any, Literal
 import numba as nb
 import numpy as np
 
+from toolkit import se2
+from toolkit.align import se2_jit
 from toolkit.dataset import LaserGeometry
 
 Variant = Literal["text", "paper"]
@@ -107,50 +109,6 @@ class PairMatches:
         )
 
 
-# ---------------------------------------------------------------- SE(2) helpers
-
-
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ∘ b for (..., 3) poses (x, y, theta)."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
-    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
-    return np.stack([x, y, wrap(a[..., 2] + b[..., 2])], axis=-1)
-
-
-def inverse(a: np.ndarray) -> np.ndarray:
-    """a^-1 for (..., 3) poses."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = -c * a[..., 0] - s * a[..., 1]
-    y = s * a[..., 0] - c * a[..., 1]
-    return np.stack([x, y, -a[..., 2]], axis=-1)
-
-
-def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a^-1 ∘ b: b seen from a."""
-    return compose(inverse(a), b)
-
-
-def wrap(theta: np.ndarray) -> np.ndarray:
-    return np.asarray((theta + np.pi) % (2 * np.pi) - np.pi)
-
-
-def mount_pose(laser: LaserGeometry) -> np.ndarray:
-    return np.array([laser.x, laser.y, laser.yaw], dtype=np.float64)
-
-
-def laser_motion(robot_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
-    """Relative robot motions (P x 3) as motions of the laser: M^-1 ∘ step ∘ M."""
-    m = np.broadcast_to(mount_pose(laser), robot_steps.shape)
-    return compose(compose(inverse(m), robot_steps), m)
-
-
-def robot_motion(laser_steps: np.ndarray, laser: LaserGeometry) -> np.ndarray:
-    """Relative laser motions (P x 3) as motions of the robot: M ∘ step ∘ M^-1."""
-    m = np.broadcast_to(mount_pose(laser), laser_steps.shape)
-    return compose(compose(m, laser_steps), inverse(m))
-
-
 # ---------------------------------------------------------------- the kernel
 
 
@@ -197,8 +155,34 @@ def _exp_neg(x: float) -> float:
             )
         )
     )
-    return p * _POW2_NEG[n]
+    return float(p * _POW2_NEG[n])
 
+
+# kernel parameter slots: `MatchConfig` (and the beam step) as one float64 array for numba,
+# written by `_params` and read by these names only
+(
+    _P_ITERATIONS,
+    _P_MAX_CORRECTION,
+    _P_MAX_TURN,
+    _P_GATE,
+    _P_JUMP,
+    _P_SIGMA_MIN,
+    _P_DEGENERATE_RATIO,
+    _P_MIN_POINTS,
+    _P_ODOMETRY_SIGMA_T,
+    _P_ODOMETRY_SIGMA_R,
+    _P_PAPER,  # 1.0: Eq. 6 as printed
+    _P_COS_MAX_INCIDENCE,
+    _P_MIN_INFORMATION,
+    _P_RESCUE_STEP,
+    _P_RESCUE_BELOW,
+    _P_BEAM_STEP,  # |angle increment| of the laser
+    _P_SETTLE_SHIFT,
+    _P_SETTLE_TURN,
+    _P_RESTART_TURN,
+    _P_RESTART_SHIFT,
+) = range(20)
+_PARAMS = 20
 
 # state slots of one refinement, kept in a small float64 array
 _TX, _TY, _TH, _VAR, _USED, _SW, _DEG, _UX, _UY = range(9)
@@ -222,9 +206,9 @@ def _prepare(
     cy: np.ndarray,
 ) -> int:
     """Both scans' returns and the previous scan's surface lines; returns the valid count."""
-    jump = params[4]
-    min_incidence = params[11]
-    spread = params[15] / max(min_incidence, 1e-3)  # beam step / cos(max incidence)
+    jump = params[_P_JUMP]
+    min_incidence = params[_P_COS_MAX_INCIDENCE]
+    spread = params[_P_BEAM_STEP] / max(min_incidence, 1e-3)  # beam step / cos(max incidence)
     nbeams = prev.shape[0]
     valid = 0
     for i in range(nbeams):
@@ -279,17 +263,17 @@ def _refine(
 ) -> None:
     """Gaussian rounds (Eq. 3-6 on point-to-line correspondences) from pose `start`, bounded
     around the odometry `seed`; the result goes to `state`."""
-    iterations = int(params[0])
-    max_corr = params[1]
-    max_turn = params[2]
-    gate = params[3]
-    var_min = params[5] * params[5]
-    ratio = params[6]
-    min_points = params[7]
-    paper = params[10] > 0.5
-    min_info = params[12]
-    settle_t = params[16]
-    settle_r = params[17]
+    iterations = int(params[_P_ITERATIONS])
+    max_corr = params[_P_MAX_CORRECTION]
+    max_turn = params[_P_MAX_TURN]
+    gate = params[_P_GATE]
+    var_min = params[_P_SIGMA_MIN] * params[_P_SIGMA_MIN]
+    ratio = params[_P_DEGENERATE_RATIO]
+    min_points = params[_P_MIN_POINTS]
+    paper = params[_P_PAPER] > 0.5
+    min_info = params[_P_MIN_INFORMATION]
+    settle_t = params[_P_SETTLE_SHIFT]
+    settle_r = params[_P_SETTLE_TURN]
     nbeams = px.shape[0]
     inv_inc = 1.0 / angle_inc
 
@@ -468,8 +452,8 @@ def _refine(
 @nb.njit(cache=True, nogil=True)
 def _covariance(state: np.ndarray, params: np.ndarray, out_cov: np.ndarray) -> int:
     """var * H^-1 on what the scan observed, the odometry's variance elsewhere."""
-    odo_var_t = params[8] * params[8]
-    odo_var_r = params[9] * params[9]
+    odo_var_t = params[_P_ODOMETRY_SIGMA_T] * params[_P_ODOMETRY_SIGMA_T]
+    odo_var_r = params[_P_ODOMETRY_SIGMA_R] * params[_P_ODOMETRY_SIGMA_R]
     var = state[_VAR]
     degenerate = int(state[_DEG])
     ux, uy = state[_UX], state[_UY]
@@ -543,10 +527,10 @@ def _match_pair(
     start = np.empty(3)
     start[:] = seed[:3]
     _refine(start, seed, angle_min, angle_inc, params, px, py, nx, ny, cx, cy, fb, best)
-    rescue_step = params[13]
+    rescue_step = params[_P_RESCUE_STEP]
     rescued = False
-    if rescue_step > 0.0 and best[_SCORE] < params[14] * valid:
-        max_turn = params[2]
+    if rescue_step > 0.0 and best[_SCORE] < params[_P_RESCUE_BELOW] * valid:
+        max_turn = params[_P_MAX_TURN]
         steps = int(max_turn / rescue_step)
         for k in range(1, steps + 1):
             for sign in (-1.0, 1.0):
@@ -565,8 +549,8 @@ def _match_pair(
     # The rounds settle on the mode nearest their start: about a tenth of the odometry's
     # error survives (a heading bias that piles up over a log). A second run, started
     # afresh (uniform weights, wide spread) from the estimate, leaves a tenth of that.
-    rt = params[18]
-    rs = params[19]
+    rt = params[_P_RESTART_TURN]
+    rs = params[_P_RESTART_SHIFT]
     if not rescued and rt >= 0.0 and best[_DEG] < 2:
         moved = math.hypot(best[_TX] - seed[0], best[_TY] - seed[1])
         if abs(best[_TH] - seed[2]) > rt or moved > rs:
@@ -576,7 +560,7 @@ def _match_pair(
     degenerate = _covariance(best, params, out_cov)
     out_pose[0] = best[_TX]
     out_pose[1] = best[_TY]
-    out_pose[2] = math.atan2(math.sin(best[_TH]), math.cos(best[_TH]))
+    out_pose[2] = se2_jit.wrap(best[_TH])
     out_stats[0] = math.sqrt(best[_VAR])
     out_stats[1] = best[_USED]
     out_stats[2] = degenerate
@@ -632,32 +616,33 @@ def _match_all(
 
 
 def _params(config: MatchConfig, laser: LaserGeometry) -> np.ndarray:
+    """The kernels' parameter array (slots `_P_*`)."""
     c = config
-    return np.array(
-        [
-            c.iterations,
-            c.max_correction,
-            c.max_turn,
-            c.gate,
-            c.jump,
-            c.sigma_min,
-            c.degenerate_ratio,
-            c.min_points,
-            c.odometry_sigma[0],
-            c.odometry_sigma[1],
-            1.0 if c.variant == "paper" else 0.0,
-            math.cos(c.max_incidence),
-            c.min_information,
-            c.rescue_step,
-            c.rescue_below,
-            abs(laser.angle_increment),
-            c.settle_shift,
-            c.settle_turn,
-            c.restart_turn,
-            c.restart_shift,
-        ],
-        dtype=np.float64,
-    )
+    values = {
+        _P_ITERATIONS: c.iterations,
+        _P_MAX_CORRECTION: c.max_correction,
+        _P_MAX_TURN: c.max_turn,
+        _P_GATE: c.gate,
+        _P_JUMP: c.jump,
+        _P_SIGMA_MIN: c.sigma_min,
+        _P_DEGENERATE_RATIO: c.degenerate_ratio,
+        _P_MIN_POINTS: c.min_points,
+        _P_ODOMETRY_SIGMA_T: c.odometry_sigma[0],
+        _P_ODOMETRY_SIGMA_R: c.odometry_sigma[1],
+        _P_PAPER: 1.0 if c.variant == "paper" else 0.0,
+        _P_COS_MAX_INCIDENCE: math.cos(c.max_incidence),
+        _P_MIN_INFORMATION: c.min_information,
+        _P_RESCUE_STEP: c.rescue_step,
+        _P_RESCUE_BELOW: c.rescue_below,
+        _P_BEAM_STEP: abs(laser.angle_increment),
+        _P_SETTLE_SHIFT: c.settle_shift,
+        _P_SETTLE_TURN: c.settle_turn,
+        _P_RESTART_TURN: c.restart_turn,
+        _P_RESTART_SHIFT: c.restart_shift,
+    }
+    params = np.full(_PARAMS, np.nan)
+    params[list(values)] = list(values.values())
+    return params
 
 
 def _tables(laser: LaserGeometry) -> tuple[np.ndarray, np.ndarray]:
@@ -680,10 +665,7 @@ def _keyframes(odo: np.ndarray, distance: float, angle: float) -> np.ndarray:
     key = 0
     for k in range(1, n):
         ref[k] = key
-        dx = odo[k, 0] - odo[key, 0]
-        dy = odo[k, 1] - odo[key, 1]
-        turn = abs(math.atan2(math.sin(odo[k, 2] - odo[key, 2]), math.cos(odo[k, 2] - odo[key, 2])))
-        if dx * dx + dy * dy >= distance * distance or turn >= angle:
+        if se2_jit.is_keyframe(odo[k], odo[key], distance, angle):
             key = k
     return ref
 
@@ -699,7 +681,7 @@ def match_pairs(
     """Match every scan k >= 1 of `ranges` (S x B) against scan ref[k] (default k - 1).
 
     `seeds[k-1]` is the odometry's pose of laser k in the frame of laser ref[k] (see
-    `laser_motion`). Pairs are independent given the seeds: all are matched at once, in
+    `toolkit.se2.laser_motion`). Pairs are independent given the seeds: all are matched at once, in
     parallel, in chunks of `chunk` pairs so the working memory stays bounded.
     """
     config = config or MatchConfig()
@@ -791,8 +773,8 @@ class StreamMatcher:
             self._key_odometry[:] = odo
             self._key_pose[:] = odo
             return odo.copy()
-        robot_seed = between(self._key_odometry[None], odo[None])
-        seed = np.ascontiguousarray(laser_motion(robot_seed, self.laser)[0])
+        robot_seed = se2.between(self._key_odometry[None], odo[None])
+        seed = np.ascontiguousarray(se2.laser_motion(robot_seed, self.laser)[0])
         _match_pair(
             self._key_scan,
             np.ascontiguousarray(scan),
@@ -807,24 +789,11 @@ class StreamMatcher:
             self.stats,
             self._work,
         )
-        step = robot_motion(self.pose[None], self.laser)[0]
-        x, y, th = self._key_pose
-        c, s = math.cos(th), math.sin(th)
-        pose = np.array(
-            [
-                x + c * step[0] - s * step[1],
-                y + s * step[0] + c * step[1],
-                math.atan2(math.sin(th + step[2]), math.cos(th + step[2])),
-            ]
-        )
-        dx, dy = odo[:2] - self._key_odometry[:2]
-        turn = abs(
-            math.atan2(
-                math.sin(odo[2] - self._key_odometry[2]), math.cos(odo[2] - self._key_odometry[2])
-            )
-        )
+        step = se2.robot_motion(self.pose[None], self.laser)[0]
+        pose = np.empty(3)
+        se2_jit.compose_into(self._key_pose, step, pose)
         cfg = self.config
-        if dx * dx + dy * dy >= cfg.keyframe_distance**2 or turn >= cfg.keyframe_angle:
+        if se2_jit.is_keyframe(odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle):
             self._key_scan[:] = scan
             self._key_odometry[:] = odo
             self._key_pose[:] = pose

@@ -42,6 +42,8 @@ from toolkit.errors import ToolkitError
 if TYPE_CHECKING:
     from distributed import Client
 
+    from importers.base import ImportOptions
+
 CHUNK_PAIRS = ROW_GROUP_SCANS  # pairs per task: ~0.1 s of work, 3 MB of scans to ship or read
 CONNECT_TIMEOUT = "10s"  # to reach a scheduler given by address
 
@@ -243,7 +245,9 @@ def match_pairs_on(
     return sc.PairMatches.concat([m for m, _ in parts])
 
 
-def matcher_for(client: Client | None, chunk: int | None = None, scans: Path | None = None) -> Any:
+def matcher_for(
+    client: Client | None, chunk: int | None = None, scans: Path | None = None
+) -> Callable[..., sc.PairMatches]:
     """A `match_pairs`-shaped callable that runs on `client` (for `poses.build`); with
     `scans`, the workers read the chunks' scans from that file (see `match_pairs_on`)."""
 
@@ -401,7 +405,9 @@ def _attempt(source: Path, target: Path, work: Callable[[], str]) -> Outcome:
         return Outcome(source, target, "failed", f"{e} ({type(e).__module__}.{type(e).__name__})")
 
 
-def _import_one(source: Path, out: Path, fmt: str, options: Any, force: bool) -> Outcome:
+def _import_one(
+    source: Path, out: Path, fmt: str, options: ImportOptions | None, force: bool
+) -> Outcome:
     """Worker side: one log into one dataset."""
 
     def work() -> str:
@@ -443,7 +449,7 @@ def import_many(
     fmt: str,
     logs: list[tuple[Path, Path]],
     out: Path,
-    options: Any = None,
+    options: ImportOptions | None = None,
     force: bool = False,
 ) -> list[Outcome]:
     """Import every (log, name) into the fleet `out`, as out/dataset=<name> (`partition_dir`),
@@ -489,7 +495,7 @@ def _map_one(
     voxel: float,
     force: bool,
     threads: int | None,
-    matcher: Any = None,
+    matcher: Callable[..., sc.PairMatches] | None = None,
 ) -> Outcome:
     """One dataset into one run directory (on a worker: `threads` numba threads)."""
 

@@ -26,6 +26,8 @@ import numba
 import numpy as np
 import pandas as pd
 
+from toolkit import se2
+from toolkit.dataset import LaserGeometry
 from toolkit.features.model import (
     BIN_STEP,
     Config,
@@ -50,7 +52,7 @@ class Labels:
 
     @property
     def confidence(self) -> np.ndarray:
-        return self.prob.max(axis=1)
+        return np.asarray(self.prob.max(axis=1))
 
     def frame(self, t: np.ndarray) -> pd.DataFrame:
         """labels.parquet: t, p_<class> per class, label."""
@@ -151,7 +153,7 @@ def _logaddexp(a: float, b: float) -> float:  # pragma: no cover - numba
         return hi
     i = int(x)
     w = x - i
-    return hi + (1.0 - w) * _SOFTPLUS[i] + w * _SOFTPLUS[i + 1]
+    return float(hi + (1.0 - w) * _SOFTPLUS[i] + w * _SOFTPLUS[i + 1])
 
 
 @numba.njit(parallel=True, cache=True)
@@ -350,7 +352,7 @@ def softmax(scores: np.ndarray) -> np.ndarray:
     z = scores - scores.max(axis=1, keepdims=True)
     np.exp(z, out=z)
     z /= z.sum(axis=1, keepdims=True)
-    return z
+    return np.asarray(z)
 
 
 # ---------------------------------------------------------------- temperature
@@ -365,7 +367,7 @@ def beam_terms(
         return _robust_beam_terms(scans, mean, var, p, model)
     if not cfg.no_return:
         r = np.where(np.isfinite(scans), scans, model.laser.range_max)
-        return -0.5 * (LOG_2PI + np.log(var) + (r - mean) ** 2 / var)
+        return np.asarray(-0.5 * (LOG_2PI + np.log(var) + (r - mean) ** 2 / var))
     ok = np.isfinite(scans)
     gauss = np.isfinite(var)
     v = np.where(gauss, var, 1.0)
@@ -375,7 +377,7 @@ def beam_terms(
         -np.log(model.laser.range_max),
     )
     p = np.clip(p, 1e-9, 1 - 1e-9)
-    return np.where(ok, np.log(p) + dens, np.log1p(-p))
+    return np.asarray(np.where(ok, np.log(p) + dens, np.log1p(-p)))
 
 
 def world_terms(scans: np.ndarray, model: FeatureModel) -> np.ndarray:
@@ -385,7 +387,7 @@ def world_terms(scans: np.ndarray, model: FeatureModel) -> np.ndarray:
     q = np.clip(bg.p_return, 1e-9, 1 - 1e-9)
     idx = background_bins(scans, bg.edges)
     dens = np.take_along_axis(bg.log_density, idx.T, axis=1).T
-    return np.where(np.isfinite(scans), dens + np.log(q), np.log1p(-q))
+    return np.asarray(np.where(np.isfinite(scans), dens + np.log(q), np.log1p(-q)))
 
 
 def _robust_beam_terms(
@@ -408,9 +410,9 @@ def _robust_beam_terms(
         ok = np.isfinite(scans)
         density = world - np.log(q)
         ranged = np.logaddexp(dens + keep, density + rho) - density
-        return np.where(ok, ranged + np.log(p) - np.log(q), np.log1p(-p) - np.log1p(-q))
+        return np.asarray(np.where(ok, ranged + np.log(p) - np.log(q), np.log1p(-p) - np.log1p(-q)))
     own = np.where(np.isfinite(scans), np.log(p) + dens, np.log1p(-p)) + keep
-    return np.logaddexp(own, world + rho) - world
+    return np.asarray(np.logaddexp(own, world + rho) - world)
 
 
 def held_out_terms(
@@ -547,7 +549,7 @@ def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.n
         return np.full(n, config.switch_per_scan)
     step[:1] = 0.0
     eps = -np.expm1(-step / config.place_length)
-    return np.clip(np.nan_to_num(eps, nan=config.switch_per_scan), 1e-6, 1.0)
+    return np.asarray(np.clip(np.nan_to_num(eps, nan=config.switch_per_scan), 1e-6, 1.0))
 
 
 def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
@@ -558,7 +560,7 @@ def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
     step = np.full(n, np.inf)
     if n > 1:
         d = np.diff(poses[:, :2], axis=0)
-        turn = np.abs(np.remainder(np.diff(poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
+        turn = np.abs(se2.wrap(np.diff(poses[:, 2])))
         step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
     return step
 
@@ -607,7 +609,7 @@ def classify(
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
 
-def _laser_like(model: FeatureModel, ranges: np.ndarray) -> Any:
+def _laser_like(model: FeatureModel, ranges: np.ndarray) -> LaserGeometry:
     from dataclasses import replace
 
     return replace(model.laser, beams=int(ranges.shape[1]))

@@ -27,6 +27,7 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
 from toolkit.features.regions import spans_from_frame, training_indices
+from toolkit.sim import Simulation
 from toolkit.sim.truth import REGION_PARTS, training_regions
 
 # The ablation: each row adds one decision to the one before; the default row is Config().
@@ -73,7 +74,11 @@ class Score:
 
 
 def score(
-    scenario: str, config: Config, seed: int = 0, sim: Any = None, parts: int = REGION_PARTS
+    scenario: str,
+    config: Config,
+    seed: int = 0,
+    sim: Simulation | None = None,
+    parts: int = REGION_PARTS,
 ) -> Score:
     """Train on the simulator's regions (`parts` spans per feature), classify the whole log,
     score the other scans."""
@@ -87,6 +92,8 @@ def score(
     training = training_indices(spans)
     t0 = time.perf_counter()
     model = fit(ds.ranges, ds.laser, training, config, spans)
+    if ds.groundtruth is None:
+        raise ValueError("the simulation has no ground truth")
     poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
     labels = classify(model, ds.ranges, poses)
     seconds = time.perf_counter() - t0

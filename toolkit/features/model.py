@@ -329,7 +329,7 @@ def beam_statistics(
 def _floor(var: np.ndarray, mean: np.ndarray, config: Config) -> np.ndarray:
     sigma = config.noise_sigma or 0.0
     floor = sigma**2 + (config.range_rel_sigma * mean) ** 2
-    return np.maximum(var, floor)
+    return np.asarray(np.maximum(var, floor))
 
 
 def fit_background(ranges: np.ndarray, laser: LaserGeometry, chunk: int = 65536) -> Background:
@@ -366,7 +366,7 @@ def bin_table(edges: np.ndarray) -> np.ndarray:
     cells = int(np.ceil(np.exp(edges[-1]) / BIN_STEP)) + 1
     centres = (np.arange(cells) + 0.5) * BIN_STEP
     pos = (np.log(centres) - edges[0]) * (k / (edges[-1] - edges[0]))
-    return np.clip(pos, 0, k - 1).astype(np.int32)
+    return np.asarray(np.clip(pos, 0, k - 1), dtype=np.int32)
 
 
 def background_bins(block: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -540,9 +540,4 @@ def commonness(model: FeatureModel) -> np.ndarray:
     p = model.p_return[:, :, None]
     feature = np.concatenate([1.0 - p, p * own], axis=2)  # (F, B, 1 + K)
     expected = (feature * world[None]).sum(axis=2)
-    return np.clip(expected / world.max(axis=1)[None, :], 0.0, 1.0)
-
-
-def with_config(model: FeatureModel, **changes: Any) -> FeatureModel:
-    """The same statistics under changed application settings (e.g. smoothing)."""
-    return replace(model, config=replace(model.config, **changes))
+    return np.asarray(np.clip(expected / world.max(axis=1)[None, :], 0.0, 1.0))

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from toolkit.atomic import atomic_file
-from toolkit.dataset import Dataset, load, write_described
+from toolkit.dataset import Dataset, PoseStream, load, write_described
 from toolkit.errors import ToolkitError
 from toolkit.features.classify import Labels, classify
 from toolkit.features.metrics import (
@@ -48,14 +48,7 @@ def scan_poses(ds: Dataset, trajectory: Path | None = None) -> tuple[np.ndarray 
         frame, source = ds.odometry, "odometry"
     else:
         return None, "none (no poses: fixed switching per scan, no map figure)"
-    frame = frame.sort_values("t")
-    t = frame["t"].to_numpy(np.float64)
-    theta = np.unwrap(frame["theta"].to_numpy(np.float64))
-    poses = np.column_stack(
-        [np.interp(ds.t, t, frame[c].to_numpy(np.float64)) for c in ("x", "y")]
-        + [np.interp(ds.t, t, theta)]
-    )
-    return poses, source
+    return PoseStream.from_frame(frame).at(ds.t), source
 
 
 def _truth_labels(ds: Dataset, truth: Path | None = None) -> np.ndarray | None:

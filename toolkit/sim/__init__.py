@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from rich.progress import TaskID
 
-from toolkit.dataset import Dataset, ImportReport, make_meta, path_distance
+from toolkit.dataset import Dataset, ImportReport, make_meta, path_distance, pose_frame
 from toolkit.errors import ToolkitError
 from toolkit.progress import task
 from toolkit.sim.geometry import World
@@ -95,7 +95,11 @@ class Simulation:
         return frame
 
 
-def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, OdometryModel]:
+#: A simulator parameter's value (`-p NAME=VALUE`).
+Param = bool | int | float | str
+
+
+def parameters(scenario: str, **params: Param) -> tuple[Scenario, LaserModel, OdometryModel]:
     """The scenario and the models with `params` applied. Each parameter is checked against
     the models' dataclass fields and converted to the field's type (text from `-p KEY=VALUE`
     or JSON values); an unknown name or a wrong type is a one-line error."""
@@ -109,22 +113,22 @@ def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, Odom
     if unknown:
         known = ", ".join(sorted(kinds))
         raise ToolkitError(f"unknown simulator parameter(s) {unknown}; known: {known}")
-    params = {
+    typed: dict[str, Any] = {
         k: convert(v, kinds[k], k, "the simulator") for k, v in params.items() if v is not None
     }
     for name in PATH_PARAMS:
-        if name in params:
-            setattr(scn, name, params[name])
+        if name in typed:
+            setattr(scn, name, typed[name])
     if scn.scans < 2:
         raise ToolkitError(f"scans must be at least 2, not {scn.scans}")
     if scn.speed <= 0 or scn.turn_rate <= 0:
         raise ToolkitError("speed and turn_rate must be positive")
-    laser_args = {**scn.laser, **{k: v for k, v in params.items() if k in laser_fields}}
-    odo_args = {k: v for k, v in params.items() if k in odo_fields}
+    laser_args = {**scn.laser, **{k: v for k, v in typed.items() if k in laser_fields}}
+    odo_args = {k: v for k, v in typed.items() if k in odo_fields}
     return scn, LaserModel(**laser_args), OdometryModel(**odo_args)
 
 
-def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
+def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor" or "building") with the models' parameters `params`."""
     scn, laser, odometry = parameters(scenario, **params)
     rng = np.random.default_rng(seed)
@@ -155,8 +159,8 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         t=t,
         ranges=ranges,
         laser=laser.geometry(),
-        odometry=_poses(t, odo),
-        groundtruth=_poses(t, truth),
+        odometry=pose_frame(t, odo),
+        groundtruth=pose_frame(t, truth),
         meta=meta,
     )
     return Simulation(
@@ -169,7 +173,3 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         params=used,
         world=scn.world,
     )
-
-
-def _poses(t: np.ndarray, poses: np.ndarray) -> pd.DataFrame:
-    return pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from toolkit import se2
 from toolkit.typed import check_fields
 
 
@@ -80,4 +81,4 @@ class OdometryModel:
         c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
         steps = np.stack([c * fx_odo - s * fy_odo, s * fx_odo + c * fy_odo], axis=1)
         xy = truth[0, :2] + np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
-        return np.column_stack([xy, np.arctan2(np.sin(theta), np.cos(theta))])
+        return np.column_stack([xy, se2.wrap(theta)])

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from toolkit import se2
 from toolkit.sim.geometry import GLASS, World, WorldBuilder
 
 NONE = "none"
@@ -115,15 +116,7 @@ def sample_path(
     key_t = np.cumsum(dt)
     key_xy, key_th = np.array(xy), np.array(th)
     times = np.linspace(0.0, key_t[-1], scans)
-    poses = np.column_stack(
-        [
-            np.interp(times, key_t, key_xy[:, 0]),
-            np.interp(times, key_t, key_xy[:, 1]),
-            np.interp(times, key_t, key_th),
-        ]
-    )
-    poses[:, 2] = np.arctan2(np.sin(poses[:, 2]), np.cos(poses[:, 2]))
-    return poses, times
+    return se2.interpolate(key_t, np.column_stack([key_xy, key_th]), times), times
 
 
 def corridor() -> Scenario:

@@ -13,7 +13,7 @@ from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values, report_outcomes
 
 if TYPE_CHECKING:
-    from importers.base import OptionSpec
+    from importers.base import ImportOptions, OptionSpec
 
 
 @app.command("import", short_help="Import a log (or, with --each, many) into a dataset.")
@@ -106,7 +106,7 @@ def _import_each(
     fmt: str,
     sources: list[Path],
     out: Path,
-    options: object,
+    options: ImportOptions,
     force: bool,
     scheduler: str,
     quiet: bool,

@@ -12,7 +12,7 @@ from toolkit.app.cli import app
 
 
 def print_summary(s: dict[str, Any]) -> None:
-    def opt(v: Any, unit: str = "") -> str:
+    def opt(v: object, unit: str = "") -> str:
         return "-" if v is None else f"{v}{unit}"
 
     lines = [

@@ -71,17 +71,16 @@ def map_command(
     from toolkit.dataset import SCANS
     from toolkit.errors import ToolkitError
     from toolkit.mapping import map_dataset
-    from toolkit.poses import METHODS
+    from toolkit.poses import Method
 
-    if method not in METHODS:
-        raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    method = Method.parse(method)
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
     if each or _many(datasets):
         _map_each(datasets, out, method, voxel, force, scheduler, quiet)
         return
     dataset = datasets[0]
-    if scheduler != "none" and method != "gaussian":
+    if scheduler != "none" and method != Method.GAUSSIAN:
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     with client_for(scheduler) as client:
         scans = dataset / SCANS if on_shared_storage(scheduler) else None
