@@ -10,7 +10,7 @@ import time
 
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
-from toolkit.poses import build
+from toolkit.slam.localmap import sequential
 from toolkit.slam.pipeline import SlamConfig, SlamResult, close_loops
 
 
@@ -20,7 +20,7 @@ def run_slam(
     """The default mapper over `ds`: sequential matching, then loops and the pose graph."""
     config = config or SlamConfig()
     t0 = time.perf_counter()
-    seq = build(ds, "gaussian", match)
+    seq = sequential(ds, match)
     before = seq.poses
     matching = time.perf_counter() - t0
     poses, keys, edges, loops, timings = close_loops(ds, before, config)

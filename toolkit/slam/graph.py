@@ -33,7 +33,8 @@ def factor_graph(
     nodes: np.ndarray, poses: np.ndarray, edges: list[Edge], robust: float = 1.0
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """GTSAM graph and initial values: a prior on the first node, one BetweenFactorPose2 per
-    edge (loop edges wrapped in a Cauchy kernel of width `robust` sigmas)."""
+    edge (loop edges wrapped in a Cauchy kernel of width `robust` sigmas; 0: none, as g2o's
+    file format has no kernels)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for node, pose in zip(nodes, poses, strict=True):
@@ -43,7 +44,7 @@ def factor_graph(
     for e in edges:
         # GTSAM's Pose2 tangent order is (x, y, theta), as ours
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(e.covariance, dtype=np.float64))
-        if e.loop:
+        if e.loop and robust > 0:
             noise = gtsam.noiseModel.Robust.Create(
                 gtsam.noiseModel.mEstimator.Cauchy.Create(robust), noise
             )
