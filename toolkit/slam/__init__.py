@@ -23,7 +23,7 @@ def run_slam(
     seq = sequential(ds, match)
     before = seq.poses
     matching = time.perf_counter() - t0
-    poses, keys, edges, loops, timings = close_loops(ds, before, config)
+    poses, keys, edges, loops, timings, before = close_loops(ds, before, config)
     timings = {"matching": matching, **timings}
     return SlamResult(
         poses, before, keys, edges, loops, sum(timings.values()), timings, config.to_dict()

@@ -106,6 +106,25 @@ def candidates(
     return out
 
 
+def candidate_for(
+    q: int, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, config: LoopConfig
+) -> tuple[int, int, float] | None:
+    """The candidate of key number `q` (earlier scan, its scan, search radius), or None: the
+    nearest earlier keyframe more than `gap` back along the path within the uncertainty."""
+    ka = along[keys]
+    idx = np.nonzero(ka[q] - ka[:q] > config.gap)[0]
+    if len(idx) == 0:
+        return None
+    kp = poses[keys]
+    d = np.hypot(*(kp[idx, :2] - kp[q, :2]).T)
+    reach = np.minimum(config.radius + config.growth * (ka[q] - ka[idx]), config.window)
+    ok = np.nonzero(d < reach)[0]
+    if len(ok) == 0:
+        return None
+    best = ok[np.argmin(d[ok])]
+    return int(keys[idx[best]]), int(keys[q]), float(reach[best])
+
+
 class LoopCloser:
     """Finds and verifies loops over a log's scans (robot-frame points per scan)."""
 

@@ -110,7 +110,7 @@ def slam_trajectory(
     matching = time.perf_counter() - t0
     slam = slam or SlamConfig()
     before = result.poses
-    poses, keys, edges, loops, timings = close_loops(ds, before, slam)
+    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
     frame = result.frame.copy()
     frame[["x", "y", "theta"]] = poses
     out = replace(result, frame=frame, config={**result.config, "slam": slam.to_dict()})
