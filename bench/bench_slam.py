@@ -150,7 +150,9 @@ def methods() -> dict[str, Callable[[Dataset], tuple[np.ndarray, float, dict[str
     return {k: v for k, v in out.items() if not wanted or k in wanted}
 
 
-def _row(log: str, seed: int, method: str, ds: Dataset, poses: np.ndarray, seconds: float):
+def _row(
+    log: str, seed: int, method: str, ds: Dataset, poses: np.ndarray, seconds: float
+) -> dict[str, Any]:
     truth = truth_poses(ds)
     assert truth is not None
     m = evaluate(poses, truth)

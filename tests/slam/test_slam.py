@@ -86,8 +86,13 @@ def test_real_intel_loops_close_with_no_false_one(real: Path) -> None:
 def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_path: Path) -> None:
     from toolkit.mapping import write_run
 
+    assert building.groundtruth is not None and building.odometry is not None
     ds = replace(building, ranges=building.ranges[:1500], t=building.t[:1500])
-    ds = replace(ds, groundtruth=ds.groundtruth.iloc[:1500], odometry=ds.odometry.iloc[:1500])
+    ds = replace(
+        ds, groundtruth=building.groundtruth.iloc[:1500], odometry=building.odometry.iloc[:1500]
+    )
+    truth = truth_poses(ds)
+    assert truth is not None
     run = write_run(ds, tmp_path / "run")
     graph, values = gtsam.readG2o(str(run / "graph.g2o"), False)
     assert values.size() >= 100 and graph.size() >= values.size() - 1
@@ -100,7 +105,7 @@ def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_pat
     origin = [float(v) for v in meta["origin"].strip("[]").split(",")]
     occupied = np.argwhere(img[::-1] == 0)
     assert 1000 < len(occupied) < 0.2 * img.size
-    assert origin[0] < truth_poses(ds)[:, 0].min() and origin[1] < truth_poses(ds)[:, 1].min()
+    assert origin[0] < truth[:, 0].min() and origin[1] < truth[:, 1].min()
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["relation_error"]["source"] == "groundtruth"
     assert metrics["relation_error"]["relations"] > 100
@@ -117,6 +122,7 @@ def test_relation_error_is_zero_on_the_truth_and_grows_with_drift(
     loops = pairs[np.abs(pairs[:, 1] - pairs[:, 0]) > 200]
     assert len(loops) > 10  # the building comes back: revisits are relations too
     assert relation_error(truth, truth, pairs)["translation_mean"] < 1e-9
+    assert building.odometry is not None
     odo = building.odometry[["x", "y", "theta"]].to_numpy()
     seq = pairs[np.abs(pairs[:, 1] - pairs[:, 0]) <= 200]
     near = relation_error(odo, truth, seq)["translation_mean"]

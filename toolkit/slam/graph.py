@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -43,7 +44,7 @@ def factor_graph(
     graph.add(gtsam.PriorFactorPose2(int(nodes[0]), _pose(poses[0]), prior))
     for e in edges:
         # GTSAM's Pose2 tangent order is (x, y, theta), as ours
-        noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(e.covariance, dtype=np.float64))
+        noise: Any = gtsam.noiseModel.Gaussian.Covariance(np.asarray(e.covariance, np.float64))
         if e.loop and robust > 0:
             noise = gtsam.noiseModel.Robust.Create(
                 gtsam.noiseModel.mEstimator.Cauchy.Create(robust), noise
@@ -67,7 +68,7 @@ def optimise(
     return out
 
 
-def residuals(poses: dict[int, np.ndarray] | np.ndarray, nodes: np.ndarray, edges: list[Edge]):
+def residuals(poses: np.ndarray, nodes: np.ndarray, edges: list[Edge]) -> np.ndarray:
     """Per edge: the measurement's error against `poses` (K x 3, in `nodes` order) as
     (translation m, |rotation| rad, Mahalanobis distance squared)."""
     index = {int(n): k for k, n in enumerate(nodes)}

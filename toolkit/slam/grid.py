@@ -72,15 +72,17 @@ class LikelihoodGrid:
 
 
 @nb.njit(cache=True, nogil=True)
-def _score(like: np.ndarray, origin: np.ndarray, res: float, pts: np.ndarray, pose: np.ndarray):
+def _score(
+    like: np.ndarray, origin: np.ndarray, res: float, pts: np.ndarray, pose: np.ndarray
+) -> float:
     c, s = math.cos(pose[2]), math.sin(pose[2])
     h, w = like.shape
     total = 0.0
     for k in range(pts.shape[0]):
         x = pose[0] + c * pts[k, 0] - s * pts[k, 1]
         y = pose[1] + s * pts[k, 0] + c * pts[k, 1]
-        i = int(math.floor((x - origin[0]) / res))
-        j = int(math.floor((y - origin[1]) / res))
+        i = math.floor((x - origin[0]) / res)
+        j = math.floor((y - origin[1]) / res)
         if 0 <= i < w and 0 <= j < h:
             total += like[j, i]
     return total / max(pts.shape[0], 1)
@@ -109,8 +111,8 @@ def _search(
         c, s = math.cos(th), math.sin(th)
         acc = np.zeros((n, n))
         for k in range(npts):
-            ci0 = int(math.floor((centre[0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv))
-            cj0 = int(math.floor((centre[1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv))
+            ci0 = math.floor((centre[0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv)
+            cj0 = math.floor((centre[1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv)
             jlo = max(0, half - cj0)
             jhi = min(n, h - cj0 + half)
             for i in range(n):
@@ -158,7 +160,7 @@ def correlative_search(
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
     )
     coarse_step = coarse.resolution
-    half = max(int(round(window / coarse_step)), 0)
+    half = max(round(window / coarse_step), 0)
     thetas = np.arange(-turn, turn + 1e-9, turn_step)
     vol = _search(
         coarse.likelihood_t, coarse.origin, coarse.resolution, coarse_pts, prediction, thetas, half
@@ -182,7 +184,7 @@ def correlative_search(
         if len(tops) >= candidates:
             break
     fine_step = fine.resolution
-    fine_half = int(math.ceil(coarse_step / fine_step))
+    fine_half = math.ceil(coarse_step / fine_step)
     fine_thetas = np.linspace(-turn_step, turn_step, 7)
     best = (-1.0, prediction)
     for p in tops:

@@ -58,13 +58,20 @@ def sequential(ds: Dataset, config: sc.MatchConfig | None = None) -> TrajectoryR
     config = config or sc.MatchConfig()
     matcher = MotionMatcher(ds.laser, config)
     poses = np.zeros((ds.n_scans, 3))
+    matches = sc.PairMatches.empty(max(ds.n_scans - 1, 0))
     t0 = time.perf_counter()
     for k in range(ds.n_scans):
         poses[k] = matcher.push_predicted(ds.ranges[k], float(ds.t[k]))
+        if k > 0:  # the pair just matched: its pose, covariance and diagnostics
+            sigma, used, degenerate, agreement = matcher.stats
+            matches.pose[k - 1] = matcher.pose
+            matches.covariance[k - 1] = matcher.covariance
+            matches.sigma[k - 1], matches.used[k - 1] = sigma, used
+            matches.degenerate[k - 1], matches.agreement[k - 1] = degenerate, agreement
     seconds = time.perf_counter() - t0
     frame = _frame(ds.t, poses)
     used = config.to_dict() | {"motion_model": "constant velocity"}
-    return TrajectoryResult(frame, "gaussian", None, seconds, used)
+    return TrajectoryResult(frame, "gaussian", matches, seconds, used)
 
 
 def _frame(t: np.ndarray, poses: np.ndarray):  # type: ignore[no-untyped-def]

@@ -69,8 +69,8 @@ def _trace(
             th = lp[k, 2] + angles[b]
             x1 = x0 + length * math.cos(th) / res
             y1 = y0 + length * math.sin(th) / res
-            i0, j0 = int(math.floor(x0)), int(math.floor(y0))
-            i1, j1 = int(math.floor(x1)), int(math.floor(y1))
+            i0, j0 = math.floor(x0), math.floor(y0)
+            i1, j1 = math.floor(x1), math.floor(y1)
             di, dj = abs(i1 - i0), abs(j1 - j0)
             si = 1 if i1 > i0 else -1
             sj = 1 if j1 > j0 else -1
@@ -129,8 +129,8 @@ def write_occupancy(
     img = np.full(hits.shape, 205, dtype=np.uint8)
     img[(seen > 0) & (ratio < free)] = 254
     img[(seen > 0) & (ratio >= occupied)] = 0
-    img = img[::-1]  # PGM's first row is the top: the largest y
-    h, w = img.shape
+    img = np.ascontiguousarray(img[::-1])  # PGM's first row is the top: the largest y
+    h, w = hits.shape
     with open(out / "map.pgm", "wb") as f:
         f.write(f"P5\n# laser-toolkit occupancy grid\n{w} {h}\n255\n".encode("ascii"))
         f.write(img.tobytes())
