@@ -63,10 +63,10 @@ def sequential(ds: Dataset, config: sc.MatchConfig | None = None) -> TrajectoryR
     for k in range(ds.n_scans):
         poses[k] = matcher.push_predicted(ds.ranges[k], float(ds.t[k]))
         if k > 0:  # the pair just matched: its pose, covariance and diagnostics
-            sigma, used, degenerate, agreement = matcher.stats
+            sigma, n_used, degenerate, agreement = matcher.stats
             matches.pose[k - 1] = matcher.pose
             matches.covariance[k - 1] = matcher.covariance
-            matches.sigma[k - 1], matches.used[k - 1] = sigma, used
+            matches.sigma[k - 1], matches.used[k - 1] = sigma, n_used
             matches.degenerate[k - 1], matches.agreement[k - 1] = degenerate, agreement
     seconds = time.perf_counter() - t0
     frame = _frame(ds.t, poses)

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from toolkit.align.scan import between, compose
+from toolkit.align.scan import between, compose, mount_pose
+from toolkit.dataset import LaserGeometry
 from toolkit.slam.grid import LikelihoodGrid, correlative_search, voxel_subsample
 
 
@@ -126,26 +127,31 @@ def candidate_for(
 
 
 class LoopCloser:
-    """Finds and verifies loops over a log's scans (robot-frame points per scan)."""
+    """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
+    scans a test needs are computed when it needs them, so memory does not grow with S)."""
 
-    def __init__(self, points: list[np.ndarray], config: LoopConfig | None = None) -> None:
+    def __init__(
+        self, ranges: np.ndarray, laser: LaserGeometry, config: LoopConfig | None = None
+    ) -> None:
         self.config = config or LoopConfig()
-        far = self.config.max_range
-        self.points = [p[np.hypot(p[:, 0], p[:, 1]) <= far] for p in points]
+        self.ranges = ranges
+        mount = mount_pose(laser)
+        self._mount = mount
+        self._cos = np.cos(laser.angles + mount[2])
+        self._sin = np.sin(laser.angles + mount[2])
 
     def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        """The returns of `scans` in the frame of scan `centre`."""
+        """The returns of `scans` (within `max_range` of the robot) in the frame of scan
+        `centre`, scan by scan in beam order."""
         rel = between(np.broadcast_to(poses[centre], (len(scans), 3)), poses[scans])
-        parts = []
-        for r, s in zip(rel, scans, strict=True):
-            p = self.points[s]
-            c, sn = np.cos(r[2]), np.sin(r[2])
-            parts.append(
-                np.column_stack(
-                    [r[0] + c * p[:, 0] - sn * p[:, 1], r[1] + sn * p[:, 0] + c * p[:, 1]]
-                )
-            )
-        return np.concatenate(parts) if parts else np.zeros((0, 2))
+        r = self.ranges[scans].astype(np.float64)
+        x = self._mount[0] + r * self._cos
+        y = self._mount[1] + r * self._sin
+        ok = np.isfinite(r) & (np.hypot(x, y) <= self.config.max_range)
+        c, s = np.cos(rel[:, 2:3]), np.sin(rel[:, 2:3])
+        wx = rel[:, :1] + c * x - s * y
+        wy = rel[:, 1:2] + s * x + c * y
+        return np.column_stack([wx[ok], wy[ok]])
 
     def verify(
         self, a: int, b: int, radius: float, poses: np.ndarray, along: np.ndarray, keys: np.ndarray

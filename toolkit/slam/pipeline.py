@@ -104,18 +104,6 @@ class SlamResult:
         return out
 
 
-def _points(ds: Dataset) -> list[np.ndarray]:
-    """Each scan's returns in the robot frame."""
-    r = ds.ranges.astype(np.float64)
-    a = ds.laser.angles
-    m = sc.mount_pose(ds.laser)
-    c, s = np.cos(a + m[2]), np.sin(a + m[2])
-    x = m[0] + r * c
-    y = m[1] + r * s
-    ok = np.isfinite(r)
-    return [np.column_stack([x[k, ok[k]], y[k, ok[k]]]) for k in range(len(r))]
-
-
 def keyframes_of(poses: np.ndarray, distance: float, angle: float) -> np.ndarray:
     """Keyframe scan indices along `poses`: scan 0 and each scan that moved `distance` or turned
     `angle` since the last keyframe."""
@@ -201,7 +189,7 @@ def close_loops(
         graph, values = pg.factor_graph(keys, before[keys], edges, config.robust)
         before = hang(keys, before, pg.optimise(graph, values, keys))
         timings["optimisation"] += time.perf_counter() - t0
-    closer = LoopCloser(_points(ds), config.loop)
+    closer = LoopCloser(ds.ranges, ds.laser, config.loop)
     loop_cov = np.diag([config.loop_sigma[0] ** 2] * 2 + [config.loop_sigma[1] ** 2])
     found: dict[tuple[int, int], Loop] = {}
     along = path_length(before)
