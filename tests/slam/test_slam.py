@@ -128,3 +128,33 @@ def test_relation_error_is_zero_on_the_truth_and_grows_with_drift(
     near = relation_error(odo, truth, seq)["translation_mean"]
     far = relation_error(odo, truth, loops)["translation_mean"]
     assert 0.005 < near < far / 3  # drift piles up between revisits
+
+
+def test_relation_metrics_read_the_datasets_relations_file(
+    building: toolkit.Dataset, tmp_path: Path
+) -> None:
+    """A dataset's relations.parquet (Rawseeds' `.relations`: pose at t2 in the frame of t1)
+    is used when present: zero error for the truth, the odometry's drift otherwise."""
+    import pandas as pd
+
+    from toolkit.align.scan import between
+    from toolkit.slam.run import relation_metrics
+
+    truth = truth_poses(building)
+    assert truth is not None and building.odometry is not None
+    i = np.arange(0, len(truth) - 50, 25)
+    j = i + 50
+    motion = between(truth[i], truth[j])
+    zero = np.zeros(len(i))
+    rel = pd.DataFrame(
+        {"t1": building.t[i], "t2": building.t[j], "x": motion[:, 0], "y": motion[:, 1]}
+        | {"z": zero, "roll": zero, "pitch": zero, "yaw": motion[:, 2]}
+    )
+    path = toolkit.save(building, tmp_path / "ds")
+    rel.to_parquet(path / "relations.parquet")
+    ds = toolkit.load(path)
+    exact = relation_metrics(ds, truth)
+    assert exact is not None and exact["source"] == "relations.parquet"
+    assert exact["relations"] == len(i) and exact["translation_mean"] < 1e-6
+    odo = relation_metrics(ds, building.odometry[["x", "y", "theta"]].to_numpy())
+    assert odo is not None and odo["translation_mean"] > 1e-3
