@@ -253,6 +253,7 @@ def write_run(
                 "method": method,
                 "voxel": voxel,
                 "matcher": result.config,
+                "slam": slam.config.to_dict() if slam is not None else None,
                 "laser": ds.laser.to_dict(),
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }

@@ -70,7 +70,7 @@ def sequential(ds: Dataset, config: sc.MatchConfig | None = None) -> TrajectoryR
             matches.degenerate[k - 1], matches.agreement[k - 1] = degenerate, agreement
     seconds = time.perf_counter() - t0
     frame = _frame(ds.t, poses)
-    used = config.to_dict() | {"motion_model": "constant velocity"}
+    used = config.to_dict()
     return TrajectoryResult(frame, "gaussian", matches, seconds, used)
 
 

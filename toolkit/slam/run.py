@@ -70,6 +70,7 @@ class SlamRun:
     def metrics(self, ds: Dataset) -> dict[str, Any]:
         accepted = [lp for lp in self.loops if lp.accepted]
         out: dict[str, Any] = {
+            "motion_model": "odometry" if odometry_poses(ds) is not None else "constant velocity",
             "loops": len(accepted),
             "loop_candidates": len(self.loops),
             "graph": {"nodes": len(self.keys), "edges": len(self.edges)},
@@ -113,7 +114,7 @@ def slam_trajectory(
     poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
     frame = result.frame.copy()
     frame[["x", "y", "theta"]] = poses
-    out = replace(result, frame=frame, config={**result.config, "slam": slam.to_dict()})
+    out = replace(result, frame=frame)
     run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)
     return out, run
 
