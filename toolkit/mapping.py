@@ -220,9 +220,14 @@ def write_run(
     config: sc.MatchConfig | None = None,
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,
+    loops: bool = True,
 ) -> Path:
     """Align `ds` by `method` and write the run directory `out`, atomically (`matcher`: see
-    `trajectory.build`)."""
+    `trajectory.build`); with `loops`, the mapper's loop closure and pose graph
+    (`toolkit.slam.run`)."""
+    from toolkit.slam.render import write_occupancy
+    from toolkit.slam.run import relation_metrics, slam_trajectory
+
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
@@ -230,7 +235,11 @@ def write_run(
     from toolkit.progress import task
 
     with task(f"map ({method})", 4) as (progress, bar):
-        result = build(ds, method, config, matcher)
+        slam = None
+        if loops and method != "odometry":
+            result, slam = slam_trajectory(ds, method, config, matcher)
+        else:
+            result = build(ds, method, config, matcher)
         progress.advance(bar)
         robot = result.poses
         truth = truth_poses(ds)
@@ -241,6 +250,7 @@ def write_run(
                 "method": method,
                 "voxel": voxel,
                 "matcher": result.config,
+                "slam": slam.config.to_dict() if slam is not None else None,
                 "laser": ds.laser.to_dict(),
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }
@@ -252,9 +262,15 @@ def write_run(
             write_cloud(tmp / "cloud.ply", ds, robot, voxel)
             progress.advance(bar)
             name = ds.path.name if ds.path else "dataset"
-            write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
+            if slam is None:
+                write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
+                write_occupancy(tmp, ds, robot)
+            else:
+                slam.write(tmp, ds, robot, f"{name}: {method} with loops")
             progress.advance(bar)
             metrics = run_metrics(ds, result)
+            metrics["relation_error"] = relation_metrics(ds, robot)
+            metrics |= slam.metrics(ds) if slam is not None else {}
             text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
             (tmp / "metrics.json").write_text(text)
             progress.advance(bar)
@@ -268,10 +284,11 @@ def map_dataset(
     voxel: float = 0.0,
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,
+    loops: bool = True,
 ) -> Path:
     """`toolkit map`: load a dataset directory and write its run directory."""
     check_output(Path(out), force)
-    return write_run(load(dataset), out, method, voxel, force=force, matcher=matcher)
+    return write_run(load(dataset), out, method, voxel, force=force, matcher=matcher, loops=loops)
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:

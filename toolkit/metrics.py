@@ -127,3 +127,55 @@ def evaluate(est: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
         "rpe": {**asdict(rpe), "rotation_deg": float(np.rad2deg(rpe.rotation))},
         "failures": asdict(Failures.compute(est, truth)),
     }
+
+
+def truth_relations(
+    truth: np.ndarray, step: float = 1.0, loop_radius: float = 1.0, loop_gap: float = 10.0
+) -> np.ndarray:
+    """Index pairs (R x 2) to measure relation error on, derived from the truth as in Kümmerle
+    et al. (2009): each pose with the first one `step` metres further along the path, and one
+    "loop" relation per revisit (a pose within `loop_radius` m of an earlier one that lies more
+    than `loop_gap` m back along the path; one every `step` metres of path)."""
+    truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    n = len(truth)
+    if n < 2:
+        return np.zeros((0, 2), np.int64)
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth[:, :2], axis=0).T))])
+    later = np.searchsorted(along, along + step)
+    keep = later < n
+    seq = np.column_stack([np.nonzero(keep)[0], later[keep]])
+    # loop relations on poses one `step` apart along the path (bounded: O(M^2) on M poses)
+    marks = np.unique(np.searchsorted(along, np.arange(0.0, along[-1], step)))
+    xy, a = truth[marks, :2], along[marks]
+    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    near = (d < loop_radius) & (a[:, None] - a[None, :] > loop_gap)
+    i, j = np.nonzero(near)
+    first = np.unique(i, return_index=True)[1]  # one per later pose: the earliest match
+    loops = np.column_stack([marks[j[first]], marks[i[first]]])
+    return np.concatenate([seq, loops]).astype(np.int64)
+
+
+def relation_error(est: np.ndarray, truth: np.ndarray, pairs: np.ndarray) -> dict[str, float]:
+    """Kümmerle et al.'s relation error over index pairs (i, j): the error of the estimated
+    motion from pose i to pose j against the true one; mean and std of its translation (m) and
+    absolute rotation (deg), and the number of relations."""
+    est, truth = _check(est, truth)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if len(pairs) == 0:
+        return {"relations": 0}
+    i, j = pairs[:, 0], pairs[:, 1]
+    return relation_error_motions(between(est[i], est[j]), between(truth[i], truth[j]))
+
+
+def relation_error_motions(est_motion: np.ndarray, true_motion: np.ndarray) -> dict[str, float]:
+    """Relation error of estimated motions (R x 3) against given ones (e.g. a Rawseeds
+    `.relations` file)."""
+    e = between(true_motion, est_motion)
+    et, er = np.hypot(e[:, 0], e[:, 1]), np.rad2deg(np.abs(wrap(e[:, 2])))
+    return {
+        "relations": len(e),
+        "translation_mean": float(et.mean()),
+        "translation_std": float(et.std()),
+        "rotation_mean_deg": float(er.mean()),
+        "rotation_std_deg": float(er.std()),
+    }

@@ -36,6 +36,15 @@ def map_command(
             "icp-point (Open3D point-to-point) or odometry",
         ),
     ] = "gaussian",
+    loops: Annotated[
+        bool,
+        typer.Option(
+            "--loops/--no-loops",
+            help="close loops and optimise the pose graph (GTSAM); a log without odometry is "
+            "matched with a constant-velocity motion model. --method gaussian --no-loops is the "
+            "paper's scan-to-keyframe matching",
+        ),
+    ] = True,
     voxel: Annotated[
         float,
         typer.Option(
@@ -65,7 +74,8 @@ def map_command(
     """Align the scans, build the trajectory and the maps, and measure them against ground truth.
 
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
-    metrics.json; atomically. With many datasets, OUT/<name>/ for each.
+    map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with loops), metrics.json;
+    atomically. With many datasets, OUT/<name>/ for each.
     """
     from toolkit.app.fleet import client_for, matcher_for, on_shared_storage
     from toolkit.dataset import SCANS
@@ -85,11 +95,13 @@ def map_command(
     with client_for(scheduler) as client:
         scans = dataset / SCANS if on_shared_storage(scheduler) else None
         matcher = matcher_for(client, scans=scans) if client is not None else None
-        run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
+        run = map_dataset(dataset, out, method, voxel, force, matcher=matcher, loops=loops)
     if quiet:
         return
     metrics = json.loads((run / "metrics.json").read_text())
     line = f"{run}: {metrics['scans']} scans by {method}"
+    if "loops" in metrics:
+        line += f", {metrics['loops']} loops"
     if metrics.get("pairs_per_second"):
         line += f", {metrics['pairs_per_second']:.0f} pairs/s"
     if metrics.get("groundtruth"):

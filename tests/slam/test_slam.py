@@ -1,0 +1,160 @@
+"""The mapper: loops found and verified on the simulator's building (which drives a loop) and on
+a real log, none false on the corridor or the building; the constant-velocity motion model on a
+log without odometry; the run directory's graph.g2o, map.pgm + map.yaml and metrics."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+import toolkit
+from toolkit.metrics import evaluate, relation_error, truth_relations
+from toolkit.poses import truth_poses, with_drift
+from toolkit.sim import simulate
+from toolkit.slam.loops import loop_truth_error
+from toolkit.slam.render import read_pgm
+from toolkit.slam.run import slam_trajectory
+
+
+def _false(slam, truth: np.ndarray) -> list[tuple[float, float]]:  # type: ignore[no-untyped-def]
+    errors = [loop_truth_error(lp, truth) for lp in slam.loops if lp.accepted]
+    return [e for e in errors if e[0] > 0.5 or e[1] > 5.0]
+
+
+@pytest.fixture(scope="module")
+def building() -> toolkit.Dataset:
+    return simulate("building", seed=0).dataset
+
+
+def test_building_loop_is_closed_and_improves_the_map(building: toolkit.Dataset) -> None:
+    result, slam = slam_trajectory(building)
+    truth = truth_poses(building)
+    assert truth is not None
+    accepted = [lp for lp in slam.loops if lp.accepted]
+    assert len(accepted) >= 3
+    assert _false(slam, truth) == []
+    before = evaluate(slam.before, truth)["ate"]["rmse"]
+    after = evaluate(result.poses, truth)["ate"]["rmse"]
+    assert after < 0.7 * before, (before, after)
+
+
+def test_no_false_loop_on_the_corridor() -> None:
+    ds = simulate("corridor", seed=1).dataset
+    result, slam = slam_trajectory(ds)
+    truth = truth_poses(ds)
+    assert truth is not None
+    assert _false(slam, truth) == []
+    # the corridor never comes back: the graph must not bend it
+    assert (
+        evaluate(result.poses, truth)["ate"]["rmse"]
+        <= evaluate(slam.before, truth)["ate"]["rmse"] + 0.02
+    )
+
+
+def test_without_odometry_constant_velocity_maps_the_building(building: toolkit.Dataset) -> None:
+    ds = replace(building, odometry=None)
+    result, slam = slam_trajectory(ds)
+    truth = truth_poses(ds)
+    assert truth is not None
+    assert evaluate(result.poses, truth)["ate"]["rmse"] <= 0.5
+    assert _false(slam, truth) == []
+
+
+@pytest.mark.real
+def test_real_intel_loops_close_with_no_false_one(real: Path) -> None:
+    from importers.base import ImportOptions
+    from importers.carmen import Carmen
+
+    path = real / "carmen_radish_corrected" / "intel-corrected.log.gz"
+    ds = Carmen().read([path], ImportOptions(extra={"poses": "groundtruth"}))
+    ds = with_drift(ds, seed=2)  # held out: the loop parameters were tuned on seed 0
+    result, slam = slam_trajectory(ds)
+    truth = truth_poses(ds)
+    assert truth is not None
+    assert sum(lp.accepted for lp in slam.loops) >= 20
+    assert _false(slam, truth) == []
+    before = evaluate(slam.before, truth)["ate"]["rmse"]
+    after = evaluate(result.poses, truth)["ate"]["rmse"]
+    assert after <= 0.3 and after < 0.3 * before, (before, after)
+
+
+def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_path: Path) -> None:
+    from toolkit.mapping import write_run
+
+    assert building.groundtruth is not None and building.odometry is not None
+    ds = replace(building, ranges=building.ranges[:1500], t=building.t[:1500])
+    ds = replace(
+        ds, groundtruth=building.groundtruth.iloc[:1500], odometry=building.odometry.iloc[:1500]
+    )
+    truth = truth_poses(ds)
+    assert truth is not None
+    run = write_run(ds, tmp_path / "run")
+    graph, values = gtsam.readG2o(str(run / "graph.g2o"), False)
+    assert values.size() >= 100 and graph.size() >= values.size() - 1
+    meta = dict(line.split(": ", 1) for line in (run / "map.yaml").read_text().splitlines())
+    assert meta["image"] == "map.pgm" and float(meta["resolution"]) == 0.05
+    img = read_pgm(run / "map.pgm")
+    values_seen = set(np.unique(img).tolist())
+    assert values_seen <= {0, 205, 254} and {0, 254} <= values_seen
+    # the occupied cells are where the walls are: the truth's returns land on them
+    origin = [float(v) for v in meta["origin"].strip("[]").split(",")]
+    occupied = np.argwhere(img[::-1] == 0)
+    assert 1000 < len(occupied) < 0.2 * img.size
+    assert origin[0] < truth[:, 0].min() and origin[1] < truth[:, 1].min()
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["relation_error"]["source"] == "groundtruth"
+    assert metrics["relation_error"]["relations"] > 100
+    assert set(metrics["seconds"]) >= {"matching", "loops", "optimisation", "total"}
+    assert (run / "loops.csv").is_file() and (run / "map.png").stat().st_size > 10_000
+
+
+def test_relation_error_is_zero_on_the_truth_and_grows_with_drift(
+    building: toolkit.Dataset,
+) -> None:
+    truth = truth_poses(building)
+    assert truth is not None
+    pairs = truth_relations(truth)
+    loops = pairs[np.abs(pairs[:, 1] - pairs[:, 0]) > 200]
+    assert len(loops) > 10  # the building comes back: revisits are relations too
+    assert relation_error(truth, truth, pairs)["translation_mean"] < 1e-9
+    assert building.odometry is not None
+    odo = building.odometry[["x", "y", "theta"]].to_numpy()
+    seq = pairs[np.abs(pairs[:, 1] - pairs[:, 0]) <= 200]
+    near = relation_error(odo, truth, seq)["translation_mean"]
+    far = relation_error(odo, truth, loops)["translation_mean"]
+    assert 0.005 < near < far / 3  # drift piles up between revisits
+
+
+def test_relation_metrics_read_the_datasets_relations_file(
+    building: toolkit.Dataset, tmp_path: Path
+) -> None:
+    """A dataset's relations.parquet (Rawseeds' `.relations`: pose at t2 in the frame of t1)
+    is used when present: zero error for the truth, the odometry's drift otherwise."""
+    import pandas as pd
+
+    from toolkit.align.scan import between
+    from toolkit.slam.run import relation_metrics
+
+    truth = truth_poses(building)
+    assert truth is not None and building.odometry is not None
+    i = np.arange(0, len(truth) - 50, 25)
+    j = i + 50
+    motion = between(truth[i], truth[j])
+    zero = np.zeros(len(i))
+    rel = pd.DataFrame(
+        {"t1": building.t[i], "t2": building.t[j], "x": motion[:, 0], "y": motion[:, 1]}
+        | {"z": zero, "roll": zero, "pitch": zero, "yaw": motion[:, 2]}
+    )
+    path = toolkit.save(building, tmp_path / "ds")
+    rel.to_parquet(path / "relations.parquet")
+    ds = toolkit.load(path)
+    exact = relation_metrics(ds, truth)
+    assert exact is not None and exact["source"] == "relations.parquet"
+    assert exact["relations"] == len(i) and exact["translation_mean"] < 1e-6
+    odo = relation_metrics(ds, building.odometry[["x", "y", "theta"]].to_numpy())
+    assert odo is not None and odo["translation_mean"] > 1e-3

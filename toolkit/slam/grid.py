@@ -1,0 +1,213 @@
+"""Likelihood grids and the correlative search that matches points against them.
+
+A likelihood grid rasterises a set of map points (the returns of some keyframes, in one
+frame) and stores, per cell, exp(-d^2 / 2 sigma^2) of the distance d to the nearest map point
+(scipy's exact Euclidean distance transform): a query point's fit is one O(1) lookup, so
+scoring a pose is O(N) in the query's points, with no tree and no neighbour search.
+
+`correlative_search` scores every pose of a grid of (heading, x, y) offsets around a
+prediction (numba, parallel over headings), coarse to fine: a coarse grid over the whole
+window, then a fine grid around the coarse maxima. It needs no good seed, only the window.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+
+@dataclass(frozen=True)
+class LikelihoodGrid:
+    """Per cell, the likelihood of a point there given the map points (row = y, col = x)."""
+
+    origin: np.ndarray  # (2,) world x, y of cell (0, 0)'s lower-left corner
+    resolution: float  # m per cell
+    likelihood: np.ndarray  # H x W float32 in [0, 1]
+    likelihood_t: np.ndarray  # its transpose, contiguous (W x H): the search's layout
+    distance: np.ndarray  # H x W float32: distance (m) to the nearest map point, capped
+
+    @classmethod
+    def build(
+        cls,
+        points: np.ndarray,
+        resolution: float,
+        sigma: float,
+        margin: float = 1.0,
+        cap: float = 2.0,
+    ) -> LikelihoodGrid:
+        """The grid of `points` (N x 2, finite) with `margin` m around their bounding box."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            pts = np.zeros((1, 2))
+        lo = pts.min(axis=0) - margin
+        shape = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(np.int64) + 1
+        ij = np.floor((pts - lo) / resolution).astype(np.int64)
+        free = np.ones((shape[1], shape[0]), dtype=bool)
+        free[ij[:, 1], ij[:, 0]] = False
+        dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
+        like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
+        return cls(lo, resolution, like, np.ascontiguousarray(like.T), dist)
+
+    def score(self, points: np.ndarray, pose: np.ndarray) -> float:
+        """Mean likelihood of `points` (N x 2, query frame) placed at `pose` in the grid frame."""
+        return float(_score(self.likelihood, self.origin, self.resolution, points, pose))
+
+    def distances(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """Distance (m) of each of `points` placed at `pose` to the nearest map point (the cap
+        outside the grid)."""
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        x = pose[0] + c * points[:, 0] - s * points[:, 1]
+        y = pose[1] + s * points[:, 0] + c * points[:, 1]
+        i = np.floor((x - self.origin[0]) / self.resolution).astype(np.int64)
+        j = np.floor((y - self.origin[1]) / self.resolution).astype(np.int64)
+        h, w = self.distance.shape
+        inside = (i >= 0) & (i < w) & (j >= 0) & (j < h)
+        out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
+        out[inside] = self.distance[j[inside], i[inside]]
+        return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _score(
+    like: np.ndarray, origin: np.ndarray, res: float, pts: np.ndarray, pose: np.ndarray
+) -> float:
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    h, w = like.shape
+    total = 0.0
+    for k in range(pts.shape[0]):
+        x = pose[0] + c * pts[k, 0] - s * pts[k, 1]
+        y = pose[1] + s * pts[k, 0] + c * pts[k, 1]
+        i = math.floor((x - origin[0]) / res)
+        j = math.floor((y - origin[1]) / res)
+        if 0 <= i < w and 0 <= j < h:
+            total += like[j, i]
+    return total / max(pts.shape[0], 1)
+
+
+@nb.njit(cache=True, nogil=True)
+def _search(
+    like_t: np.ndarray,
+    origin: np.ndarray,
+    res: float,
+    pts: np.ndarray,
+    centre: np.ndarray,
+    thetas: np.ndarray,
+    half: int,
+) -> np.ndarray:
+    """Mean likelihood of `pts` at every pose centre + (i*res, j*res, theta) for i, j in
+    [-half, half]: an array n_theta x (2 half + 1) x (2 half + 1) (theta, x, y). `like_t` is
+    the grid transposed (x, y), so that the y offsets of one point read one contiguous run."""
+    n = 2 * half + 1
+    out = np.zeros((thetas.shape[0], n, n))
+    w, h = like_t.shape
+    npts = pts.shape[0]
+    inv = 1.0 / res
+    for a in range(thetas.shape[0]):
+        th = centre[2] + thetas[a]
+        c, s = math.cos(th), math.sin(th)
+        acc = np.zeros((n, n))
+        for k in range(npts):
+            ci0 = math.floor((centre[0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv)
+            cj0 = math.floor((centre[1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv)
+            jlo = max(0, half - cj0)
+            jhi = min(n, h - cj0 + half)
+            for i in range(n):
+                ci = ci0 + i - half
+                if ci < 0 or ci >= w:
+                    continue
+                row = like_t[ci]
+                for j in range(jlo, jhi):
+                    acc[i, j] += row[cj0 + j - half]
+        out[a] = acc / max(npts, 1)
+    return out
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """The best pose of a correlative search and how clearly it won."""
+
+    pose: np.ndarray  # (3,) query frame in the grid frame
+    score: float  # mean likelihood at the fine level
+    coarse_score: float  # the winner's coarse score
+    runner_up: float  # best coarse score away from the winner (another mode)
+    inliers: float  # share of query points within `inlier_distance` of a map point
+
+
+def correlative_search(
+    coarse: LikelihoodGrid,
+    fine: LikelihoodGrid,
+    points: np.ndarray,
+    prediction: np.ndarray,
+    window: float,
+    turn: float,
+    turn_step: float,
+    coarse_voxel: float = 0.0,
+    away: float = 0.6,
+    away_turn: float = 0.15,
+    inlier_distance: float = 0.1,
+    candidates: int = 3,
+) -> SearchResult:
+    """Exhaustive coarse search of the window (+-`window` m, +-`turn` rad around
+    `prediction`), then a fine search around the `candidates` best coarse poses. The runner-up
+    is the best coarse score at least `away` m or `away_turn` rad from the winner: a
+    repetitive place (a corridor) has one close to the winner's."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    coarse_pts = (
+        np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
+    )
+    coarse_step = coarse.resolution
+    half = max(round(window / coarse_step), 0)
+    thetas = np.arange(-turn, turn + 1e-9, turn_step)
+    vol = _search(
+        coarse.likelihood_t, coarse.origin, coarse.resolution, coarse_pts, prediction, thetas, half
+    )
+    offsets = (np.arange(2 * half + 1) - half) * coarse_step
+    flat = np.argsort(vol.ravel())[::-1]
+    a, i, j = np.unravel_index(flat, vol.shape)
+    best_a, best_i, best_j = a[0], i[0], j[0]
+    far = (np.hypot(offsets[i] - offsets[best_i], offsets[j] - offsets[best_j]) > away) | (
+        np.abs(thetas[a] - thetas[best_a]) > away_turn
+    )
+    runner_up = float(vol.ravel()[flat[far]][0]) if far.any() else 0.0
+    tops: list[np.ndarray] = []
+    for k in range(len(flat)):
+        p = np.array([offsets[i[k]], offsets[j[k]], thetas[a[k]]])
+        if all(
+            np.hypot(*(p[:2] - q[:2])) > 1.5 * coarse_step or abs(p[2] - q[2]) > 1.5 * turn_step
+            for q in tops
+        ):
+            tops.append(p)
+        if len(tops) >= candidates:
+            break
+    fine_step = fine.resolution
+    fine_half = math.ceil(coarse_step / fine_step)
+    fine_thetas = np.linspace(-turn_step, turn_step, 7)
+    best = (-1.0, prediction)
+    for p in tops:
+        centre = np.array([prediction[0] + p[0], prediction[1] + p[1], prediction[2] + p[2]])
+        fv = _search(
+            fine.likelihood_t, fine.origin, fine.resolution, pts, centre, fine_thetas, fine_half
+        )
+        fa, fi, fj = np.unravel_index(int(np.argmax(fv)), fv.shape)
+        if fv[fa, fi, fj] > best[0]:
+            pose = centre + np.array(
+                [(fi - fine_half) * fine_step, (fj - fine_half) * fine_step, fine_thetas[fa]]
+            )
+            best = (float(fv[fa, fi, fj]), pose)
+    pose = best[1].copy()
+    pose[2] = math.atan2(math.sin(pose[2]), math.cos(pose[2]))
+    inliers = float(np.mean(fine.distances(pts, pose) <= inlier_distance))
+    return SearchResult(pose, best[0], float(vol[best_a, best_i, best_j]), runner_up, inliers)
+
+
+def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
+    """One point per `size` m cell (the first), in the points' order."""
+    if len(points) == 0:
+        return points
+    cells = np.floor(points / size).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    return points[np.sort(first)]

@@ -1,0 +1,220 @@
+"""Loop closure: candidates from the trajectory so far, verified by a seed-free match.
+
+Candidates: every `every` metres of path, the keyframe is compared with the earlier
+keyframes more than `gap` metres back along the path; the nearest one within the trajectory's
+uncertainty (`radius` + `growth` per metre of path between them, at most `window`) is a
+candidate. Verification: a local map around the earlier keyframe (its neighbours within
+`reference_path` m of path, placed by the trajectory, which is locally right) as likelihood
+grids, and the later keyframe's local scans (within `query_path` m) matched against it by a
+coarse-to-fine correlative search over the whole window (`toolkit.slam.grid`): no seed needed.
+The fitness test: enough of the query's points close to the map (`min_inliers`) and a clear
+winner: the best pose elsewhere in the window (0.6 m or 0.15 rad away) scores at most
+`max_ambiguity` of the winner (a corridor, where a shift along it scores alike, fails it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from toolkit.align.scan import between, compose, mount_pose
+from toolkit.dataset import LaserGeometry
+from toolkit.slam.grid import LikelihoodGrid, correlative_search, voxel_subsample
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Loop closure parameters; lengths in m, angles in rad."""
+
+    every: float = 2.0  # a query keyframe every this much path
+    gap: float = 8.0  # candidates lie at least this far back along the path
+    radius: float = 1.0  # position uncertainty at no path between (m) ...
+    growth: float = 0.03  # ... plus this per metre of path between them
+    window: float = 3.0  # ... at most (the search window, +-)
+    turn: float = 0.35  # heading window (+-)
+    query_path: float = 1.0  # query: scans within this path distance of the keyframe
+    reference_path: float = 4.0  # reference map: keyframes within this path distance
+    max_range: float = 25.0  # returns beyond this are left out of loop matching
+    coarse: float = 0.2  # coarse grid cell and translation step (m)
+    coarse_sigma: float = 0.25
+    fine: float = 0.04  # fine grid cell and step (m)
+    fine_sigma: float = 0.08
+    turn_step: float = 0.02  # heading step of the coarse search
+    query_voxel: float = 0.1  # query points: one per cell of this size
+    coarse_voxel: float = 0.25  # ... and at the coarse level
+    max_points: int = 400
+    min_inliers: float = 0.65  # share of query points within 0.1 m of the map
+    max_ambiguity: float = 0.85  # runner-up / winner of the coarse search
+    min_points: int = 60  # fewer query points: no test
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class Loop:
+    """A verified (or rejected) loop: pose of keyframe `b`'s scan in keyframe `a`'s frame."""
+
+    a: int  # scan index, earlier
+    b: int  # scan index, later
+    pose: np.ndarray
+    score: float
+    inliers: float
+    ambiguity: float
+    accepted: bool
+
+
+def path_length(poses: np.ndarray) -> np.ndarray:
+    """Distance along the path at every pose (S,)."""
+    step = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    return np.concatenate([[0.0], np.cumsum(step)])
+
+
+def candidates(
+    keys: np.ndarray,
+    poses: np.ndarray,
+    along: np.ndarray,
+    config: LoopConfig,
+    skip: np.ndarray | None = None,
+) -> list[tuple[int, int, float]]:
+    """(earlier key, later key, search radius) pairs, as scan indices; no query within
+    `config.every` of path of a scan in `skip` (already closed)."""
+    kp, ka = poses[keys], along[keys]
+    closed = np.sort(along[skip]) if skip is not None and len(skip) else np.zeros(0)
+    out: list[tuple[int, int, float]] = []
+    next_at = 0.0
+    for q in range(len(keys)):
+        if ka[q] < next_at:
+            continue
+        if len(closed):
+            at = np.searchsorted(closed, ka[q])
+            near = closed[max(at - 1, 0) : at + 1]
+            if (np.abs(near - ka[q]) < config.every).any():
+                continue
+        earlier = ka[q] - ka > config.gap
+        if not earlier.any():
+            continue
+        idx = np.nonzero(earlier)[0]
+        d = np.hypot(*(kp[idx, :2] - kp[q, :2]).T)
+        reach = np.minimum(config.radius + config.growth * (ka[q] - ka[idx]), config.window)
+        ok = d < reach
+        if ok.any():
+            c = idx[ok][np.argmin(d[ok])]
+            out.append((int(keys[c]), int(keys[q]), float(reach[ok][np.argmin(d[ok])])))
+            next_at = ka[q] + config.every
+    return out
+
+
+def candidate_for(
+    q: int, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, config: LoopConfig
+) -> tuple[int, int, float] | None:
+    """The candidate of key number `q` (earlier scan, its scan, search radius), or None: the
+    nearest earlier keyframe more than `gap` back along the path within the uncertainty."""
+    ka = along[keys]
+    idx = np.nonzero(ka[q] - ka[:q] > config.gap)[0]
+    if len(idx) == 0:
+        return None
+    kp = poses[keys]
+    d = np.hypot(*(kp[idx, :2] - kp[q, :2]).T)
+    reach = np.minimum(config.radius + config.growth * (ka[q] - ka[idx]), config.window)
+    ok = np.nonzero(d < reach)[0]
+    if len(ok) == 0:
+        return None
+    best = ok[np.argmin(d[ok])]
+    return int(keys[idx[best]]), int(keys[q]), float(reach[best])
+
+
+class LoopCloser:
+    """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
+    scans a test needs are computed when it needs them, so memory does not grow with S)."""
+
+    def __init__(
+        self, ranges: np.ndarray, laser: LaserGeometry, config: LoopConfig | None = None
+    ) -> None:
+        self.config = config or LoopConfig()
+        self.ranges = ranges
+        mount = mount_pose(laser)
+        self._mount = mount
+        self._cos = np.cos(laser.angles + mount[2])
+        self._sin = np.sin(laser.angles + mount[2])
+
+    def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """The returns of `scans` (within `max_range` of the robot) in the frame of scan
+        `centre`, scan by scan in beam order."""
+        rel = between(np.broadcast_to(poses[centre], (len(scans), 3)), poses[scans])
+        r = self.ranges[scans].astype(np.float64)
+        x = self._mount[0] + r * self._cos
+        y = self._mount[1] + r * self._sin
+        ok = np.isfinite(r) & (np.hypot(x, y) <= self.config.max_range)
+        c, s = np.cos(rel[:, 2:3]), np.sin(rel[:, 2:3])
+        wx = rel[:, :1] + c * x - s * y
+        wy = rel[:, 1:2] + s * x + c * y
+        return np.column_stack([wx[ok], wy[ok]])
+
+    def verify(
+        self, a: int, b: int, radius: float, poses: np.ndarray, along: np.ndarray, keys: np.ndarray
+    ) -> Loop | None:
+        """Match scan `b`'s local scans against scan `a`'s local map over the window."""
+        cfg = self.config
+        near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
+        near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
+        query = voxel_subsample(self._local(b, near_b, poses), cfg.query_voxel)
+        if len(query) < cfg.min_points:
+            return None
+        if len(query) > cfg.max_points:
+            query = query[np.linspace(0, len(query) - 1, cfg.max_points).astype(np.int64)]
+        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
+        ref = self._local(a, near_a, poses)
+        prediction = between(poses[a], poses[b])
+        c, sn = np.cos(prediction[2]), np.sin(prediction[2])
+        landed = prediction[:2] + query @ np.array([[c, sn], [-sn, c]])
+        reach = np.hypot(*query.T).max() * cfg.turn + radius + 0.5
+        lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
+        ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
+        if len(ref) < cfg.min_points:
+            return None
+        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+        fine = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        found = correlative_search(
+            coarse,
+            fine,
+            query,
+            prediction,
+            window=radius,
+            turn=cfg.turn,
+            turn_step=cfg.turn_step,
+            coarse_voxel=cfg.coarse_voxel,
+        )
+        ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
+        ok = found.inliers >= cfg.min_inliers and ambiguity <= cfg.max_ambiguity
+        return Loop(a, b, found.pose, found.score, found.inliers, ambiguity, bool(ok))
+
+    def find(
+        self,
+        keys: np.ndarray,
+        poses: np.ndarray,
+        config: LoopConfig | None = None,
+        skip: np.ndarray | None = None,
+    ) -> list[Loop]:
+        """Every candidate of the trajectory `poses` (S x 3), verified; rejected ones too."""
+        cfg = config or self.config
+        along = path_length(poses)
+        out = []
+        for a, b, radius in candidates(keys, poses, along, cfg, skip):
+            loop = self.verify(a, b, radius, poses, along, keys)
+            if loop is not None:
+                out.append(loop)
+        return out
+
+
+def loop_truth_error(loop: Loop, truth: np.ndarray) -> tuple[float, float]:
+    """A loop's residual against the truth: translation (m) and |rotation| (deg)."""
+    err = between(between(truth[loop.a], truth[loop.b]), loop.pose)
+    return float(np.hypot(err[0], err[1])), float(
+        np.rad2deg(abs((err[2] + np.pi) % (2 * np.pi) - np.pi))
+    )
+
+
+__all__ = ["Loop", "LoopCloser", "LoopConfig", "candidates", "compose", "loop_truth_error"]

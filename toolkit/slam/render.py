@@ -1,0 +1,247 @@
+"""Map outputs of the mapper: the occupancy grid (ROS map_server's map.pgm + map.yaml) and the
+side-by-side map.png (odometry / before loops / after loops).
+
+Occupancy: every beam is traced from the laser to its return through the grid (numba,
+Bresenham per beam, over chunks of scans): the cells it crosses count a miss, the cell of the
+return a hit (a beam without return counts misses up to `free_range`). A cell seen hit in at
+least `occupied` of its observations is occupied (0, black), one observed and below `free`
+is free (254, white), the rest unknown (205), as map_server's trinary mode reads them with
+the yaml's thresholds.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+from toolkit.align import scan as sc
+from toolkit.dataset import Dataset
+
+CHUNK = 20_000
+
+
+def _laser_poses(robot: np.ndarray, ds: Dataset) -> np.ndarray:
+    return sc.compose(robot, np.broadcast_to(sc.mount_pose(ds.laser), robot.shape))
+
+
+def _bounds(ds: Dataset, robot: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box of the returns within `reach` of the laser (chunk by chunk)."""
+    lo = robot[:, :2].min(axis=0) - 1.0
+    hi = robot[:, :2].max(axis=0) + 1.0
+    a = ds.laser.angles
+    for s in range(0, ds.n_scans, CHUNK):
+        part = slice(s, min(s + CHUNK, ds.n_scans))
+        lp = _laser_poses(robot[part], ds)
+        r = np.where(ds.ranges[part] <= reach, ds.ranges[part], np.nan)
+        x = lp[:, :1] + r * np.cos(lp[:, 2:3] + a)
+        y = lp[:, 1:2] + r * np.sin(lp[:, 2:3] + a)
+        if np.isfinite(x).any():
+            lo = np.minimum(lo, [np.nanmin(x), np.nanmin(y)])
+            hi = np.maximum(hi, [np.nanmax(x), np.nanmax(y)])
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def _trace(
+    lp: np.ndarray,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    lo: np.ndarray,
+    res: float,
+    reach: float,
+    free_range: float,
+    hits: np.ndarray,
+    seen: np.ndarray,
+) -> None:
+    h, w = hits.shape
+    for k in range(lp.shape[0]):
+        x0 = (lp[k, 0] - lo[0]) / res
+        y0 = (lp[k, 1] - lo[1]) / res
+        for b in range(angles.shape[0]):
+            r = ranges[k, b]
+            hit = r == r and r <= reach
+            length = r if hit else free_range
+            if not (length > 0):
+                continue
+            th = lp[k, 2] + angles[b]
+            x1 = x0 + length * math.cos(th) / res
+            y1 = y0 + length * math.sin(th) / res
+            i0, j0 = math.floor(x0), math.floor(y0)
+            i1, j1 = math.floor(x1), math.floor(y1)
+            di, dj = abs(i1 - i0), abs(j1 - j0)
+            si = 1 if i1 > i0 else -1
+            sj = 1 if j1 > j0 else -1
+            err = di - dj
+            i, j = i0, j0
+            for _ in range(di + dj + 1):
+                if i == i1 and j == j1:
+                    break
+                if 0 <= i < w and 0 <= j < h:
+                    seen[j, i] += 1
+                e2 = 2 * err
+                if e2 > -dj:
+                    err -= dj
+                    i += si
+                if e2 < di:
+                    err += di
+                    j += sj
+            if hit and 0 <= i1 < w and 0 <= j1 < h:
+                hits[j1, i1] += 1
+                seen[j1, i1] += 1
+
+
+def occupancy(
+    ds: Dataset,
+    robot: np.ndarray,
+    resolution: float = 0.05,
+    reach: float = 30.0,
+    free_range: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hit and observation counts per cell (H x W, row = y) and the grid's origin (lower-left)."""
+    lo, hi = _bounds(ds, robot, reach)
+    lo = np.floor(lo / resolution) * resolution
+    shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
+    hits = np.zeros((shape[1], shape[0]), dtype=np.int32)
+    seen = np.zeros_like(hits)
+    angles = ds.laser.angles.astype(np.float64)
+    for s in range(0, ds.n_scans, CHUNK):
+        part = slice(s, min(s + CHUNK, ds.n_scans))
+        lp = _laser_poses(robot[part], ds)
+        _trace(lp, ds.ranges[part], angles, lo, resolution, reach, free_range, hits, seen)
+    return hits, seen, lo
+
+
+def write_occupancy(
+    out: Path,
+    ds: Dataset,
+    robot: np.ndarray,
+    resolution: float = 0.05,
+    occupied: float = 0.25,
+    free: float = 0.1,
+) -> dict[str, object]:
+    """`map.pgm` (binary P5, 0 occupied, 254 free, 205 unknown; top row = largest y) and
+    `map.yaml` for ROS map_server in `out`; returns the yaml's fields."""
+    hits, seen, lo = occupancy(ds, robot, resolution)
+    ratio = np.divide(hits, seen, out=np.zeros(hits.shape), where=seen > 0)
+    img = np.full(hits.shape, 205, dtype=np.uint8)
+    img[(seen > 0) & (ratio < free)] = 254
+    img[(seen > 0) & (ratio >= occupied)] = 0
+    img = np.ascontiguousarray(img[::-1])  # PGM's first row is the top: the largest y
+    h, w = hits.shape
+    with open(out / "map.pgm", "wb") as f:
+        f.write(f"P5\n# laser-toolkit occupancy grid\n{w} {h}\n255\n".encode("ascii"))
+        f.write(img.tobytes())
+    meta: dict[str, object] = {
+        "image": "map.pgm",
+        "mode": "trinary",
+        "resolution": resolution,
+        "origin": [float(lo[0]), float(lo[1]), 0.0],
+        "negate": 0,
+        "occupied_thresh": 0.65,
+        "free_thresh": 0.196,
+    }
+    text = "".join(f"{k}: {_yaml(v)}\n" for k, v in meta.items())
+    (out / "map.yaml").write_text(text)
+    return meta
+
+
+def _yaml(v: object) -> str:
+    if isinstance(v, list):
+        return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+    return str(v)
+
+
+def read_pgm(path: Path) -> np.ndarray:
+    """A binary PGM (P5, 8 bit) as an array (rows top to bottom)."""
+    data = Path(path).read_bytes()
+    fields: list[bytes] = []
+    pos = 0
+    while len(fields) < 4:
+        while data[pos : pos + 1].isspace():
+            pos += 1
+        if data[pos : pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while not data[end : end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    if fields[0] != b"P5":
+        raise ValueError(f"{path}: not a binary PGM")
+    w, h = int(fields[1]), int(fields[2])
+    return np.frombuffer(data[pos + 1 : pos + 1 + w * h], dtype=np.uint8).reshape(h, w)
+
+
+def _histogram(ds: Dataset, robot: np.ndarray, lo: np.ndarray, cell: float, shape: np.ndarray):  # type: ignore[no-untyped-def]
+    grid = np.zeros((shape[1], shape[0]))
+    a = ds.laser.angles
+    for s in range(0, ds.n_scans, CHUNK):
+        part = slice(s, min(s + CHUNK, ds.n_scans))
+        lp = _laser_poses(robot[part], ds)
+        r = ds.ranges[part]
+        ok = np.isfinite(r)
+        x = (lp[:, :1] + r * np.cos(lp[:, 2:3] + a))[ok]
+        y = (lp[:, 1:2] + r * np.sin(lp[:, 2:3] + a))[ok]
+        i = np.floor((x - lo[0]) / cell).astype(np.int64)
+        j = np.floor((y - lo[1]) / cell).astype(np.int64)
+        inside = (i >= 0) & (i < shape[0]) & (j >= 0) & (j < shape[1])
+        grid += np.bincount(j[inside] * shape[0] + i[inside], minlength=grid.size).reshape(
+            grid.shape
+        )
+    return grid
+
+
+def write_side_by_side(
+    path: Path,
+    ds: Dataset,
+    panels: list[tuple[str, np.ndarray]],
+    truth: np.ndarray | None = None,
+    title: str = "",
+    cells: int = 800,
+) -> None:
+    """map.png: one top view per (name, robot poses) panel, side by side, each aligned to the
+    last panel's frame, with its trajectory (and the truth, dashed, aligned to it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from toolkit.metrics import align_se2
+
+    ref = panels[-1][1]
+    moved = []
+    for name, poses in panels:
+        T = align_se2(poses, ref) if poses is not ref else np.zeros(3)
+        moved.append((name, sc.compose(np.broadcast_to(T, poses.shape), poses)))
+    if truth is not None:
+        T = align_se2(truth, ref)
+        truth = sc.compose(np.broadcast_to(T, truth.shape), truth)
+    lo, hi = _bounds(ds, ref, 30.0)
+    cell = max(float((hi - lo).max()) / cells, 0.03)
+    shape = np.ceil((hi - lo) / cell).astype(np.int64) + 1
+    n = len(moved)
+    aspect = shape[1] / max(shape[0], 1)
+    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 5.5 * aspect + 0.8), dpi=110, squeeze=False)
+    extent = (lo[0], lo[0] + shape[0] * cell, lo[1], lo[1] + shape[1] * cell)
+    for ax, (name, poses) in zip(axes[0], moved, strict=True):
+        shade = np.log1p(_histogram(ds, poses, lo, cell, shape))
+        top = float(np.percentile(shade[shade > 0], 95)) if (shade > 0).any() else 1.0
+        ax.imshow(shade, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=top)
+        if truth is not None:
+            ax.plot(truth[:, 0], truth[:, 1], "--", color="tab:green", lw=0.7, label="truth")
+        ax.plot(poses[:, 0], poses[:, 1], color="tab:red", lw=0.7, label="trajectory")
+        ax.set_title(name)
+        ax.set_aspect("equal")
+        ax.set_xlim(extent[0], extent[1])
+        ax.set_ylim(extent[2], extent[3])
+        ax.set_xlabel("x (m)")
+    axes[0][0].set_ylabel("y (m)")
+    axes[0][0].legend(loc="best", fontsize="small")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

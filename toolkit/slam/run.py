@@ -1,0 +1,142 @@
+"""The mapper's part of a run directory (`toolkit map`, loops on by default).
+
+RUN/ gains:
+    graph.g2o     the pose graph (VERTEX_SE2 per keyframe, its scan index as id; EDGE_SE2
+                  sequential and loop edges with their information), optimised poses
+    loops.csv     every verified loop candidate: scans a, b, relative pose, score, inliers,
+                  ambiguity, accepted (and, with ground truth, its residual and `false`)
+    map.png       odometry / before loops / after loops side by side
+    map.pgm/.yaml the occupancy grid (ROS map_server)
+and metrics.json the loops, the time of each stage, the sequential estimate's errors and the
+relation error (Kümmerle et al.).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from toolkit.align import scan as sc
+from toolkit.dataset import Dataset
+from toolkit.metrics import evaluate, relation_error, relation_error_motions, truth_relations
+from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.slam import graph as pg
+from toolkit.slam.localmap import sequential
+from toolkit.slam.loops import Loop
+from toolkit.slam.pipeline import SlamConfig, close_loops
+from toolkit.slam.render import write_occupancy, write_side_by_side
+
+RELATIONS = "relations.parquet"
+
+
+@dataclass
+class SlamRun:
+    """The loop-closing stage's results, beside the sequential TrajectoryResult."""
+
+    before: np.ndarray
+    keys: np.ndarray
+    edges: list[pg.Edge]
+    loops: list[Loop]
+    timings: dict[str, float]
+    config: SlamConfig
+
+    def write(self, out: Path, ds: Dataset, poses: np.ndarray, title: str) -> None:
+        graph, values = pg.factor_graph(self.keys, poses[self.keys], self.edges, robust=0.0)
+        pg.write_g2o(out / "graph.g2o", graph, values)
+        truth = truth_poses(ds)
+        from toolkit.slam.pipeline import SlamResult
+
+        table = SlamResult(
+            poses, self.before, self.keys, self.edges, self.loops, 0.0, {}, {}
+        ).loop_table(truth)
+        columns = ["a", "b", "x", "y", "theta", "score", "inliers", "ambiguity", "accepted"]
+        pd.DataFrame(table, columns=None if table else columns).to_csv(
+            out / "loops.csv", index=False
+        )
+        panels = []
+        odo = odometry_poses(ds)
+        if odo is not None:
+            panels.append(("odometry", odo))
+        panels += [("before loops", self.before), ("after loops", poses)]
+        write_side_by_side(out / "map.png", ds, panels, truth, title)
+        write_occupancy(out, ds, poses)
+
+    def metrics(self, ds: Dataset) -> dict[str, Any]:
+        accepted = [lp for lp in self.loops if lp.accepted]
+        out: dict[str, Any] = {
+            "motion_model": "odometry" if odometry_poses(ds) is not None else "constant velocity",
+            "loops": len(accepted),
+            "loop_candidates": len(self.loops),
+            "graph": {"nodes": len(self.keys), "edges": len(self.edges)},
+            "seconds": {**self.timings, "total": sum(self.timings.values())},
+        }
+        truth = truth_poses(ds)
+        if truth is not None:
+            false = [
+                lp
+                for lp in accepted
+                if _truth_error(lp, truth)[0] > 0.5 or _truth_error(lp, truth)[1] > 5.0
+            ]
+            out["false_loops"] = len(false)
+            out["before_loops"] = evaluate(self.before, truth)
+        return out
+
+
+def _truth_error(lp: Loop, truth: np.ndarray) -> tuple[float, float]:
+    from toolkit.slam.loops import loop_truth_error
+
+    return loop_truth_error(lp, truth)
+
+
+def slam_trajectory(
+    ds: Dataset,
+    method: str = "gaussian",
+    config: sc.MatchConfig | None = None,
+    matcher: Callable[..., sc.PairMatches] | None = None,
+    slam: SlamConfig | None = None,
+) -> tuple[TrajectoryResult, SlamRun]:
+    """The sequential trajectory by `method` (gaussian: odometry or constant velocity as the
+    motion model), then loops and the pose graph; the result's frame holds the final poses."""
+    t0 = time.perf_counter()
+    if method == "gaussian" and matcher is None:
+        result = sequential(ds, config)
+    else:
+        result = build(ds, method, config, matcher)
+    matching = time.perf_counter() - t0
+    slam = slam or SlamConfig()
+    before = result.poses
+    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
+    frame = result.frame.copy()
+    frame[["x", "y", "theta"]] = poses
+    out = replace(result, frame=frame)
+    run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)
+    return out, run
+
+
+def relation_metrics(ds: Dataset, poses: np.ndarray) -> dict[str, Any] | None:
+    """Relation error of `poses`: over the dataset's relations.parquet (Rawseeds' `.relations`,
+    t1, t2, x, y, yaw: pose at t2 in the frame of t1) when it has one, else over relations
+    derived from the truth; None without either."""
+    path = ds.path / RELATIONS if ds.path is not None else None
+    if path is not None and path.is_file():
+        rel = pd.read_parquet(path)
+        i = _nearest(ds.t, rel["t1"].to_numpy())
+        j = _nearest(ds.t, rel["t2"].to_numpy())
+        motion = rel[["x", "y", "yaw"]].to_numpy(np.float64)
+        out = relation_error_motions(sc.between(poses[i], poses[j]), motion)
+        return {"source": RELATIONS, **out}
+    truth = truth_poses(ds)
+    if truth is None:
+        return None
+    return {"source": "groundtruth", **relation_error(poses, truth, truth_relations(truth))}
+
+
+def _nearest(t: np.ndarray, q: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(t, q), 1, len(t) - 1)
+    return np.where(np.abs(t[i - 1] - q) <= np.abs(t[i] - q), i - 1, i)
