@@ -3,23 +3,27 @@
 The map is the union of every scan placed at its pose, m(t+1) = m(t) ∪ {l(t), s(t)} (paper
 Eq. 2). The 3D cloud puts each return at its world position and the laser's mounting height,
 coloured by time. Everything is done in chunks of scans, so a log of a million scans maps
-in bounded memory: the cloud is streamed to a binary PLY (or voxel-downsampled chunk by
-chunk with Open3D), and map.png is a histogram of returns accumulated chunk by chunk.
+in bounded memory: the cloud is streamed to a binary PLY and PCD (or voxel-downsampled chunk
+by chunk), and map.png is the returns counted into a pixel grid chunk by chunk. The writers
+are numpy (`toolkit.writers`): no plotting or 3D library is loaded.
 
 RUN/
     config.json          what was run: dataset, method, matcher parameters, voxel size
     trajectory.parquet   t, x, y, theta per scan (robot frame, world coordinates)
     trajectory.tum       the same in TUM format (t x y z qx qy qz qw), for evo
     groundtruth.tum      the ground truth at the scan times, when the dataset has one
-    cloud.ply            the 3D map
-    map.png              the 2D map with the trajectory
-    metrics.json         ATE, RPE, failures (with ground truth), time aligning, pairs/s
+    cloud.ply            the 3D map: x y z, red green blue (by time), t, scan per vertex
+    cloud.pcd            the same as a binary PCD (PCL's packed rgb)
+    map.png              the 2D map with the trajectory (resolution and origin in its text)
+    metrics.json         ATE, RPE, failures (with ground truth), time aligning, pairs/s, and
+                         `seconds`: the time of every stage (read, match, compose, writers)
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -32,6 +36,17 @@ from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.progress import task
+from toolkit.writers import (
+    CLOUD,
+    pcd_header,
+    pcd_rows,
+    ply_header,
+    viridis,
+    write_pcd,
+    write_ply,
+    write_png,
+)
 
 CHUNK = 20_000  # scans per chunk of map building
 
@@ -58,12 +73,40 @@ def _chunks(n: int, chunk: int) -> Iterator[slice]:
         yield slice(lo, min(lo + chunk, n))
 
 
-def _colours(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
-    from matplotlib import colormaps
+def cloud_rows(
+    ds: Dataset, robot: np.ndarray, part: slice, t_span: tuple[float, float]
+) -> np.ndarray:
+    """The returns of scans `part` as cloud vertices (`toolkit.writers.CLOUD`): world x, y,
+    the laser's height, viridis by time over `t_span`, the scan's time and index."""
+    xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
+    rows = np.empty(len(xy), CLOUD)
+    rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], ds.laser.z
+    t = ds.t[part][scan]
+    t0, t1 = t_span
+    rgb = viridis((t - t0) / (t1 - t0 if t1 > t0 else 1.0))
+    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    rows["t"] = t
+    rows["scan"] = scan + (part.start or 0)
+    return rows
 
-    span = t1 - t0 if t1 > t0 else 1.0
-    rgba = colormaps["viridis"]((t - t0) / span)
-    return np.asarray(rgba[:, :3])
+
+def voxel_down(rows: np.ndarray, voxel: float) -> np.ndarray:
+    """One vertex per occupied voxel of side `voxel`: the mean position, colour and time of its
+    vertices and the first (earliest) scan's index, in voxel order."""
+    if len(rows) == 0:
+        return rows
+    cell = np.column_stack([np.floor(rows[a] / voxel) for a in ("x", "y", "z")]).astype(np.int64)
+    cell -= cell.min(axis=0)
+    span = cell.max(axis=0) + 1
+    key = (cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]
+    _, inverse, count = np.unique(key, return_inverse=True, return_counts=True)
+    out = np.empty(len(count), CLOUD)
+    for name in ("x", "y", "z", "t", "red", "green", "blue"):
+        mean = np.bincount(inverse, weights=rows[name].astype(np.float64)) / count
+        out[name] = np.round(mean) if out.dtype[name].kind == "u" else mean
+    grouped = rows["scan"][np.argsort(inverse, kind="stable")]  # voxel by voxel
+    out["scan"] = np.minimum.reduceat(grouped, np.concatenate([[0], np.cumsum(count)[:-1]]))
+    return out
 
 
 def write_cloud(
@@ -73,46 +116,32 @@ def write_cloud(
     voxel: float = 0.0,
     chunk: int = CHUNK,
 ) -> int:
-    """The 3D map as a PLY: returns at world x, y and the laser's height z, coloured by time.
+    """The 3D map: every return at its world x, y and the laser's height, coloured by time
+    (viridis), with its scan's time `t` and index `scan` as properties; a binary PLY, or a
+    binary PCD when `path` ends in .pcd. Returns the number of points written.
 
-    With `voxel` > 0, Open3D voxel-downsamples each chunk and then their union; without, every
-    return is streamed to a binary PLY (float x, y, z; uchar red, green, blue), which Open3D
-    and other readers load. Returns the number of points written.
+    Without `voxel` the returns are streamed chunk by chunk of scans (memory does not grow
+    with the log); with `voxel` > 0 each chunk is reduced to one point per voxel (the mean)
+    and then their union again.
     """
-    t0, t1 = (float(ds.t[0]), float(ds.t[-1])) if len(ds.t) else (0.0, 1.0)
-    z = float(ds.laser.z)
+    pcd = Path(path).suffix.lower() == ".pcd"
+    span = (float(ds.t[0]), float(ds.t[-1])) if len(ds.t) else (0.0, 1.0)
     if voxel > 0:
-        import open3d as o3d
-
-        merged = o3d.geometry.PointCloud()
+        merged = np.empty(0, CLOUD)
         for part in _chunks(ds.n_scans, chunk):
-            xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
-            cloud = o3d.geometry.PointCloud(
-                o3d.utility.Vector3dVector(np.column_stack([xy, np.full(len(xy), z)]))
-            )
-            cloud.colors = o3d.utility.Vector3dVector(_colours(ds.t[part][scan], t0, t1))
-            merged += cloud.voxel_down_sample(voxel)
-            merged = merged.voxel_down_sample(voxel)
-        o3d.io.write_point_cloud(str(path), merged, write_ascii=False)
-        return len(merged.points)
-    total = int(sum(np.isfinite(ds.ranges[p]).sum() for p in _chunks(ds.n_scans, chunk)))
-    vertex = np.dtype(
-        [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    )
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment laser-toolkit map\n"
-        f"element vertex {total}\nproperty float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+            down = voxel_down(cloud_rows(ds, robot, part, span), voxel)
+            merged = voxel_down(np.concatenate([merged, down]), voxel)
+        with open(path, "wb") as f:
+            (write_pcd if pcd else write_ply)(f, merged)
+        return len(merged)
+    total = int(
+        sum(np.count_nonzero(np.isfinite(ds.ranges[p])) for p in _chunks(ds.n_scans, chunk))
     )
     with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
+        f.write(pcd_header(total) if pcd else ply_header(total))
         for part in _chunks(ds.n_scans, chunk):
-            xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
-            rows = np.empty(len(xy), dtype=vertex)
-            rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], z
-            rgb = np.round(_colours(ds.t[part][scan], t0, t1) * 255).astype(np.uint8)
-            rows["red"], rows["green"], rows["blue"] = rgb.T
-            f.write(rows.tobytes())
+            rows = cloud_rows(ds, robot, part, span)
+            (pcd_rows(rows) if pcd else rows).tofile(f)
     return total
 
 
@@ -126,6 +155,10 @@ def write_tum(path: Path, t: np.ndarray, poses: np.ndarray) -> None:
     np.savetxt(path, table, fmt=["%.6f"] + ["%.9f"] * 7, delimiter=" ")
 
 
+TRAJECTORY_RGB = (215, 25, 28)
+TRUTH_RGB = (26, 150, 65)
+
+
 def write_map_png(
     path: Path,
     ds: Dataset,
@@ -135,50 +168,84 @@ def write_map_png(
     chunk: int = CHUNK,
     cells: int = 1500,
 ) -> None:
-    """Top view: a log-scaled histogram of every return, the trajectory over it (and the
-    ground truth, dashed). Accumulated chunk by chunk: memory does not grow with the log."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    lo = np.array([np.inf, np.inf])
-    hi = -lo
-    for part in _chunks(ds.n_scans, chunk):
-        xy, _ = world_points(ds.ranges[part], robot[part], ds.laser)
-        if len(xy):
-            lo = np.minimum(lo, np.percentile(xy, 0.5, axis=0))
-            hi = np.maximum(hi, np.percentile(xy, 99.5, axis=0))
-    lo = np.minimum(lo, robot[:, :2].min(axis=0) - 1) if len(robot) else lo
-    hi = np.maximum(hi, robot[:, :2].max(axis=0) + 1) if len(robot) else hi
-    if not np.isfinite(lo).all():
-        lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    """Top view, north up: every return counted into a pixel grid (grey, log-scaled, white
+    where none), the trajectory over it in red and the ground truth dashed in green. At most
+    `cells` pixels along the longer side, at least 2 cm a pixel; the grid's resolution and
+    origin go into the PNG's text (`resolution`, `origin`). One pass over the returns, chunk
+    by chunk: memory does not grow with the log."""
+    lo, hi = _extent(ds, robot, chunk)
     cell = max(float((hi - lo).max()) / cells, 0.02)
-    shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)
-    grid = np.zeros(shape, dtype=np.float64)
+    width, height = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
+    counts = np.zeros(width * height, np.int64)
     for part in _chunks(ds.n_scans, chunk):
         xy, _ = world_points(ds.ranges[part], robot[part], ds.laser)
-        ij = np.floor((xy - lo) / cell).astype(np.int64)
-        inside = ((ij >= 0) & (ij < shape)).all(axis=1)
-        np.add.at(grid, (ij[inside, 0], ij[inside, 1]), 1.0)
-    fig, ax = plt.subplots(figsize=(8, 8 * shape[1] / max(shape[0], 1) + 0.5), dpi=120)
-    extent = (lo[0], lo[0] + shape[0] * cell, lo[1], lo[1] + shape[1] * cell)
-    shade = np.log1p(grid.T)
-    top = float(np.percentile(shade[shade > 0], 95)) if (shade > 0).any() else 1.0
-    ax.imshow(
-        shade, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=top, interpolation="none"
-    )
+        i, j = np.floor((xy - lo) / cell).astype(np.int64).T
+        inside = (i >= 0) & (i < width) & (j >= 0) & (j < height)
+        counts += np.bincount(j[inside] * width + i[inside], minlength=width * height)
+    hit = np.flatnonzero(counts)
+    shade = np.log1p(counts[hit].astype(np.float64))
+    top = float(np.percentile(shade, 95)) if len(shade) else 1.0
+    grey = np.full(width * height, 255, np.uint8)
+    grey[hit] = np.round(255.0 * (1.0 - np.minimum(shade / top, 1.0)))
+    image = np.empty((height, width, 3), np.uint8)
+    image[:] = grey.reshape(height, width)[::-1, :, None]  # row 0 is the top: the largest y
     if truth is not None:
-        ax.plot(truth[:, 0], truth[:, 1], "--", color="tab:green", lw=0.8, label="ground truth")
-    ax.plot(robot[:, 0], robot[:, 1], color="tab:red", lw=0.8, label="trajectory")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_aspect("equal")
-    ax.set_title(title)
-    ax.legend(loc="best", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+        _draw_path(image, truth[:, :2], lo, cell, TRUTH_RGB, dash=8)
+    _draw_path(image, robot[:, :2], lo, cell, TRAJECTORY_RGB)
+    text = {
+        "Title": title,
+        "Description": "laser returns (grey, log scale), trajectory (red), ground truth "
+        "(green, dashed); x to the right, y up",
+        "resolution": f"{cell:.6g}",
+        "origin": f"{lo[0]:.6g} {lo[1]:.6g}",
+    }
+    write_png(path, image, text)
+
+
+def _extent(ds: Dataset, robot: np.ndarray, chunk: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corner (x, y) of the map: the 0.5-99.5 percentiles of the returns of
+    every few scans (at most ~200,000 returns), widened to hold the trajectory plus 1 m."""
+    returns = sum(np.count_nonzero(np.isfinite(ds.ranges[p])) for p in _chunks(ds.n_scans, chunk))
+    step = max(1, -(-int(returns) // 200_000))
+    xy, _ = world_points(ds.ranges[::step], robot[::step], ds.laser)
+    if len(xy):
+        lo, hi = np.percentile(xy, 0.5, axis=0), np.percentile(xy, 99.5, axis=0)
+    else:
+        lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    if len(robot):
+        lo = np.minimum(lo, robot[:, :2].min(axis=0) - 1)
+        hi = np.maximum(hi, robot[:, :2].max(axis=0) + 1)
+    if not np.isfinite(lo).all() or not np.isfinite(hi).all():
+        return np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    return lo, hi
+
+
+def _draw_path(
+    image: np.ndarray,
+    xy: np.ndarray,
+    lo: np.ndarray,
+    cell: float,
+    rgb: tuple[int, int, int],
+    dash: int = 0,
+) -> None:
+    """Draw the polyline `xy` (m) into `image` (row 0 at the top), 2 pixels wide: points every
+    half pixel along it; `dash` > 0 leaves gaps of that many pixels."""
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    if len(xy) == 0:
+        return
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    s = np.arange(0.0, along[-1] + cell / 2, cell / 2)
+    if dash > 0:
+        s = s[(s // (dash * cell)).astype(np.int64) % 2 == 0]
+    px = (np.interp(s, along, xy[:, 0]) - lo[0]) / cell
+    py = (np.interp(s, along, xy[:, 1]) - lo[1]) / cell
+    height, width = image.shape[:2]
+    for di in (0, 1):
+        for dj in (0, 1):
+            i = np.floor(px).astype(np.int64) + di
+            row = height - 1 - (np.floor(py).astype(np.int64) + dj)
+            ok = (i >= 0) & (i < width) & (row >= 0) & (row < height)
+            image[row[ok], i[ok]] = rgb
 
 
 def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
@@ -224,20 +291,29 @@ def write_run(
     config: sc.MatchConfig | None = None,
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,
+    seconds: dict[str, float] | None = None,
 ) -> Path:
     """Align `ds` by `method` and write the run directory `out`, atomically (`matcher`: see
-    `trajectory.build`)."""
+    `trajectory.build`). metrics.json's `seconds` holds the time of every stage: `seconds`
+    given (the caller's, e.g. reading the dataset), then the trajectory's (prepare, compile,
+    match, compose) and each output's by file name."""
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
-    from toolkit.progress import task
-
+    timed = dict(seconds or {})
     with task(f"map ({method})", 4) as (progress, bar):
         result = build(ds, method, config, matcher)
+        timed |= result.timings
         progress.advance(bar)
         robot = result.poses
         truth = truth_poses(ds)
         with atomic_dir(out, force=force) as tmp:
+
+            def timing(name: str, write: Callable[[Path], object]) -> None:
+                t0 = time.perf_counter()
+                write(tmp / name)
+                timed[name] = time.perf_counter() - t0
+
             settings = {
                 "dataset": str(ds.path) if ds.path else None,
                 "dataset_meta_sha256": _meta_digest(ds),
@@ -248,16 +324,20 @@ def write_run(
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }
             (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
-            result.frame.to_parquet(tmp / "trajectory.parquet", index=False)
-            write_tum(tmp / "trajectory.tum", ds.t, robot)
+            timing("trajectory.parquet", lambda p: result.frame.to_parquet(p, index=False))
+            timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))
             if truth is not None:
-                write_tum(tmp / "groundtruth.tum", ds.t, truth)
-            write_cloud(tmp / "cloud.ply", ds, robot, voxel)
+                timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
+            timing("cloud.ply", lambda p: write_cloud(p, ds, robot, voxel))
+            timing("cloud.pcd", lambda p: write_cloud(p, ds, robot, voxel))
             progress.advance(bar)
             name = ds.path.name if ds.path else "dataset"
-            write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
+            timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))
             progress.advance(bar)
+            t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
+            timed["metrics"] = time.perf_counter() - t0
+            metrics["seconds"] = {k: round(v, 4) for k, v in timed.items()}
             text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
             (tmp / "metrics.json").write_text(text)
             progress.advance(bar)
@@ -274,7 +354,10 @@ def map_dataset(
 ) -> Path:
     """`toolkit map`: load a dataset directory and write its run directory."""
     check_output(Path(out), force)
-    return write_run(load(dataset), out, method, voxel, force=force, matcher=matcher)
+    t0 = time.perf_counter()
+    ds = load(dataset)
+    read = {"read": time.perf_counter() - t0}
+    return write_run(ds, out, method, voxel, force=force, matcher=matcher, seconds=read)
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:

@@ -22,6 +22,7 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
+from toolkit import align
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
@@ -37,8 +38,9 @@ class TrajectoryResult:
     frame: pd.DataFrame  # t, x, y, theta
     method: str
     matches: sc.PairMatches | None = None  # per pair, for the matching methods
-    seconds: float = 0.0  # time spent aligning scan pairs
+    seconds: float = 0.0  # time spent aligning scan pairs (compilation kept out)
     config: dict[str, object] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)  # s: prepare, compile, match, compose
 
     @property
     def poses(self) -> np.ndarray:
@@ -129,12 +131,14 @@ def build(
     runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`)."""
     if method not in METHODS:
         raise ToolkitError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    t_start = time.perf_counter()
     odo = odometry_poses(ds)
     n = ds.n_scans
     if method == "odometry":
         if odo is None:
             raise ToolkitError("method odometry needs odometry; the dataset has none", file=ds.path)
-        return TrajectoryResult(_frame(ds.t, odo), method)
+        prepare = {"prepare": time.perf_counter() - t_start}
+        return TrajectoryResult(_frame(ds.t, odo), method, timings=prepare)
     start = odo[0] if odo is not None else np.zeros(3)
     if n < 2:
         return TrajectoryResult(_frame(ds.t, np.tile(start, (n, 1))), method)
@@ -146,6 +150,12 @@ def build(
         ref = np.maximum(np.arange(n) - 1, 0)
         robot_seed = np.zeros((n - 1, 3))
     seeds = sc.laser_motion(robot_seed, ds.laser)
+    t_compile = time.perf_counter()
+    if method == "gaussian" and matcher is None:
+        # the kernels' first call of a session compiles them, or loads numba's cache (0.1-1 s;
+        # 10 s and more when nothing is cached): done on the first pair alone, so that the
+        # matching time (and pairs/s) is the matching's
+        sc.match_pairs(ds.ranges[:2], seeds[:1], ds.laser, config, ref[:2])
     t0 = time.perf_counter()
     if method == "gaussian":
         matches = (matcher or sc.match_pairs)(ds.ranges, seeds, ds.laser, config, ref)
@@ -154,12 +164,19 @@ def build(
         icp_method: Literal["point_to_line", "point_to_point"] = (
             "point_to_line" if method == "icp" else "point_to_point"
         )
-        matches = sc.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
+        matches = align.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
         used = {"icp": icp_method, "max_distance": 0.5, "iterations": 30}
         used |= {k: getattr(config, k) for k in ("keyframe_distance", "keyframe_angle")}
     seconds = time.perf_counter() - t0
     poses = compose_refs(start, ref, sc.robot_motion(matches.pose, ds.laser))
-    return TrajectoryResult(_frame(ds.t, poses), method, matches, seconds, used)
+    frame = _frame(ds.t, poses)
+    timings = {
+        "prepare": t_compile - t_start,
+        "compile": t0 - t_compile,
+        "match": seconds,
+        "compose": time.perf_counter() - t0 - seconds,
+    }
+    return TrajectoryResult(frame, method, matches, seconds, used, timings)
 
 
 def trajectory(
