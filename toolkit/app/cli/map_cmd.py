@@ -60,8 +60,7 @@ def map_command(
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
     metrics.json; atomically. With many datasets, OUT/<name>/ for each.
     """
-    from toolkit.app.fleet import client_for, matcher_for, on_shared_storage
-    from toolkit.dataset import SCANS
+    # each import on use: `toolkit --help` and the other commands start without numba
     from toolkit.errors import ToolkitError
     from toolkit.mapping import map_dataset
     from toolkit.poses import METHODS
@@ -76,10 +75,16 @@ def map_command(
     dataset = datasets[0]
     if scheduler != "none" and method != "gaussian":
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
-    with client_for(scheduler) as client:
-        scans = dataset / SCANS if on_shared_storage(scheduler) else None
-        matcher = matcher_for(client, scans=scans) if client is not None else None
-        run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
+    if scheduler == "none":
+        run = map_dataset(dataset, out, method, voxel, force)
+    else:
+        from toolkit.app.fleet import client_for, matcher_for, on_shared_storage  # Dask, on use
+        from toolkit.dataset import SCANS
+
+        with client_for(scheduler) as client:
+            scans = dataset / SCANS if on_shared_storage(scheduler) else None
+            matcher = matcher_for(client, scans=scans) if client is not None else None
+            run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
     if quiet:
         return
     metrics = json.loads((run / "metrics.json").read_text())
@@ -97,9 +102,9 @@ def map_command(
 
 def _many(datasets: list[Path]) -> bool:
     """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
-    import glob
+    import glob  # stdlib, used here alone
 
-    from toolkit.app.fleet import is_dataset_dir
+    from toolkit.app.fleet import is_dataset_dir  # loaded for `map` only
 
     if len(datasets) != 1:
         return True
@@ -119,6 +124,7 @@ def _map_each(
     quiet: bool,
 ) -> None:
     """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
+    # on use: many datasets only
     from toolkit.app.cli.options import report_outcomes
     from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage
     from toolkit.errors import ToolkitError
