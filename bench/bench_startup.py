@@ -151,6 +151,7 @@ def kiss_icp_seconds(ds: Any, voxel: float = 0.3) -> float:
     config.registration.max_num_threads = 1
     kiss = KissICP(config)
     odo = odometry_poses(ds)
+    assert odo is not None, "the simulated log has odometry"
     laser = sc.compose(odo, np.broadcast_to(sc.mount_pose(ds.laser), odo.shape))
     steps = sc.between(laser[:-1], laser[1:])
     c, s = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
