@@ -24,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from toolkit import __version__  # defined before toolkit/__init__ imports this module
 from toolkit.atomic import atomic_dir
 from toolkit.errors import FormatError, ToolkitError
 
@@ -368,8 +369,6 @@ def make_meta(
     **extra: Any,
 ) -> dict[str, Any]:
     """meta.json content: geometry, provenance, import report, and format-specific decisions."""
-    from toolkit import __version__
-
     meta: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
         "toolkit_version": __version__,

@@ -33,7 +33,7 @@ import pandas as pd
 
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
-from toolkit.dataset import Dataset, LaserGeometry, load
+from toolkit.dataset import META, Dataset, LaserGeometry, load, sha256
 from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.progress import task
@@ -277,8 +277,6 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
 def _meta_digest(ds: Dataset) -> str | None:
     """sha256 of the dataset's meta.json (its identity: sources' sha256, import time), so a
     re-run can tell an unchanged dataset (`toolkit.app.fleet.run_is_current`)."""
-    from toolkit.dataset import META, sha256
-
     meta = ds.path / META if ds.path else None
     return sha256(meta) if meta is not None and meta.is_file() else None
 

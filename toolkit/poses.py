@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numba as nb
@@ -26,6 +26,7 @@ from toolkit import align
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
+from toolkit.sim.odometry import OdometryModel
 
 Method = Literal["gaussian", "icp", "icp-point", "odometry"]
 METHODS: tuple[str, ...] = ("gaussian", "icp", "icp-point", "odometry")
@@ -205,10 +206,6 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
     """A copy of `ds` whose odometry is its ground truth at the scan times run through the
     simulator's differential-drive odometry model (REAL_LOG_DRIFT, overridden by `params`),
     seeded: for real logs whose only poses are SLAM-corrected ones."""
-    from dataclasses import replace
-
-    from toolkit.sim.odometry import OdometryModel
-
     truth = truth_poses(ds)
     if truth is None:
         raise ToolkitError("adding drift needs ground truth; the dataset has none", file=ds.path)

@@ -3,6 +3,7 @@ or `toolkit map DATASET... --out DIR` (several datasets, a fleet's tree, a quote
 
 from __future__ import annotations
 
+import glob
 import json
 from pathlib import Path
 from typing import Annotated
@@ -10,6 +11,8 @@ from typing import Annotated
 import typer
 
 from toolkit.app.cli import app
+from toolkit.app.cli.options import report_outcomes
+from toolkit.errors import ToolkitError
 
 
 @app.command("map")
@@ -60,8 +63,7 @@ def map_command(
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
     metrics.json; atomically. With many datasets, OUT/<name>/ for each.
     """
-    # each import on use: `toolkit --help` and the other commands start without numba
-    from toolkit.errors import ToolkitError
+    # on use: the matcher (numba) and pandas load for `map` alone
     from toolkit.mapping import map_dataset
     from toolkit.poses import METHODS
 
@@ -79,7 +81,7 @@ def map_command(
         run = map_dataset(dataset, out, method, voxel, force)
     else:
         from toolkit.app.fleet import client_for, matcher_for, on_shared_storage  # Dask, on use
-        from toolkit.dataset import SCANS
+        from toolkit.dataset import SCANS  # with the line above
 
         with client_for(scheduler) as client:
             scans = dataset / SCANS if on_shared_storage(scheduler) else None
@@ -102,9 +104,7 @@ def map_command(
 
 def _many(datasets: list[Path]) -> bool:
     """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
-    import glob  # stdlib, used here alone
-
-    from toolkit.app.fleet import is_dataset_dir  # loaded for `map` only
+    from toolkit.app.fleet import is_dataset_dir  # on use: fleet loads the matcher
 
     if len(datasets) != 1:
         return True
@@ -124,10 +124,7 @@ def _map_each(
     quiet: bool,
 ) -> None:
     """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
-    # on use: many datasets only
-    from toolkit.app.cli.options import report_outcomes
-    from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage
-    from toolkit.errors import ToolkitError
+    from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage  # Dask
 
     found = find_datasets(datasets)
     if not found:
