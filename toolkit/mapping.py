@@ -61,10 +61,16 @@ def world_points(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every return of `ranges` (S x B) in world x, y (N x 2) and the scan it came from (N,)."""
     lp = laser_poses(robot, laser)
-    scan, beam = np.nonzero(np.isfinite(ranges))
-    r = ranges[scan, beam].astype(np.float64)
-    bearing = lp[scan, 2] + laser.angles[beam]
-    xy = np.column_stack([lp[scan, 0] + r * np.cos(bearing), lp[scan, 1] + r * np.sin(bearing)])
+    finite = np.isfinite(ranges)
+    scan = np.repeat(np.arange(len(ranges)), np.count_nonzero(finite, axis=1))
+    r = ranges[finite].astype(np.float64)
+    # each beam's direction turned by its scan's heading: products of per-scan and per-beam
+    # cosines and sines (no trigonometry per return), laid out S x B and then masked
+    c, s = np.cos(lp[:, 2])[:, None], np.sin(lp[:, 2])[:, None]
+    ca, sa = np.cos(laser.angles), np.sin(laser.angles)
+    xy = np.empty((len(r), 2))
+    xy[:, 0] = (c * ca - s * sa)[finite] * r + lp[scan, 0]
+    xy[:, 1] = (s * ca + c * sa)[finite] * r + lp[scan, 1]
     return xy, scan
 
 

@@ -112,7 +112,8 @@ def write_pcd(f: BinaryIO, rows: np.ndarray) -> None:
 
 def write_png(path: str | Path, rgb: np.ndarray, text: dict[str, str] | None = None) -> None:
     """An 8-bit RGB PNG of the H x W x 3 uint8 image `rgb` (row 0 at the top), with `text` as
-    tEXt chunks (keyword: value, Latin-1)."""
+    tEXt chunks (keyword: value, Latin-1). zlib level 1: a third of level 6's time, for a
+    file about half again as large (a map is mostly white)."""
     image = np.ascontiguousarray(rgb, dtype=np.uint8)
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"an RGB image is H x W x 3, not {image.shape}")
@@ -122,7 +123,7 @@ def write_png(path: str | Path, rgb: np.ndarray, text: dict[str, str] | None = N
     chunks = [_chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))]
     for key, value in (text or {}).items():
         chunks.append(_chunk(b"tEXt", key.encode("latin-1") + b"\0" + value.encode("latin-1")))
-    chunks.append(_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6)))
+    chunks.append(_chunk(b"IDAT", zlib.compress(raw.tobytes(), 1)))
     chunks.append(_chunk(b"IEND", b""))
     with open(path, "wb") as f:
         f.write(b"\x89PNG\r\n\x1a\n" + b"".join(chunks))
