@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -37,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 3
 HEAVY = ("pandas", "numba", "scipy", "matplotlib", "open3d", "distributed", "sklearn")
 E2E_SCANS, E2E_BEAMS = 5000, 361
+_CPU: list[float] = []  # CPU seconds of each child, in order
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -44,7 +46,9 @@ def _env(**extra: str) -> dict[str, str]:
 
 
 def _toolkit(*args: object, env: dict[str, str] | None = None) -> tuple[float, str]:
-    """Wall time of `python -m toolkit ARGS` in a new process, and its stderr."""
+    """Wall time of `python ARGS` in a new process, and its stderr; its CPU time (user +
+    system, which a loaded machine inflates less than the wall time) in `_toolkit.cpu`."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     result = subprocess.run(
         [sys.executable, *map(str, args)],
@@ -55,6 +59,8 @@ def _toolkit(*args: object, env: dict[str, str] | None = None) -> tuple[float, s
         timeout=1800,
     )
     seconds = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    _CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
     if result.returncode != 0:
         raise RuntimeError(f"{args} failed: {result.stderr.strip()[-1500:]}")
     return seconds, result.stderr
@@ -104,13 +110,14 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
     }  # fmt: skip
     rows = []
     for name, args in commands.items():
-        times = []
+        times, cpu = [], []
         stages: dict[str, float] = {}
         for _ in range(repeats + 1):  # the first run warms the OS and numba's caches
             for leftover in (run, work / "sim"):
                 shutil.rmtree(leftover, ignore_errors=True)
             seconds, _ = _toolkit("-m", "toolkit", *args)
             times.append(seconds)
+            cpu.append(_CPU[-1])
             if (run / "metrics.json").exists():
                 stages = json.loads((run / "metrics.json").read_text())["seconds"]
         for leftover in (run, work / "sim"):
@@ -122,6 +129,7 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
                 "table": "startup",
                 "name": name,
                 "wall_s": round(statistics.median(times[1:]), 3),
+                "cpu_s": round(statistics.median(cpu[1:]), 3),
                 "imports_s": round(imports, 3),
                 "read_s": round(stages.get("read", 0.0), 3),
                 "match_s": round(stages.get("match", 0.0), 3),
@@ -182,10 +190,12 @@ def end_to_end_rows(work: Path, repeats: int, scans: int) -> list[dict[str, Any]
     ds = toolkit.load(data)
     run = work / "e2e"
     rows = []
+    cpus: list[float] = []
 
     def map_once(env: dict[str, str]) -> tuple[float, dict[str, Any]]:
         shutil.rmtree(run, ignore_errors=True)
         seconds, _ = _toolkit("-m", "toolkit", "map", data, "-o", run, "-q", env=env)
+        cpus.append(_CPU[-1])
         return seconds, json.loads((run / "metrics.json").read_text())
 
     # the first run of a session without numba's cache (as after a fresh install), then warm
@@ -204,6 +214,7 @@ def end_to_end_rows(work: Path, repeats: int, scans: int) -> list[dict[str, Any]
             "table": "end-to-end",
             "name": f"toolkit map, {ds.n_scans} x {ds.n_beams} (simulated building)",
             "wall_s": round(wall, 3),
+            "cpu_s": round(statistics.median(cpus[1:]), 3),
             "match_s": round(match, 3),
             "wall_over_match": round(wall / match, 2),
             "kiss_icp_s": round(kiss_s, 3),
