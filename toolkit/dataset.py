@@ -316,7 +316,9 @@ def _ranges(table: pa.Table, path: Path) -> np.ndarray:
     if not pa.types.is_fixed_size_list(list_type):
         raise FormatError("ranges is not a fixed-size list", file=path)
     beams = list_type.list_size
-    flat = ranges_col.combine_chunks().flatten() if len(table) else pa.array([], pa.float32())
+    lists = ranges_col.combine_chunks()
+    # the child values of the rows (not .flatten(): it loads pyarrow.compute, 0.05-0.15 s)
+    flat = lists.values.slice(lists.offset * beams, len(lists) * beams)
     return column_numpy(flat).reshape(len(table), beams)
 
 

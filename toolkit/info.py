@@ -102,8 +102,8 @@ def _summary(
 ) -> dict[str, Any]:
     n = int(ranges.shape[0])
     duration = float(t[-1] - t[0]) if n > 1 else 0.0
-    dt = np.diff(t)
-    rate = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else None
+    step = _median(np.diff(t))
+    rate = float(1.0 / step) if step is not None and step > 0 else None
     finite = np.isfinite(ranges)
     report = meta.get("import_report", {})
     odo, gt = streams["odometry"], streams["groundtruth"]
@@ -132,3 +132,12 @@ def _summary(
         "dropped": report.get("dropped", {}),
         "notes": report.get("notes", []),
     }
+
+
+def _median(x: np.ndarray) -> float | None:
+    """The median by partition (np.median loads numpy.ma, 0.05 s of `toolkit info`)."""
+    n = len(x)
+    if n == 0:
+        return None
+    half = np.partition(x, [(n - 1) // 2, n // 2])
+    return float((half[(n - 1) // 2] + half[n // 2]) / 2)
