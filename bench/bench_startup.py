@@ -37,6 +37,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 3
 HEAVY = ("pandas", "numba", "scipy", "matplotlib", "open3d", "distributed", "sklearn")
+# where import time goes: libraries and the toolkit's own modules, by cumulative time
+SHOWN = (
+    *HEAVY,
+    *("numpy", "pyarrow", "typer", "pydantic", "rich", "importers", "reports"),
+    *("toolkit.dataset", "toolkit.align", "toolkit.mapping", "toolkit.sim", "toolkit.features"),
+)
 E2E_SCANS, E2E_BEAMS = 5000, 361
 _CPU: list[float] = []  # CPU seconds of each child, in order
 
@@ -66,10 +72,12 @@ def _toolkit(*args: object, env: dict[str, str] | None = None) -> tuple[float, s
     return seconds, result.stderr
 
 
-def _imports(args: list[object]) -> tuple[float, list[str]]:
-    """Seconds of the top-level imports (`-X importtime`), and which heavy libraries load."""
+def _imports(args: list[object]) -> tuple[float, list[str], str]:
+    """Seconds of the top-level imports (`-X importtime`), which heavy libraries load, and
+    the largest of `SHOWN` with their cumulative seconds."""
     _, log = _toolkit("-X", "importtime", "-m", "toolkit", *args)
     total, heavy = 0.0, set()
+    shown: dict[str, float] = {}
     for line in log.splitlines():
         m = re.match(r"import time:\s+\d+ \|\s+(\d+) \|( *)(\S+)", line)
         if not m:
@@ -79,7 +87,10 @@ def _imports(args: list[object]) -> tuple[float, list[str]]:
             total += cumulative / 1e6
         if name in HEAVY:
             heavy.add(name)
-    return total, sorted(heavy)
+        if name in SHOWN and name not in shown:
+            shown[name] = cumulative / 1e6
+    top = sorted(shown.items(), key=lambda kv: -kv[1])[:6]
+    return total, sorted(heavy), ", ".join(f"{k} {v:.2f}" for k, v in top if v >= 0.01)
 
 
 def _load() -> float:
@@ -122,7 +133,7 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
                 stages = json.loads((run / "metrics.json").read_text())["seconds"]
         for leftover in (run, work / "sim"):
             shutil.rmtree(leftover, ignore_errors=True)
-        imports, heavy = _imports(args)
+        imports, heavy, where = _imports(args)
         writing = sum(v for k, v in stages.items() if "." in k)
         rows.append(
             {
@@ -136,6 +147,7 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
                 "compile_s": round(stages.get("compile", 0.0), 3),
                 "write_s": round(writing, 3),
                 "heavy_imports": " ".join(heavy) or "-",
+                "largest_imports_s": where,
                 "load": round(_load(), 2),
             }
         )
