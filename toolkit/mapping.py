@@ -25,6 +25,7 @@ import datetime as _dt
 import json
 import time
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -130,24 +131,39 @@ def write_cloud(
     with the log); with `voxel` > 0 each chunk is reduced to one point per voxel (the mean)
     and then their union again.
     """
-    pcd = Path(path).suffix.lower() == ".pcd"
+    return write_clouds([path], ds, robot, voxel, chunk)
+
+
+def write_clouds(
+    paths: list[Path],
+    ds: Dataset,
+    robot: np.ndarray,
+    voxel: float = 0.0,
+    chunk: int = CHUNK,
+) -> int:
+    """`write_cloud` to several files (.ply, .pcd) in one pass: the points are computed once."""
+    kinds = [Path(p).suffix.lower() == ".pcd" for p in paths]
     span = (float(ds.t[0]), float(ds.t[-1])) if len(ds.t) else (0.0, 1.0)
     if voxel > 0:
         merged = np.empty(0, CLOUD)
         for part in _chunks(ds.n_scans, chunk):
             down = voxel_down(cloud_rows(ds, robot, part, span), voxel)
             merged = voxel_down(np.concatenate([merged, down]), voxel)
-        with open(path, "wb") as f:
-            (write_pcd if pcd else write_ply)(f, merged)
+        for path, pcd in zip(paths, kinds, strict=True):
+            with open(path, "wb") as f:
+                (write_pcd if pcd else write_ply)(f, merged)
         return len(merged)
     total = int(
         sum(np.count_nonzero(np.isfinite(ds.ranges[p])) for p in _chunks(ds.n_scans, chunk))
     )
-    with open(path, "wb") as f:
-        f.write(pcd_header(total) if pcd else ply_header(total))
+    with ExitStack() as stack:
+        files = [stack.enter_context(open(p, "wb")) for p in paths]
+        for f, pcd in zip(files, kinds, strict=True):
+            f.write(pcd_header(total) if pcd else ply_header(total))
         for part in _chunks(ds.n_scans, chunk):
             rows = cloud_rows(ds, robot, part, span)
-            (pcd_rows(rows) if pcd else rows).tofile(f)
+            for f, pcd in zip(files, kinds, strict=True):
+                (pcd_rows(rows) if pcd else rows).tofile(f)
     return total
 
 
@@ -332,8 +348,8 @@ def write_run(
             timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))
             if truth is not None:
                 timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
-            timing("cloud.ply", lambda p: write_cloud(p, ds, robot, voxel))
-            timing("cloud.pcd", lambda p: write_cloud(p, ds, robot, voxel))
+            clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
+            timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
             progress.advance(bar)
             name = ds.path.name if ds.path else "dataset"
             timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))

@@ -79,7 +79,7 @@ def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
     assert metrics["seconds_aligning"] > 0 and metrics["pairs_per_second"] > 0
     assert {"translation", "rotation", "rotation_deg"} <= set(metrics["rpe"])
     assert metrics["failures"]["count"] == 0
-    stages = {"read", "prepare", "compile", "match", "compose", "cloud.ply", "cloud.pcd", "map.png"}
+    stages = {"read", "prepare", "compile", "match", "compose", "cloud.ply+pcd", "map.png"}
     assert stages <= set(metrics["seconds"]) and metrics["seconds"]["match"] > 0
     assert metrics["seconds"]["match"] == pytest.approx(metrics["seconds_aligning"], abs=1e-4)
     config = json.loads((out / "config.json").read_text())
