@@ -37,7 +37,8 @@ def map_command(
         ),
     ] = "gaussian",
     voxel: Annotated[
-        float, typer.Option(help="voxel size (m) to downsample cloud.ply; 0 keeps every return")
+        float,
+        typer.Option(help="voxel size (m) to downsample cloud.ply/.pcd; 0 keeps every return"),
     ] = 0.0,
     force: Annotated[bool, typer.Option("--force", help="replace an existing run")] = False,
     scheduler: Annotated[
@@ -60,8 +61,8 @@ def map_command(
 ) -> None:
     """Align the scans, build the trajectory and the maps, and measure them against ground truth.
 
-    Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
-    metrics.json; atomically. With many datasets, OUT/<name>/ for each.
+    Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, cloud.pcd,
+    map.png, metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
     """
     # on use: the matcher (numba) and pandas load for `map` alone
     from toolkit.mapping import map_dataset
