@@ -50,6 +50,9 @@ from toolkit.writers import (
 )
 
 CHUNK = 20_000  # scans per chunk of map building
+# scans per chunk of the cloud writers: ~20 MB of vertices at 361 beams; larger chunks cost
+# more in fresh memory pages than they save in calls (3x slower at 20,000)
+CLOUD_CHUNK = 2_000
 
 
 def laser_poses(robot: np.ndarray, laser: LaserGeometry) -> np.ndarray:
@@ -121,7 +124,7 @@ def write_cloud(
     ds: Dataset,
     robot: np.ndarray,
     voxel: float = 0.0,
-    chunk: int = CHUNK,
+    chunk: int = CLOUD_CHUNK,
 ) -> int:
     """The 3D map: every return at its world x, y and the laser's height, coloured by time
     (viridis), with its scan's time `t` and index `scan` as properties; a binary PLY, or a
@@ -139,7 +142,7 @@ def write_clouds(
     ds: Dataset,
     robot: np.ndarray,
     voxel: float = 0.0,
-    chunk: int = CHUNK,
+    chunk: int = CLOUD_CHUNK,
 ) -> int:
     """`write_cloud` to several files (.ply, .pcd) in one pass: the points are computed once."""
     kinds = [Path(p).suffix.lower() == ".pcd" for p in paths]
