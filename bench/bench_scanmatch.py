@@ -102,6 +102,7 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
 
     from toolkit import se2
     from toolkit.align import scan as sc
+    from toolkit.align.baselines import match_pairs_icp
     from toolkit.poses import odometry_poses
 
     ds = _dataset("building", Path())
@@ -115,12 +116,12 @@ def child_speed(sample: int, repeats: int) -> list[dict[str, Any]]:
     # ~10% slower)
     config = sc.MatchConfig()
     for method in ("point_to_line", "point_to_point"):
-        sc.match_pairs_icp(ds.ranges[:2], seeds[:1], ds.laser, method)
+        match_pairs_icp(ds.ranges[:2], seeds[:1], ds.laser, method)
         times = []
         for r in range(max(1, repeats // 2)):
             lo = (r * sample) % (pairs - sample)
             t0 = time.perf_counter()
-            sc.match_pairs_icp(
+            match_pairs_icp(
                 ds.ranges[lo : lo + sample + 1],
                 seeds[lo : lo + sample],
                 ds.laser,

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from toolkit.align import scan as sc
+from toolkit import se2
 from toolkit.dataset import Dataset
 from toolkit.metrics import evaluate, relation_error, truth_relations
 from toolkit.poses import build, odometry_poses, truth_poses, with_drift
@@ -39,15 +39,14 @@ TUNED = ("intel", "fhw", "seattle")
 
 def real_logs() -> Iterator[tuple[str, Dataset]]:
     """The CARMEN corrected logs, their corrected poses as ground truth."""
-    from importers.base import ImportOptions
-    from importers.carmen import Carmen
+    from importers.carmen import Carmen, CarmenOptions
 
     wanted = [w for w in os.environ.get("BENCH_SLAM_LOGS", "").split(",") if w]
     for path in sorted(CARMEN.glob("*-corrected.log*")):
         name = path.name.split("-corrected")[0]
         if wanted and name not in wanted:
             continue
-        yield name, Carmen().read([path], ImportOptions(extra={"poses": "groundtruth"}))
+        yield name, Carmen().read([path], CarmenOptions(poses="groundtruth"))
 
 
 def sim_logs(seed: int = 0) -> Iterator[tuple[str, Dataset]]:
@@ -77,8 +76,8 @@ def _kiss(ds: Dataset, voxel: float) -> np.ndarray:
     config.registration.max_num_threads = 1
     kiss = KissICP(config)
     odo = odometry_poses(ds)
-    mount = sc.mount_pose(ds.laser)
-    laser_odo = sc.compose(odo, np.broadcast_to(mount, odo.shape)) if odo is not None else None
+    mount = se2.mount_pose(ds.laser)
+    laser_odo = se2.compose(odo, np.broadcast_to(mount, odo.shape)) if odo is not None else None
     c, s = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
     out = np.zeros((ds.n_scans, 3))
     stamps = np.zeros(0)
@@ -87,15 +86,15 @@ def _kiss(ds: Dataset, voxel: float) -> np.ndarray:
         ok = np.isfinite(r)
         pts = np.column_stack([r[ok] * c[ok], r[ok] * s[ok], np.zeros(ok.sum())])
         if laser_odo is not None and k > 0:
-            kiss.last_delta = _matrix(sc.between(laser_odo[k - 1], laser_odo[k]))
+            kiss.last_delta = _matrix(se2.between(laser_odo[k - 1], laser_odo[k]))
         if len(stamps) != len(pts):
             stamps = np.zeros(len(pts))
         kiss.register_frame(pts, stamps)
         p = kiss.last_pose
         out[k] = p[0, 3], p[1, 3], np.arctan2(p[1, 0], p[0, 0])
     start = laser_odo[0] if laser_odo is not None else mount
-    laser = sc.compose(np.broadcast_to(start, out.shape), out)
-    return sc.compose(laser, np.broadcast_to(sc.inverse(mount), out.shape))
+    laser = se2.compose(np.broadcast_to(start, out.shape), out)
+    return se2.compose(laser, np.broadcast_to(se2.inverse(mount), out.shape))
 
 
 def _matrix(p: np.ndarray) -> np.ndarray:

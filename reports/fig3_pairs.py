@@ -42,7 +42,8 @@ def pick_pairs(ranges: np.ndarray, sections: np.ndarray) -> dict[str, int]:
 
 def align_pair(ds: Dataset, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
     """Relative laser pose (x, y, theta) of scan k in scan k-1's frame by each method."""
-    sc = require("toolkit.align.scan", "match_pairs", "match_pairs_icp")
+    sc = require("toolkit.align.scan", "match_pairs")
+    icp = require("toolkit.align.baselines", "match_pairs_icp")
     se2 = require("toolkit.se2", "between", "laser_motion", "wrap")
     traj = require("toolkit.poses", "odometry_poses", "truth_poses")
     odo = traj.odometry_poses(ds)[k - 1 : k + 1]
@@ -56,7 +57,7 @@ def align_pair(ds: Dataset, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
             est[method] = sc.match_pairs(ranges, seed, ds.laser).pose[0]
         else:
             kind = "point_to_line" if method == "icp" else "point_to_point"
-            est[method] = sc.match_pairs_icp(ranges, seed, ds.laser, kind).pose[0]
+            est[method] = icp.match_pairs_icp(ranges, seed, ds.laser, kind).pose[0]
     error_cm = {m: 100 * float(np.hypot(*(p[:2] - truth[:2]))) for m, p in est.items()}
     error_deg = {m: float(np.rad2deg(abs(se2.wrap(p[2] - truth[2])))) for m, p in est.items()}
     return {"k": k, "truth": truth, "estimate": est, "error_cm": error_cm, "error_deg": error_deg}

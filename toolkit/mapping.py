@@ -3,63 +3,94 @@
 The map is the union of every scan placed at its pose, m(t+1) = m(t) ∪ {l(t), s(t)} (paper
 Eq. 2). The 3D cloud puts each return at its world position and the laser's mounting height,
 coloured by time. Everything is done in chunks of scans, so a log of a million scans maps
-in bounded memory: the cloud is streamed to a binary PLY (or voxel-downsampled chunk by
-chunk with Open3D), and map.png is a histogram of returns accumulated chunk by chunk.
+in bounded memory: the cloud is streamed to a binary PLY and PCD (or voxel-downsampled chunk
+by chunk), and map.png is the returns counted into a pixel grid chunk by chunk. The writers
+are numpy (`toolkit.writers`): no plotting or 3D library is loaded.
 
 RUN/
     config.json          what was run: dataset, method, matcher parameters, voxel size
     trajectory.parquet   t, x, y, theta per scan (robot frame, world coordinates)
     trajectory.tum       the same in TUM format (t x y z qx qy qz qw), for evo
     groundtruth.tum      the ground truth at the scan times, when the dataset has one
-    cloud.ply            the 3D map
-    map.png              the 2D map with the trajectory
-    metrics.json         ATE, RPE, failures (with ground truth), time aligning, pairs/s
+    cloud.ply            the 3D map: x y z, red green blue (by time), t, scan per vertex
+    cloud.pcd            the same as a binary PCD (PCL's packed rgb)
+    map.png              the 2D map with the trajectory (resolution and origin in its text)
+    metrics.json         ATE, RPE, failures (with ground truth), time aligning, pairs/s, and
+                         `seconds`: the time of every stage (read, match, compose, writers)
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from toolkit import se2
+from toolkit import trajio
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
-from toolkit.dataset import Dataset, LaserGeometry, load, write_described
+from toolkit.dataset import META, Dataset, load, sha256, write_described
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.progress import task
+from toolkit.raster import scan_chunks, world_points, write_map_png
+from toolkit.slam.render import write_occupancy
+from toolkit.slam.run import relation_metrics, slam_trajectory
+from toolkit.writers import (
+    CLOUD,
+    pcd_header,
+    pcd_rows,
+    ply_header,
+    viridis,
+    write_pcd,
+    write_ply,
+)
 
-CHUNK = 20_000  # scans per chunk of map building
-
-
-def world_points(
-    ranges: np.ndarray, robot: np.ndarray, laser: LaserGeometry
-) -> tuple[np.ndarray, np.ndarray]:
-    """Every return of `ranges` (S x B) in world x, y (N x 2) and the scan it came from (N,)."""
-    lp = se2.laser_poses(robot, laser)
-    scan, beam = np.nonzero(np.isfinite(ranges))
-    r = ranges[scan, beam].astype(np.float64)
-    bearing = lp[scan, 2] + laser.angles[beam]
-    xy = np.column_stack([lp[scan, 0] + r * np.cos(bearing), lp[scan, 1] + r * np.sin(bearing)])
-    return xy, scan
-
-
-def _chunks(n: int, chunk: int) -> Iterator[slice]:
-    for lo in range(0, n, chunk):
-        yield slice(lo, min(lo + chunk, n))
+# scans per chunk of the cloud writers: ~20 MB of vertices at 361 beams; larger chunks cost
+# more in fresh memory pages than they save in calls (3x slower at 20,000)
+CLOUD_CHUNK = 2_000
 
 
-def _colours(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
-    from matplotlib import colormaps
+def cloud_rows(
+    ds: Dataset, robot: np.ndarray, part: slice, t_span: tuple[float, float]
+) -> np.ndarray:
+    """The returns of scans `part` as cloud vertices (`toolkit.writers.CLOUD`): world x, y,
+    the laser's height, viridis by time over `t_span`, the scan's time and index."""
+    xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
+    rows = np.empty(len(xy), CLOUD)
+    rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], ds.laser.z
+    t = ds.t[part][scan]
+    t0, t1 = t_span
+    rgb = viridis((t - t0) / (t1 - t0 if t1 > t0 else 1.0))
+    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    rows["t"] = t
+    rows["scan"] = scan + (part.start or 0)
+    return rows
 
-    span = t1 - t0 if t1 > t0 else 1.0
-    rgba = colormaps["viridis"]((t - t0) / span)
-    return np.asarray(rgba[:, :3])
+
+def voxel_down(rows: np.ndarray, voxel: float) -> np.ndarray:
+    """One vertex per occupied voxel of side `voxel`: the mean position, colour and time of its
+    vertices and the first (earliest) scan's index, in voxel order."""
+    if len(rows) == 0:
+        return rows
+    cell = np.column_stack([np.floor(rows[a] / voxel) for a in ("x", "y", "z")]).astype(np.int64)
+    cell -= cell.min(axis=0)
+    span = cell.max(axis=0) + 1
+    key = (cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]
+    _, inverse, count = np.unique(key, return_inverse=True, return_counts=True)
+    out = np.empty(len(count), CLOUD)
+    for name in ("x", "y", "z", "t", "red", "green", "blue"):
+        mean = np.bincount(inverse, weights=rows[name].astype(np.float64)) / count
+        out[name] = np.round(mean) if out.dtype[name].kind == "u" else mean
+    grouped = rows["scan"][np.argsort(inverse, kind="stable")]  # voxel by voxel
+    out["scan"] = np.minimum.reduceat(grouped, np.concatenate([[0], np.cumsum(count)[:-1]]))
+    return out
 
 
 def write_cloud(
@@ -67,48 +98,49 @@ def write_cloud(
     ds: Dataset,
     robot: np.ndarray,
     voxel: float = 0.0,
-    chunk: int = CHUNK,
+    chunk: int = CLOUD_CHUNK,
 ) -> int:
-    """The 3D map as a PLY: returns at world x, y and the laser's height z, coloured by time.
+    """The 3D map: every return at its world x, y and the laser's height, coloured by time
+    (viridis), with its scan's time `t` and index `scan` as properties; a binary PLY, or a
+    binary PCD when `path` ends in .pcd. Returns the number of points written.
 
-    With `voxel` > 0, Open3D voxel-downsamples each chunk and then their union; without, every
-    return is streamed to a binary PLY (float x, y, z; uchar red, green, blue), which Open3D
-    and other readers load. Returns the number of points written.
+    Without `voxel` the returns are streamed chunk by chunk of scans (memory does not grow
+    with the log); with `voxel` > 0 each chunk is reduced to one point per voxel (the mean)
+    and then their union again.
     """
-    t0, t1 = (float(ds.t[0]), float(ds.t[-1])) if len(ds.t) else (0.0, 1.0)
-    z = float(ds.laser.z)
-    if voxel > 0:
-        import open3d as o3d
+    return write_clouds([path], ds, robot, voxel, chunk)
 
-        merged = o3d.geometry.PointCloud()
-        for part in _chunks(ds.n_scans, chunk):
-            xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
-            cloud = o3d.geometry.PointCloud(
-                o3d.utility.Vector3dVector(np.column_stack([xy, np.full(len(xy), z)]))
-            )
-            cloud.colors = o3d.utility.Vector3dVector(_colours(ds.t[part][scan], t0, t1))
-            merged += cloud.voxel_down_sample(voxel)
-            merged = merged.voxel_down_sample(voxel)
-        o3d.io.write_point_cloud(str(path), merged, write_ascii=False)
-        return len(merged.points)
-    total = int(sum(np.isfinite(ds.ranges[p]).sum() for p in _chunks(ds.n_scans, chunk)))
-    vertex = np.dtype(
-        [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+
+def write_clouds(
+    paths: list[Path],
+    ds: Dataset,
+    robot: np.ndarray,
+    voxel: float = 0.0,
+    chunk: int = CLOUD_CHUNK,
+) -> int:
+    """`write_cloud` to several files (.ply, .pcd) in one pass: the points are computed once."""
+    kinds = [Path(p).suffix.lower() == ".pcd" for p in paths]
+    span = (float(ds.t[0]), float(ds.t[-1])) if len(ds.t) else (0.0, 1.0)
+    if voxel > 0:
+        merged = np.empty(0, CLOUD)
+        for part in scan_chunks(ds.n_scans, chunk):
+            down = voxel_down(cloud_rows(ds, robot, part, span), voxel)
+            merged = voxel_down(np.concatenate([merged, down]), voxel)
+        for path, pcd in zip(paths, kinds, strict=True):
+            with open(path, "wb") as f:
+                (write_pcd if pcd else write_ply)(f, merged)
+        return len(merged)
+    total = int(
+        sum(np.count_nonzero(np.isfinite(ds.ranges[p])) for p in scan_chunks(ds.n_scans, chunk))
     )
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment laser-toolkit map\n"
-        f"element vertex {total}\nproperty float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
-    )
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        for part in _chunks(ds.n_scans, chunk):
-            xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
-            rows = np.empty(len(xy), dtype=vertex)
-            rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], z
-            rgb = np.round(_colours(ds.t[part][scan], t0, t1) * 255).astype(np.uint8)
-            rows["red"], rows["green"], rows["blue"] = rgb.T
-            f.write(rows.tobytes())
+    with ExitStack() as stack:
+        files = [stack.enter_context(open(p, "wb")) for p in paths]
+        for f, pcd in zip(files, kinds, strict=True):
+            f.write(pcd_header(total) if pcd else ply_header(total))
+        for part in scan_chunks(ds.n_scans, chunk):
+            rows = cloud_rows(ds, robot, part, span)
+            for f, pcd in zip(files, kinds, strict=True):
+                (pcd_rows(rows) if pcd else rows).tofile(f)
     return total
 
 
@@ -120,61 +152,6 @@ def write_tum(path: Path, t: np.ndarray, poses: np.ndarray) -> None:
         [t, poses[:, 0], poses[:, 1], zero, zero, zero, np.sin(half), np.cos(half)]
     )
     np.savetxt(path, table, fmt=["%.6f"] + ["%.9f"] * 7, delimiter=" ")
-
-
-def write_map_png(
-    path: Path,
-    ds: Dataset,
-    robot: np.ndarray,
-    truth: np.ndarray | None = None,
-    title: str = "",
-    chunk: int = CHUNK,
-    cells: int = 1500,
-) -> None:
-    """Top view: a log-scaled histogram of every return, the trajectory over it (and the
-    ground truth, dashed). Accumulated chunk by chunk: memory does not grow with the log."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    lo = np.array([np.inf, np.inf])
-    hi = -lo
-    for part in _chunks(ds.n_scans, chunk):
-        xy, _ = world_points(ds.ranges[part], robot[part], ds.laser)
-        if len(xy):
-            lo = np.minimum(lo, np.percentile(xy, 0.5, axis=0))
-            hi = np.maximum(hi, np.percentile(xy, 99.5, axis=0))
-    lo = np.minimum(lo, robot[:, :2].min(axis=0) - 1) if len(robot) else lo
-    hi = np.maximum(hi, robot[:, :2].max(axis=0) + 1) if len(robot) else hi
-    if not np.isfinite(lo).all():
-        lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
-    cell = max(float((hi - lo).max()) / cells, 0.02)
-    shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)
-    grid = np.zeros(shape, dtype=np.float64)
-    for part in _chunks(ds.n_scans, chunk):
-        xy, _ = world_points(ds.ranges[part], robot[part], ds.laser)
-        ij = np.floor((xy - lo) / cell).astype(np.int64)
-        inside = ((ij >= 0) & (ij < shape)).all(axis=1)
-        np.add.at(grid, (ij[inside, 0], ij[inside, 1]), 1.0)
-    fig, ax = plt.subplots(figsize=(8, 8 * shape[1] / max(shape[0], 1) + 0.5), dpi=120)
-    extent = (lo[0], lo[0] + shape[0] * cell, lo[1], lo[1] + shape[1] * cell)
-    shade = np.log1p(grid.T)
-    top = float(np.percentile(shade[shade > 0], 95)) if (shade > 0).any() else 1.0
-    ax.imshow(
-        shade, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=top, interpolation="none"
-    )
-    if truth is not None:
-        ax.plot(truth[:, 0], truth[:, 1], "--", color="tab:green", lw=0.8, label="ground truth")
-    ax.plot(robot[:, 0], robot[:, 1], color="tab:red", lw=0.8, label="trajectory")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_aspect("equal")
-    ax.set_title(title)
-    ax.legend(loc="best", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
 
 
 def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
@@ -206,8 +183,6 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
 def _meta_digest(ds: Dataset) -> str | None:
     """sha256 of the dataset's meta.json (its identity: sources' sha256, import time), so a
     re-run can tell an unchanged dataset (`toolkit.app.fleet.run_is_current`)."""
-    from toolkit.dataset import META, sha256
-
     meta = ds.path / META if ds.path else None
     return sha256(meta) if meta is not None and meta.is_file() else None
 
@@ -221,29 +196,35 @@ def write_run(
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,
     loops: bool = True,
+    seconds: dict[str, float] | None = None,
 ) -> Path:
     """Align `ds` by `method` and write the run directory `out`, atomically (`matcher`: see
     `trajectory.build`); with `loops`, the mapper's loop closure and pose graph
-    (`toolkit.slam.run`)."""
-    from toolkit.slam.render import write_occupancy
-    from toolkit.slam.run import relation_metrics, slam_trajectory
-
+    (`toolkit.slam.run`). metrics.json's `seconds` holds the time of every stage: `seconds`
+    given (the caller's, e.g. reading the dataset), then the trajectory's (prepare, compile,
+    match, compose, and the loops') and each output's by file name."""
     out = Path(out)
     check_output(out, force)
     config = config or sc.MatchConfig()
     method = Method.parse(method)
-    from toolkit.progress import task
-
+    timed = dict(seconds or {})
     with task(f"map ({method})", 4) as (progress, bar):
         slam = None
         if loops and method != "odometry":
             result, slam = slam_trajectory(ds, method, config, matcher)
         else:
             result = build(ds, method, config, matcher)
+        timed |= result.timings
         progress.advance(bar)
         robot = result.poses
         truth = truth_poses(ds)
         with atomic_dir(out, force=force) as tmp:
+
+            def timing(name: str, write: Callable[[Path], object]) -> None:
+                t0 = time.perf_counter()
+                write(tmp / name)
+                timed[name] = time.perf_counter() - t0
+
             settings = {
                 "dataset": str(ds.path) if ds.path else None,
                 "dataset_meta_sha256": _meta_digest(ds),
@@ -255,22 +236,30 @@ def write_run(
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }
             (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
-            write_described(tmp / "trajectory.parquet", result.frame, "trajectory", method=method)
-            write_tum(tmp / "trajectory.tum", ds.t, robot)
+            timing(
+                "trajectory.parquet",
+                lambda p: write_described(p, result.frame, "trajectory", method=method),
+            )
+            timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))
             if truth is not None:
-                write_tum(tmp / "groundtruth.tum", ds.t, truth)
-            write_cloud(tmp / "cloud.ply", ds, robot, voxel)
+                timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
+            clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
+            timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
             progress.advance(bar)
             name = ds.path.name if ds.path else "dataset"
             if slam is None:
-                write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
-                write_occupancy(tmp, ds, robot)
+                timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))
+                timing("map.pgm+yaml", lambda _: write_occupancy(tmp, ds, robot))
             else:
-                slam.write(tmp, ds, robot, f"{name}: {method} with loops")
+                title = f"{name}: {method} with loops"
+                timing("map.png+pgm+yaml", lambda _: slam.write(tmp, ds, robot, title))
             progress.advance(bar)
+            t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
             metrics["relation_error"] = relation_metrics(ds, robot)
             metrics |= slam.metrics(ds) if slam is not None else {}
+            timed["metrics"] = time.perf_counter() - t0
+            metrics["seconds"] = {k: round(v, 4) for k, v in timed.items()}
             text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
             (tmp / "metrics.json").write_text(text)
             progress.advance(bar)
@@ -288,11 +277,14 @@ def map_dataset(
 ) -> Path:
     """`toolkit map`: load a dataset directory and write its run directory."""
     check_output(Path(out), force)
-    return write_run(load(dataset), out, method, voxel, force=force, matcher=matcher, loops=loops)
+    t0 = time.perf_counter()
+    ds = load(dataset)
+    read = {"read": time.perf_counter() - t0}
+    return write_run(
+        ds, out, method, voxel, force=force, matcher=matcher, loops=loops, seconds=read
+    )
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:
     """A trajectory t, x, y, theta: a run's trajectory.parquet or .tum (`toolkit.trajio`)."""
-    from toolkit.trajio import read_trajectory as read
-
-    return read(path)
+    return trajio.read_trajectory(path)

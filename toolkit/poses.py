@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Literal
 
@@ -22,11 +22,12 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
-from toolkit import se2
+from toolkit import align, se2
 from toolkit.align import scan as sc
 from toolkit.align import se2_jit
 from toolkit.dataset import Dataset, PoseStream, pose_frame
 from toolkit.errors import ToolkitError
+from toolkit.sim.odometry import OdometryModel
 
 
 class Method(StrEnum):
@@ -57,8 +58,9 @@ class TrajectoryResult:
     frame: pd.DataFrame  # t, x, y, theta
     method: Method
     matches: sc.PairMatches | None = None  # per pair, for the matching methods
-    seconds: float = 0.0  # time spent aligning scan pairs
+    seconds: float = 0.0  # time spent aligning scan pairs (compilation kept out)
     config: dict[str, object] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)  # s: prepare, compile, match, compose
 
     @property
     def poses(self) -> np.ndarray:
@@ -130,12 +132,14 @@ def build(
     `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
     runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`)."""
     method = Method.parse(method)
+    t_start = time.perf_counter()
     odo = odometry_poses(ds)
     n = ds.n_scans
     if method == Method.ODOMETRY:
         if odo is None:
             raise ToolkitError("method odometry needs odometry; the dataset has none", file=ds.path)
-        return TrajectoryResult(pose_frame(ds.t, odo), method)
+        prepare = {"prepare": time.perf_counter() - t_start}
+        return TrajectoryResult(pose_frame(ds.t, odo), method, timings=prepare)
     start = odo[0] if odo is not None else np.zeros(3)
     if n < 2:
         return TrajectoryResult(pose_frame(ds.t, np.tile(start, (n, 1))), method)
@@ -147,6 +151,12 @@ def build(
         ref = np.maximum(np.arange(n) - 1, 0)
         robot_seed = np.zeros((n - 1, 3))
     seeds = se2.laser_motion(robot_seed, ds.laser)
+    t_compile = time.perf_counter()
+    if method == Method.GAUSSIAN and matcher is None:
+        # the kernels' first call of a session compiles them, or loads numba's cache (0.1-1 s;
+        # 10 s and more when nothing is cached): done on the first pair alone, so that the
+        # matching time (and pairs/s) is the matching's
+        sc.match_pairs(ds.ranges[:2], seeds[:1], ds.laser, config, ref[:2])
     t0 = time.perf_counter()
     if method == Method.GAUSSIAN:
         matches = (matcher or sc.match_pairs)(ds.ranges, seeds, ds.laser, config, ref)
@@ -155,12 +165,18 @@ def build(
         icp_method: Literal["point_to_line", "point_to_point"] = (
             "point_to_line" if method == Method.ICP else "point_to_point"
         )
-        matches = sc.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
+        matches = align.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
         used = {"icp": icp_method, "max_distance": 0.5, "iterations": 30}
         used |= {k: getattr(config, k) for k in ("keyframe_distance", "keyframe_angle")}
     seconds = time.perf_counter() - t0
     poses = compose_refs(start, ref, se2.robot_motion(matches.pose, ds.laser))
-    return TrajectoryResult(pose_frame(ds.t, poses), method, matches, seconds, used)
+    timings = {
+        "prepare": t_compile - t_start,
+        "compile": t0 - t_compile,
+        "match": seconds,
+        "compose": time.perf_counter() - t0 - seconds,
+    }
+    return TrajectoryResult(pose_frame(ds.t, poses), method, matches, seconds, used, timings)
 
 
 def trajectory(
@@ -185,10 +201,6 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
     """A copy of `ds` whose odometry is its ground truth at the scan times run through the
     simulator's differential-drive odometry model (REAL_LOG_DRIFT, overridden by `params`),
     seeded: for real logs whose only poses are SLAM-corrected ones."""
-    from dataclasses import replace
-
-    from toolkit.sim.odometry import OdometryModel
-
     truth = truth_poses(ds)
     if truth is None:
         raise ToolkitError("adding drift needs ground truth; the dataset has none", file=ds.path)

@@ -8,6 +8,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import TypeVar
 
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -26,8 +27,6 @@ def enabled() -> bool:
 
 
 def bar() -> Progress:
-    from rich.console import Console
-
     return Progress(
         TextColumn("{task.description}"),
         BarColumn(),

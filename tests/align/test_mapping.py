@@ -36,6 +36,7 @@ def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
         "trajectory.tum",
         "groundtruth.tum",
         "cloud.ply",
+        "cloud.pcd",
         "map.png",
         "metrics.json",
     } <= names
@@ -63,6 +64,15 @@ def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
     assert not np.allclose(colours[:100].mean(0), colours[-100:].mean(0), atol=0.1)
     first = mapping.world_points(ds.ranges[:1], traj[["x", "y", "theta"]].to_numpy()[:1], ds.laser)
     assert np.allclose(pts[: len(first[0]), :2], first[0], atol=1e-4)
+    # every vertex carries its scan's index and time, in the PLY and the PCD alike
+    scan_of_return = np.nonzero(np.isfinite(ds.ranges))[0]
+    for name in ("cloud.ply", "cloud.pcd"):
+        tcloud = o3d.t.io.read_point_cloud(str(out / name)).point
+        assert np.array_equal(tcloud["scan"].numpy().ravel(), scan_of_return), name
+        assert np.array_equal(tcloud["t"].numpy().ravel(), ds.t[scan_of_return]), name
+        assert np.allclose(tcloud["positions"].numpy(), pts, atol=1e-4), name
+    pcd = o3d.io.read_point_cloud(str(out / "cloud.pcd"))
+    assert np.allclose(np.asarray(pcd.colors), colours)
 
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["groundtruth"] and metrics["pairs"] == 299
@@ -70,6 +80,9 @@ def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
     assert metrics["seconds_aligning"] > 0 and metrics["pairs_per_second"] > 0
     assert {"translation", "rotation", "rotation_deg"} <= set(metrics["rpe"])
     assert metrics["failures"]["count"] == 0
+    stages = {"read", "prepare", "compile", "match", "compose", "cloud.ply+pcd", "map.png"}
+    assert stages <= set(metrics["seconds"]) and metrics["seconds"]["match"] > 0
+    assert metrics["seconds"]["match"] == pytest.approx(metrics["seconds_aligning"], abs=1e-4)
     config = json.loads((out / "config.json").read_text())
     assert config["method"] == "gaussian" and config["matcher"]["iterations"] >= 1
     assert (out / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -127,3 +140,32 @@ def test_a_log_without_ground_truth_or_odometry_still_maps(dataset: Path, tmp_pa
     assert metrics["pairs"] == full.n_scans - 1
     assert not (out / "groundtruth.tum").exists()
     assert len(pd.read_parquet(out / "trajectory.parquet")) == full.n_scans
+
+
+def test_map_png_is_the_returns_rasterised_with_the_trajectory(
+    dataset: Path, tmp_path: Path
+) -> None:
+    from PIL import Image
+
+    ds = toolkit.load(dataset)
+    robot = toolkit.trajectory(ds, method="odometry")[["x", "y", "theta"]].to_numpy()
+    path = tmp_path / "map.png"
+    mapping.write_map_png(path, ds, robot, title="corridor")
+    with Image.open(path) as png:
+        image = np.asarray(png.convert("RGB"))
+        info = dict(png.info)
+    cell = float(info["resolution"])
+    x0, y0 = (float(v) for v in info["origin"].split())
+    height = image.shape[0]
+
+    def pixel(x: float, y: float) -> np.ndarray:
+        return image[height - 1 - int((y - y0) / cell), int((x - x0) / cell)]
+
+    assert info["Title"] == "corridor"
+    mid = robot[len(robot) // 2]
+    assert tuple(pixel(mid[0], mid[1])) == mapping.TRAJECTORY_RGB
+    # the returns: dark where walls were seen (the first scan's returns), white elsewhere
+    xy, _ = mapping.world_points(ds.ranges[:1], robot[:1], ds.laser)
+    seen = np.array([pixel(x, y) for x, y in xy])
+    assert (seen.max(axis=1) < 200).mean() > 0.9
+    assert (image == 255).all(axis=2).mean() > 0.5

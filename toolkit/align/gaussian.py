@@ -11,9 +11,10 @@ multiplies the weight by the squared residual, which does the opposite. The defa
 is `variant="paper"`, w_i <- w_i r_i^2. Both are capped at 1 / (2 sigma^2), the peak of the
 Gaussian kernel in the paper's scaling, so no single point can dominate.
 
-Speed: a few passes over the K x D points, no temporaries of K x D beyond the displacements
-(laid out D x K so each pass is a contiguous loop); numba for the passes, numpy's vectorised
-exp for the Gaussian weights.
+Speed: one compiled call per alignment: the screening, the first mean and variance, and every
+round (re-weighting fused with the next mean, then the variance) are passes of a single numba
+kernel over the K x D points, with no temporaries but the K weights, so small inputs are not
+dominated by call overhead.
 """
 
 from __future__ import annotations
@@ -67,26 +68,9 @@ def gaussian(
         if w0.shape != (k,):
             raise ValueError(f"weights {w0.shape} do not match {k} points")
     mu = np.zeros(dim)
-    d = np.empty((dim, k))
-    r2 = np.empty(k)
-    np.subtract(cur.T, prev.T, out=d)  # D x K: every later pass is a contiguous loop
-    total = _screen(d, -1.0 if max_shift is None else float(max_shift), w0, r2)
-    var = _moments(d, w0, total, mu, r2)  # Eq. 3-4
-    w = w0
-    buffer = np.empty(k) if iterations > 0 else w0
-    for _ in range(iterations):  # Eq. 5-6, then Eq. 3-4 again
-        cap = 1.0 / (2.0 * max(var, _TINY))
-        if variant == "text":  # as the text describes them: changed points lose weight
-            np.multiply(r2, -cap, out=buffer)
-            np.exp(buffer, out=buffer)
-            total = _scale_capped(buffer, cap, w0)
-        else:  # as printed: the weight grows with the squared residual
-            np.multiply(w, r2, out=buffer)
-            total = _scale_capped(buffer, cap, None)
-        w = buffer
-        if not total > 0:
-            break
-        var = _moments(d, w, total, mu, r2)
+    w = np.empty(k) if iterations > 0 else w0
+    bound = -1.0 if max_shift is None else float(max_shift)
+    var = _align(cur, prev, w0, w, int(iterations), bound, variant == "paper", mu)
     if max_shift is not None:
         norm = math.sqrt(float(mu @ mu))
         if norm > max_shift:
@@ -94,57 +78,97 @@ def gaussian(
     return GaussianResult(mu, var, w, iterations)
 
 
-@nb.njit(cache=True, nogil=True)
-def _screen(d: np.ndarray, max_shift: float, w0: np.ndarray, n2: np.ndarray) -> float:
-    """A displacement (D x K `d`) with a non-finite coordinate, or longer than `max_shift`
-    (< 0: no bound), is no evidence: weight 0 in `w0` (and 0 in `d`, so sums stay finite).
-    `n2` is scratch (K). Returns the total weight left."""
-    dim, k = d.shape
-    n2[:] = 0.0
-    for j in range(dim):
-        dj = d[j]
-        for i in range(k):
-            n2[i] += dj[i] * dj[i]
-    bound2 = max_shift * max_shift if max_shift >= 0.0 else np.inf
-    total = 0.0
-    bad = 0
-    for i in range(k):
-        keep = n2[i] <= bound2  # NaN fails; inf > inf is False, so test finiteness too
-        keep = keep and n2[i] < np.inf
-        bad += 0 if n2[i] < np.inf else 1
-        w0[i] = w0[i] if keep else 0.0
-        total += w0[i]
-    if bad:
-        for i in range(k):
-            if not n2[i] < np.inf:
-                for j in range(dim):
-                    d[j, i] = 0.0
-    return total
+_POW2_NEG = np.array([2.0**-n for n in range(1024)])  # 2^-n, the exponent part of _exp_neg
+_LN2_HI, _LN2_LO = 0.6931471803691238, 1.9082149292705877e-10  # ln 2 = HI + LO, HI exact * n
 
 
-@nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _scale_capped(w: np.ndarray, cap: float, w0: np.ndarray | None) -> float:
-    """w <- min(w cap w0, cap) (text) or min(w, cap) (printed: w0 None); returns the sum."""
-    total = 0.0
-    if w0 is None:
-        for i in range(w.shape[0]):
-            w[i] = min(w[i], cap)
-            total += w[i]
-    else:
-        for i in range(w.shape[0]):
-            w[i] = min(w[i] * cap * w0[i], cap)
-            total += w[i]
-    return total
+@nb.njit(cache=True, nogil=True, inline="always")
+def _exp_neg(x: float) -> float:
+    """exp(-x) for x >= 0 to about 2e-16 relative (0 from 708 on, where doubles end),
+    branch-free so that a loop of it vectorises: libm's exp is scalar and
+    was most of a round. x = n ln 2 + r, |r| <= ln 2 / 2; 2^-n from a table, exp(-r) by its
+    Taylor polynomial of degree 13."""
+    xc = min(x, 708.0)
+    n = int(xc * 1.4426950408889634 + 0.5)
+    r = (xc - n * _LN2_HI) - n * _LN2_LO
+    t = -r
+    p = 1.0 / 6227020800.0
+    p = p * t + 1.0 / 479001600.0
+    p = p * t + 1.0 / 39916800.0
+    p = p * t + 1.0 / 3628800.0
+    p = p * t + 1.0 / 362880.0
+    p = p * t + 1.0 / 40320.0
+    p = p * t + 1.0 / 5040.0
+    p = p * t + 1.0 / 720.0
+    p = p * t + 1.0 / 120.0
+    p = p * t + 1.0 / 24.0
+    p = p * t + 1.0 / 6.0
+    p = p * t + 0.5
+    p = p * t + 1.0
+    p = p * t + 1.0
+    return p * _POW2_NEG[n] if x < 708.0 else 0.0
 
 
 @nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
+def _align(
+    cur: np.ndarray,
+    prev: np.ndarray,
+    w0: np.ndarray,
+    w: np.ndarray,
+    iterations: int,
+    max_shift: float,
+    paper: bool,
+    mu: np.ndarray,
+) -> float:
+    """Eq. 3-6 on the displacements cur - prev (K x D), in place: `w0` the prior weights
+    (screened here: a displacement with a non-finite coordinate, or longer than `max_shift`
+    (< 0: no bound), gets weight 0 and counts as 0), `w` the weights after the last round
+    (`w0` itself when `iterations` is 0), `mu` (D) the shift; returns the variance.
+
+    The displacements are laid out D x K once, so every later pass is a contiguous loop."""
+    k, dim = cur.shape
+    d = np.empty((dim, k))
+    r2 = np.zeros(k)
+    bound2 = max_shift * max_shift if max_shift >= 0.0 else np.inf
+    total = 0.0
+    for i in range(k):  # screen
+        n2 = 0.0
+        for j in range(dim):
+            dj = cur[i, j] - prev[i, j]
+            d[j, i] = dj
+            n2 += dj * dj
+        if not n2 < np.inf:  # NaN or inf: no evidence, and 0 so that sums stay finite
+            for j in range(dim):
+                d[j, i] = 0.0
+        if not (n2 <= bound2 and n2 < np.inf):
+            w0[i] = 0.0
+        total += w0[i]
+    var = _moments(d, w0, total, mu, r2)  # Eq. 3-4
+    for rnd in range(iterations):  # Eq. 5-6, then Eq. 3-4 again
+        cap = 1.0 / (2.0 * max(var, _TINY))
+        last = w0 if rnd == 0 else w
+        total = 0.0
+        if paper:  # as printed: the weight grows with the squared residual
+            for i in range(k):
+                w[i] = min(last[i] * r2[i], cap)
+                total += w[i]
+        else:  # as the text describes them: changed points lose weight
+            for i in range(k):
+                w[i] = min(_exp_neg(cap * r2[i]) * cap * w0[i], cap)
+                total += w[i]
+        if not total > 0.0:
+            break
+        var = _moments(d, w, total, mu, r2)
+    return var
+
+
+@nb.njit(cache=True, nogil=True, inline="always", fastmath={"reassoc", "contract", "arcp"})
 def _moments(d: np.ndarray, w: np.ndarray, total: float, mu: np.ndarray, r2: np.ndarray) -> float:
     """Weighted mean of the D x K displacements into `mu` (`total`: the weights' sum),
     squared residuals into `r2`, and their weighted mean (the variance); zeros when no
     point has weight."""
     dim, k = d.shape
-    if dim == 0:
-        r2[:] = 0.0
+    r2[:] = 0.0
     for j in range(dim):
         dj = d[j]
         acc = 0.0
@@ -152,14 +176,9 @@ def _moments(d: np.ndarray, w: np.ndarray, total: float, mu: np.ndarray, r2: np.
             acc += w[i] * dj[i]
         m = acc / total if total > 0.0 else 0.0
         mu[j] = m
-        if j == 0:
-            for i in range(k):
-                r = dj[i] - m
-                r2[i] = r * r
-        else:
-            for i in range(k):
-                r = dj[i] - m
-                r2[i] += r * r
+        for i in range(k):
+            r = dj[i] - m
+            r2[i] += r * r
     if not total > 0.0:
         return 0.0
     s = 0.0

@@ -14,8 +14,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from toolkit.align.baselines import icp
 from toolkit.align.gaussian import gaussian
-from toolkit.align.icp import icp
 
 SIZES = (100, 500, 1000, 5000, 10_000)  # the paper's
 TRIALS = 10

@@ -688,7 +688,7 @@ def match_pairs(
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
     seeds = np.ascontiguousarray(seeds, dtype=np.float64)
     n = max(len(ranges) - 1, 0)
-    refs = _refs(ref, len(ranges))
+    refs = pair_refs(ref, len(ranges))
     if seeds.shape != (n, 3):
         raise ValueError(f"seeds {seeds.shape} do not match {n} scan pairs")
     if ranges.shape[1:] != (laser.beams,):
@@ -721,7 +721,8 @@ def match_pairs(
     return out
 
 
-def _refs(ref: np.ndarray | None, n: int) -> np.ndarray:
+def pair_refs(ref: np.ndarray | None, n: int) -> np.ndarray:
+    """The reference scan of each of `n` scans (`ref`, checked; default: the previous one)."""
     if ref is None:
         return np.maximum(np.arange(n, dtype=np.int64) - 1, 0)
     refs = np.ascontiguousarray(ref, dtype=np.int64)
@@ -805,42 +806,3 @@ def scan_points(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
     a = laser.angles
     r = np.asarray(ranges, dtype=np.float64)
     return np.column_stack([r * np.cos(a), r * np.sin(a)])
-
-
-def match_pairs_icp(
-    ranges: np.ndarray,
-    seeds: np.ndarray,
-    laser: LaserGeometry,
-    method: Literal["point_to_point", "point_to_line"] = "point_to_line",
-    max_distance: float = 0.5,
-    iterations: int = 30,
-    ref: np.ndarray | None = None,
-) -> PairMatches:
-    """The ICP baseline on the same pairs as `match_pairs`, seeded the same way (one pair at a
-    time: ICP builds a KD-tree of each reference scan)."""
-    from toolkit.align.icp import ordered_normals, register_point_to_line, register_point_to_point
-
-    n = max(len(ranges) - 1, 0)
-    refs = _refs(ref, len(ranges))
-    out = PairMatches.empty(n)
-    key, prev, normals = -1, np.zeros((0, 2)), np.zeros((0, 2))
-    for k in range(n):
-        if refs[k + 1] != key:
-            key = int(refs[k + 1])
-            prev = scan_points(ranges[key], laser)
-            normals = ordered_normals(prev)
-        cur = scan_points(ranges[k + 1], laser)
-        src = cur[np.isfinite(cur).all(axis=1)]
-        if method == "point_to_line":
-            T, fit, rmse = register_point_to_line(
-                src, prev, normals, seeds[k], max_distance, iterations
-            )
-            pose = np.array([T[0, 2], T[1, 2], np.arctan2(T[1, 0], T[0, 0])])
-        else:
-            dst = prev[np.isfinite(prev).all(axis=1)]
-            T4, fit, rmse = register_point_to_point(src, dst, seeds[k], max_distance, iterations)
-            pose = np.array([T4[0, 3], T4[1, 3], np.arctan2(T4[1, 0], T4[0, 0])])
-        out.pose[k] = pose
-        out.sigma[k] = rmse
-        out.used[k] = round(fit * len(src))
-    return out

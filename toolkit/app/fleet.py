@@ -203,7 +203,7 @@ def match_pairs_on(
     config = config or sc.MatchConfig()
     if client is None:
         return sc.match_pairs(ranges, seeds, laser, config, ref)
-    refs = sc._refs(ref, len(ranges))
+    refs = sc.pair_refs(ref, len(ranges))
     if len(refs) > 2 and (np.diff(refs[1:]) < 0).any():
         raise ValueError("chunked matching needs reference scans that never go backwards")
     if scans is not None:

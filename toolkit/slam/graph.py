@@ -12,7 +12,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
-from toolkit.align.scan import between
+from toolkit.se2 import between
 
 
 @dataclass

@@ -85,7 +85,7 @@ def _score(
         j = math.floor((y - origin[1]) / res)
         if 0 <= i < w and 0 <= j < h:
             total += like[j, i]
-    return total / max(pts.shape[0], 1)
+    return float(total / max(pts.shape[0], 1))
 
 
 @nb.njit(cache=True, nogil=True)

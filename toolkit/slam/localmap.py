@@ -13,16 +13,17 @@ import time
 
 import numpy as np
 
+from toolkit import se2
 from toolkit.align import scan as sc
-from toolkit.dataset import Dataset
-from toolkit.poses import TrajectoryResult, build, odometry_poses
+from toolkit.dataset import Dataset, LaserGeometry, pose_frame
+from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
 
 
 class MotionMatcher(sc.StreamMatcher):
     """`StreamMatcher` whose `push` takes odometry or None; with None, the pose predicted by
     constant velocity (the last motion repeated) plays the odometry's part."""
 
-    def __init__(self, laser: sc.LaserGeometry, config: sc.MatchConfig | None = None) -> None:
+    def __init__(self, laser: LaserGeometry, config: sc.MatchConfig | None = None) -> None:
         super().__init__(laser, config)
         self._last = np.zeros(3)
         self._step = np.zeros(3)
@@ -36,7 +37,7 @@ class MotionMatcher(sc.StreamMatcher):
         if t is not None and self._t is not None and self._dt > 0:
             scale = min((t - self._t) / self._dt, 3.0)
             step = step * scale
-        predicted = sc.compose(self._last[None], step[None])[0]
+        predicted = se2.compose(self._last[None], step[None])[0]
         if not self._started:
             predicted = np.zeros(3)
         else:  # the "odometry" is the corrected frame: the keyframe's pose is its own odometry
@@ -44,7 +45,7 @@ class MotionMatcher(sc.StreamMatcher):
         pose = self.push(ranges, predicted)
         if self._started and t is not None and self._t is not None:
             self._dt = t - self._t
-        self._step = sc.between(self._last[None], pose[None])[0]
+        self._step = se2.between(self._last[None], pose[None])[0]
         self._last = pose
         self._t = t
         return pose
@@ -69,15 +70,9 @@ def sequential(ds: Dataset, config: sc.MatchConfig | None = None) -> TrajectoryR
             matches.sigma[k - 1], matches.used[k - 1] = sigma, n_used
             matches.degenerate[k - 1], matches.agreement[k - 1] = degenerate, agreement
     seconds = time.perf_counter() - t0
-    frame = _frame(ds.t, poses)
+    frame = pose_frame(ds.t, poses)
     used = config.to_dict()
-    return TrajectoryResult(frame, "gaussian", matches, seconds, used)
-
-
-def _frame(t: np.ndarray, poses: np.ndarray):  # type: ignore[no-untyped-def]
-    import pandas as pd
-
-    return pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
+    return TrajectoryResult(frame, Method.GAUSSIAN, matches, seconds, used)
 
 
 __all__ = ["MotionMatcher", "sequential"]

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from toolkit.align.scan import between, compose, mount_pose
 from toolkit.dataset import LaserGeometry
+from toolkit.se2 import between, compose, mount_pose
 from toolkit.slam.grid import LikelihoodGrid, correlative_search, voxel_subsample
 
 

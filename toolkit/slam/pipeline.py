@@ -16,11 +16,12 @@
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
 from toolkit.slam import graph as pg
@@ -115,7 +116,7 @@ def keyframes_of(poses: np.ndarray, distance: float, angle: float) -> np.ndarray
 def sequential_edges(keys: np.ndarray, poses: np.ndarray, config: SlamConfig) -> list[pg.Edge]:
     """Edges between consecutive keyframes: the sequential estimate, spread floored and grown
     with the edge's length."""
-    rel = sc.between(poses[keys[:-1]], poses[keys[1:]])
+    rel = se2.between(poses[keys[:-1]], poses[keys[1:]])
     length = np.hypot(rel[:, 0], rel[:, 1]) + 0.3 * np.abs(rel[:, 2])
     st = config.sigma_floor[0] + config.sigma_per_metre[0] * length
     sr = config.sigma_floor[1] + config.sigma_per_metre[1] * length
@@ -144,10 +145,10 @@ def local_map_edges(
     edges: list[pg.Edge] = []
     for lag in range(2, config.local_map + 1):
         ref = np.maximum(m - lag, 0)
-        robot_seed = sc.between(kp[ref[1:]], kp[1:])
-        seeds = sc.laser_motion(robot_seed, ds.laser)
+        robot_seed = se2.between(kp[ref[1:]], kp[1:])
+        seeds = se2.laser_motion(robot_seed, ds.laser)
         found = sc.match_pairs(ranges, seeds, ds.laser, match, ref)
-        rel = sc.robot_motion(found.pose, ds.laser)
+        rel = se2.robot_motion(found.pose, ds.laser)
         good = (m[1:] >= lag) & (found.degenerate < 2) & (found.agreement >= config.min_agreement)
         length = np.hypot(rel[:, 0], rel[:, 1]) + 0.3 * np.abs(rel[:, 2])
         st = config.sigma_floor[0] + config.sigma_per_metre[0] * length
@@ -164,8 +165,8 @@ def hang(keys: np.ndarray, before: np.ndarray, optimised: np.ndarray) -> np.ndar
     from that keyframe in the sequential estimate."""
     owner = keys[np.searchsorted(keys, np.arange(len(before)), side="right") - 1]
     index = np.searchsorted(keys, owner)
-    offset = sc.between(before[owner], before)
-    return sc.compose(optimised[index], offset)
+    offset = se2.between(before[owner], before)
+    return se2.compose(optimised[index], offset)
 
 
 def close_loops(
@@ -234,13 +235,11 @@ def close_loops(
             continue
         found[(lp.a, lp.b)] = lp
         if lp.accepted and config.incremental:
-            moved = sc.between(sc.between(poses[lp.a], poses[lp.b]), lp.pose)
+            moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
             if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
                 poses = solve()
     poses = solve()
     # further rounds from the optimised trajectory, smaller windows, where no loop closed yet
-    from dataclasses import replace
-
     loop_cfg = replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)
     for _ in range(config.rounds - 1):
         t0 = time.perf_counter()

@@ -17,14 +17,17 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-from toolkit.align import scan as sc
+from toolkit import se2
 from toolkit.dataset import Dataset
+from toolkit.metrics import align_se2
+from toolkit.raster import grid_for, map_image, map_text
+from toolkit.writers import write_png
 
 CHUNK = 20_000
 
 
 def _laser_poses(robot: np.ndarray, ds: Dataset) -> np.ndarray:
-    return sc.compose(robot, np.broadcast_to(sc.mount_pose(ds.laser), robot.shape))
+    return se2.compose(robot, np.broadcast_to(se2.mount_pose(ds.laser), robot.shape))
 
 
 def _bounds(ds: Dataset, robot: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
@@ -176,25 +179,6 @@ def read_pgm(path: Path) -> np.ndarray:
     return np.frombuffer(data[pos + 1 : pos + 1 + w * h], dtype=np.uint8).reshape(h, w)
 
 
-def _histogram(ds: Dataset, robot: np.ndarray, lo: np.ndarray, cell: float, shape: np.ndarray):  # type: ignore[no-untyped-def]
-    grid = np.zeros((shape[1], shape[0]))
-    a = ds.laser.angles
-    for s in range(0, ds.n_scans, CHUNK):
-        part = slice(s, min(s + CHUNK, ds.n_scans))
-        lp = _laser_poses(robot[part], ds)
-        r = ds.ranges[part]
-        ok = np.isfinite(r)
-        x = (lp[:, :1] + r * np.cos(lp[:, 2:3] + a))[ok]
-        y = (lp[:, 1:2] + r * np.sin(lp[:, 2:3] + a))[ok]
-        i = np.floor((x - lo[0]) / cell).astype(np.int64)
-        j = np.floor((y - lo[1]) / cell).astype(np.int64)
-        inside = (i >= 0) & (i < shape[0]) & (j >= 0) & (j < shape[1])
-        grid += np.bincount(j[inside] * shape[0] + i[inside], minlength=grid.size).reshape(
-            grid.shape
-        )
-    return grid
-
-
 def write_side_by_side(
     path: Path,
     ds: Dataset,
@@ -203,45 +187,21 @@ def write_side_by_side(
     title: str = "",
     cells: int = 800,
 ) -> None:
-    """map.png: one top view per (name, robot poses) panel, side by side, each aligned to the
-    last panel's frame, with its trajectory (and the truth, dashed, aligned to it)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from toolkit.metrics import align_se2
-
+    """map.png: one top view per (name, robot poses) panel, left to right, each aligned to
+    the last panel's frame, with its trajectory (and the truth, dashed, aligned to it), on one
+    pixel grid; the panels' names, in order, go into the PNG's text."""
     ref = panels[-1][1]
     moved = []
     for name, poses in panels:
         T = align_se2(poses, ref) if poses is not ref else np.zeros(3)
-        moved.append((name, sc.compose(np.broadcast_to(T, poses.shape), poses)))
+        moved.append((name, se2.compose(np.broadcast_to(T, poses.shape), poses)))
     if truth is not None:
-        T = align_se2(truth, ref)
-        truth = sc.compose(np.broadcast_to(T, truth.shape), truth)
-    lo, hi = _bounds(ds, ref, 30.0)
-    cell = max(float((hi - lo).max()) / cells, 0.03)
-    shape = np.ceil((hi - lo) / cell).astype(np.int64) + 1
-    n = len(moved)
-    aspect = shape[1] / max(shape[0], 1)
-    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 5.5 * aspect + 0.8), dpi=110, squeeze=False)
-    extent = (lo[0], lo[0] + shape[0] * cell, lo[1], lo[1] + shape[1] * cell)
-    for ax, (name, poses) in zip(axes[0], moved, strict=True):
-        shade = np.log1p(_histogram(ds, poses, lo, cell, shape))
-        top = float(np.percentile(shade[shade > 0], 95)) if (shade > 0).any() else 1.0
-        ax.imshow(shade, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=top)
-        if truth is not None:
-            ax.plot(truth[:, 0], truth[:, 1], "--", color="tab:green", lw=0.7, label="truth")
-        ax.plot(poses[:, 0], poses[:, 1], color="tab:red", lw=0.7, label="trajectory")
-        ax.set_title(name)
-        ax.set_aspect("equal")
-        ax.set_xlim(extent[0], extent[1])
-        ax.set_ylim(extent[2], extent[3])
-        ax.set_xlabel("x (m)")
-    axes[0][0].set_ylabel("y (m)")
-    axes[0][0].legend(loc="best", fontsize="small")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+        truth = se2.compose(np.broadcast_to(align_se2(truth, ref), truth.shape), truth)
+    lo, cell, size = grid_for(ds, ref, cells)
+    gap = np.full((size[1], 12, 3), 255, np.uint8)
+    images: list[np.ndarray] = []
+    for _, poses in moved:
+        images += [map_image(ds, poses, truth, lo, cell, size), gap]
+    names = " | ".join(name for name, _ in moved)
+    text = map_text(title, lo, cell, panels=f"left to right: {names}; ")
+    write_png(path, np.concatenate(images[:-1], axis=1), text)

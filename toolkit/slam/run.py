@@ -22,14 +22,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
 from toolkit.metrics import evaluate, relation_error, relation_error_motions, truth_relations
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.slam import graph as pg
 from toolkit.slam.localmap import sequential
-from toolkit.slam.loops import Loop
-from toolkit.slam.pipeline import SlamConfig, close_loops
+from toolkit.slam.loops import Loop, loop_truth_error
+from toolkit.slam.pipeline import SlamConfig, SlamResult, close_loops
 from toolkit.slam.render import write_occupancy, write_side_by_side
 
 RELATIONS = "relations.parquet"
@@ -50,8 +51,6 @@ class SlamRun:
         graph, values = pg.factor_graph(self.keys, poses[self.keys], self.edges, robust=0.0)
         pg.write_g2o(out / "graph.g2o", graph, values)
         truth = truth_poses(ds)
-        from toolkit.slam.pipeline import SlamResult
-
         table = SlamResult(
             poses, self.before, self.keys, self.edges, self.loops, 0.0, {}, {}
         ).loop_table(truth)
@@ -89,8 +88,6 @@ class SlamRun:
 
 
 def _truth_error(lp: Loop, truth: np.ndarray) -> tuple[float, float]:
-    from toolkit.slam.loops import loop_truth_error
-
     return loop_truth_error(lp, truth)
 
 
@@ -129,7 +126,7 @@ def relation_metrics(ds: Dataset, poses: np.ndarray) -> dict[str, Any] | None:
         i = _nearest(ds.t, rel["t1"].to_numpy())
         j = _nearest(ds.t, rel["t2"].to_numpy())
         motion = rel[["x", "y", "yaw"]].to_numpy(np.float64)
-        out = relation_error_motions(sc.between(poses[i], poses[j]), motion)
+        out = relation_error_motions(se2.between(poses[i], poses[j]), motion)
         return {"source": RELATIONS, **out}
     truth = truth_poses(ds)
     if truth is None:

@@ -11,6 +11,7 @@ import typer
 
 from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values, report_outcomes
+from toolkit.errors import ToolkitError
 
 if TYPE_CHECKING:
     from importers.base import ImportOptions, OptionSpec
@@ -80,10 +81,10 @@ def import_command(
 ) -> None:
     """Import a log into a dataset directory (Parquet + meta.json), atomically; or, with
     --each, many logs into one dataset each."""
+    # on use: the importers and their format libraries load for `import` alone
     import importers
     from toolkit.app.cli.info_cmd import print_summary
-    from toolkit.dataset import load
-    from toolkit.info import summary
+    from toolkit.info import summary_of
 
     options = importers.ImportOptions(
         rate=rate,
@@ -99,7 +100,7 @@ def import_command(
         return
     written = importers.import_log(fmt, sources, out, options, force=force)
     if not quiet:
-        print_summary(summary(load(written)))
+        print_summary(summary_of(written))
 
 
 def _import_each(
@@ -112,8 +113,7 @@ def _import_each(
     quiet: bool,
 ) -> None:
     """One dataset per log; a line per failure on stderr and exit 1 if any failed."""
-    from toolkit.app.fleet import client_for, find_logs, import_many
-    from toolkit.errors import ToolkitError
+    from toolkit.app.fleet import client_for, find_logs, import_many  # Dask, on use
 
     logs = find_logs(fmt, sources)
     if not logs:
@@ -132,7 +132,7 @@ def formats_command(
     """List the log formats: which the toolkit reads and writes, what each reads, and each
     format's options: `-O KEY=VALUE` of `toolkit import` (reading) and of `toolkit simulate`
     (writing), with type, default and meaning."""
-    import importers
+    import importers  # on use: every format's module
 
     chosen = [importers.get(name)] if name else [importers.get(n) for n in importers.names()]
     width = _width()

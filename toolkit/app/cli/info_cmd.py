@@ -42,10 +42,9 @@ def info_command(
     as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
 ) -> None:
     """Summarise a dataset: scans, beams, field of view, duration and rate, poses, drops."""
-    from toolkit.dataset import load
-    from toolkit.info import summary
+    from toolkit.info import summary_of  # numpy and pyarrow: a command module loads on use
 
-    s = summary(load(dataset))
+    s = summary_of(dataset)
     if as_json:
         typer.echo(json.dumps(s, indent=2))
     else:

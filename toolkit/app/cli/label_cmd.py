@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from toolkit.app.cli import app
+from toolkit.errors import ToolkitError
 
 
 @app.command("label", short_help="Learn places from a few scans, find them along a log.")
@@ -94,9 +96,7 @@ def label_command(
     force: Annotated[bool, typer.Option("--force", help="replace earlier label outputs")] = False,
 ) -> None:
     """Learn places from a few scans each and find them along the whole log (Eq. 7-9)."""
-    from dataclasses import replace
-
-    from toolkit.errors import ToolkitError
+    # on use: the features (numba, scipy) load for `label` alone
     from toolkit.features.model import NONE_MODELS, PAPER, SMOOTHINGS, SURROUNDINGS, Config
     from toolkit.features.run import label_run
 
@@ -134,8 +134,6 @@ def label_command(
 
 def lateral_exponent(text: str) -> float | None:
     """--lateral: an exponent in [0, 8], or None for 'auto'."""
-    from toolkit.errors import ToolkitError
-
     if text.strip().lower() == "auto":
         return None
     try:

@@ -3,6 +3,7 @@ or `toolkit map DATASET... --out DIR` (several datasets, a fleet's tree, a quote
 
 from __future__ import annotations
 
+import glob
 import json
 from pathlib import Path
 from typing import Annotated
@@ -10,6 +11,8 @@ from typing import Annotated
 import typer
 
 from toolkit.app.cli import app
+from toolkit.app.cli.options import report_outcomes
+from toolkit.errors import ToolkitError
 
 
 @app.command("map", short_help="Align the scans; trajectory, maps and metrics.")
@@ -77,9 +80,7 @@ def map_command(
     map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with loops), metrics.json;
     atomically. With many datasets, OUT/<name>/ for each.
     """
-    from toolkit.app.fleet import client_for, matcher_for, on_shared_storage
-    from toolkit.dataset import SCANS
-    from toolkit.errors import ToolkitError
+    # on use: the matcher (numba) and pandas load for `map` alone
     from toolkit.mapping import map_dataset
     from toolkit.poses import Method
 
@@ -92,10 +93,16 @@ def map_command(
     dataset = datasets[0]
     if scheduler != "none" and method != Method.GAUSSIAN:
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
-    with client_for(scheduler) as client:
-        scans = dataset / SCANS if on_shared_storage(scheduler) else None
-        matcher = matcher_for(client, scans=scans) if client is not None else None
-        run = map_dataset(dataset, out, method, voxel, force, matcher=matcher, loops=loops)
+    if scheduler == "none":
+        run = map_dataset(dataset, out, method, voxel, force)
+    else:
+        from toolkit.app.fleet import client_for, matcher_for, on_shared_storage  # Dask, on use
+        from toolkit.dataset import SCANS  # with the line above
+
+        with client_for(scheduler) as client:
+            scans = dataset / SCANS if on_shared_storage(scheduler) else None
+            matcher = matcher_for(client, scans=scans) if client is not None else None
+            run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
     if quiet:
         return
     metrics = json.loads((run / "metrics.json").read_text())
@@ -115,9 +122,7 @@ def map_command(
 
 def _many(datasets: list[Path]) -> bool:
     """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
-    import glob
-
-    from toolkit.app.fleet import is_dataset_dir
+    from toolkit.app.fleet import is_dataset_dir  # on use: fleet loads the matcher
 
     if len(datasets) != 1:
         return True
@@ -137,9 +142,7 @@ def _map_each(
     quiet: bool,
 ) -> None:
     """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
-    from toolkit.app.cli.options import report_outcomes
-    from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage
-    from toolkit.errors import ToolkitError
+    from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage  # Dask
 
     found = find_datasets(datasets)
     if not found:

@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from toolkit.app.cli import app
+from toolkit.errors import ToolkitError
 
 
 @app.command("report", short_help="Write the paper's figures and tables, measured now.")
@@ -55,7 +56,7 @@ def report_command(
 
     Simulates the corridor, imports the real logs it uses, maps every log with each method and labels the logs that have training regions; what a missing piece prevents is marked "not available" in the report.
     """
-    import reports
+    import reports  # on use: the report loads matplotlib and every part of the toolkit
 
     report = reports.build(
         out,
@@ -72,7 +73,5 @@ def report_command(
         typer.echo(f"{s.status:13s} {s.title}" + (f"  ({extra})" if extra else ""))
     typer.echo(f"report in {report.path}/index.html ({report.seconds:.1f} s)")
     if report.failed:
-        from toolkit.errors import ToolkitError
-
         names = ", ".join(s.key for s in report.failed)
         raise ToolkitError(f"sections failed: {names} (the report says why)", file=report.path)

@@ -10,6 +10,8 @@ import typer
 
 from toolkit.app.cli import app
 from toolkit.app.cli.options import key_values
+from toolkit.atomic import check_output
+from toolkit.errors import ToolkitError
 
 
 def _pairs(pairs: list[str] | None, flag: str) -> dict[str, Any]:
@@ -18,8 +20,6 @@ def _pairs(pairs: list[str] | None, flag: str) -> dict[str, Any]:
 
 
 def _config(path: Path | None) -> dict[str, Any]:
-    from toolkit.errors import ToolkitError
-
     if path is None:
         return {}
     try:
@@ -117,8 +117,8 @@ def simulate_command(
     DIR gets the format's files, truth.parquet (t, x, y, theta, label, section), regions.csv
     (feature,start,end) and simulation.json (scenario, seed, every model parameter).
     """
+    # on use: the simulator, pandas and the format writers load for `simulate` alone
     from toolkit.app.simulation import write_simulation
-    from toolkit.atomic import check_output
     from toolkit.sim import simulate
 
     check_output(out, force)

@@ -1,5 +1,8 @@
 """ICP baselines the paper compares against: Open3D point-to-point, and a 2D point-to-line.
 
+This module holds the Open3D and scipy imports (about 1 s of start-up between them), so only
+what runs ICP loads them: `toolkit.align.icp` and `match_pairs_icp` load it on first use.
+
 Both search nearest neighbours (a KD-tree) every iteration, which is what the Gaussian
 alignment avoids. Point-to-plane ICP on z = 0 clouds is degenerate (every normal is
 (0, 0, 1)), so the 2D variant uses in-plane normals taken from neighbouring beams.
@@ -14,7 +17,11 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import open3d as o3d
 from scipy.spatial import cKDTree
+
+from toolkit.align.scan import PairMatches, pair_refs, scan_points
+from toolkit.dataset import LaserGeometry
 
 Method = Literal["point_to_point", "point_to_line"]
 
@@ -90,8 +97,6 @@ def register_point_to_point(
     iterations: int = 30,
 ) -> tuple[np.ndarray, float, float]:
     """Open3D point-to-point ICP: 4 x 4 T with T(source) ~ target, fitness, inlier RMSE."""
-    import open3d as o3d
-
     reg = o3d.pipelines.registration
     src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(_lift(source)))
     dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(_lift(target)))
@@ -190,3 +195,40 @@ def _matrix(pose: np.ndarray) -> np.ndarray:
     T[:2, :2] = _rot(pose[2])
     T[:2, 2] = pose[:2]
     return T
+
+
+def match_pairs_icp(
+    ranges: np.ndarray,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    method: Literal["point_to_point", "point_to_line"] = "point_to_line",
+    max_distance: float = 0.5,
+    iterations: int = 30,
+    ref: np.ndarray | None = None,
+) -> PairMatches:
+    """The ICP baseline on the same pairs as `match_pairs`, seeded the same way (one pair at a
+    time: ICP builds a KD-tree of each reference scan)."""
+    n = max(len(ranges) - 1, 0)
+    refs = pair_refs(ref, len(ranges))
+    out = PairMatches.empty(n)
+    key, prev, normals = -1, np.zeros((0, 2)), np.zeros((0, 2))
+    for k in range(n):
+        if refs[k + 1] != key:
+            key = int(refs[k + 1])
+            prev = scan_points(ranges[key], laser)
+            normals = ordered_normals(prev)
+        cur = scan_points(ranges[k + 1], laser)
+        src = cur[np.isfinite(cur).all(axis=1)]
+        if method == "point_to_line":
+            T, fit, rmse = register_point_to_line(
+                src, prev, normals, seeds[k], max_distance, iterations
+            )
+            pose = np.array([T[0, 2], T[1, 2], np.arctan2(T[1, 0], T[0, 0])])
+        else:
+            dst = prev[np.isfinite(prev).all(axis=1)]
+            T4, fit, rmse = register_point_to_point(src, dst, seeds[k], max_distance, iterations)
+            pose = np.array([T4[0, 3], T4[1, 3], np.arctan2(T4[1, 0], T4[0, 0])])
+        out.pose[k] = pose
+        out.sigma[k] = rmse
+        out.used[k] = round(fit * len(src))
+    return out
