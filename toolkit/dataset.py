@@ -238,8 +238,10 @@ class PoseStream:
 
     def frame(self) -> pd.DataFrame:
         """DataFrame t, x, y, theta (float64)."""
-        x, y, theta = self.xyt.T
-        return pd.DataFrame({"t": self.t, "x": x, "y": y, "theta": theta})
+        x, y, theta = (np.ascontiguousarray(c, np.float64) for c in self.xyt.T)
+        columns = {"t": np.asarray(self.t, np.float64), "x": x, "y": y, "theta": theta}
+        frame: pd.DataFrame = pa.table(columns).to_pandas()  # pandas loaded here, on use
+        return frame
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame) -> PoseStream:

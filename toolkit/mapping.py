@@ -259,6 +259,7 @@ def write_run(
             metrics["relation_error"] = relation_metrics(ds, robot)
             metrics |= slam.metrics(ds) if slam is not None else {}
             timed["metrics"] = time.perf_counter() - t0
+            timed |= metrics.get("seconds", {})  # the loop closure's stages
             metrics["seconds"] = {k: round(v, 4) for k, v in timed.items()}
             text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
             (tmp / "metrics.json").write_text(text)

@@ -12,7 +12,7 @@ import pytest
 
 import toolkit
 from tests.conftest import toolkit_process
-from toolkit import mapping
+from toolkit import mapping, raster
 from toolkit.sim import simulate
 
 
@@ -125,7 +125,7 @@ def test_an_interrupted_map_writes_nothing(
     def broken(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(mapping, "write_cloud", broken)
+    monkeypatch.setattr(mapping, "write_clouds", broken)
     with pytest.raises(KeyboardInterrupt):
         mapping.map_dataset(dataset, tmp_path / "run")
     assert list(tmp_path.iterdir()) == []
@@ -163,7 +163,7 @@ def test_map_png_is_the_returns_rasterised_with_the_trajectory(
 
     assert info["Title"] == "corridor"
     mid = robot[len(robot) // 2]
-    assert tuple(pixel(mid[0], mid[1])) == mapping.TRAJECTORY_RGB
+    assert tuple(pixel(mid[0], mid[1])) == raster.TRAJECTORY_RGB
     # the returns: dark where walls were seen (the first scan's returns), white elsewhere
     xy, _ = mapping.world_points(ds.ranges[:1], robot[:1], ds.laser)
     seen = np.array([pixel(x, y) for x, y in xy])

@@ -67,11 +67,10 @@ def test_without_odometry_constant_velocity_maps_the_building(building: toolkit.
 
 @pytest.mark.real
 def test_real_intel_loops_close_with_no_false_one(real: Path) -> None:
-    from importers.base import ImportOptions
-    from importers.carmen import Carmen
+    from importers.carmen import Carmen, CarmenOptions
 
     path = real / "carmen_radish_corrected" / "intel-corrected.log.gz"
-    ds = Carmen().read([path], ImportOptions(extra={"poses": "groundtruth"}))
+    ds = Carmen().read([path], CarmenOptions(poses="groundtruth"))
     ds = with_drift(ds, seed=2)  # held out: the loop parameters were tuned on seed 0
     result, slam = slam_trajectory(ds)
     truth = truth_poses(ds)
@@ -137,7 +136,7 @@ def test_relation_metrics_read_the_datasets_relations_file(
     is used when present: zero error for the truth, the odometry's drift otherwise."""
     import pandas as pd
 
-    from toolkit.align.scan import between
+    from toolkit.se2 import between
     from toolkit.slam.run import relation_metrics
 
     truth = truth_poses(building)

@@ -51,7 +51,7 @@ def map_command(
     voxel: Annotated[
         float,
         typer.Option(
-            metavar="M", help="voxel size (m) to downsample cloud.ply; 0 keeps every return"
+            metavar="M", help="voxel size (m) to downsample cloud.ply/.pcd; 0 keeps every return"
         ),
     ] = 0.0,
     force: Annotated[bool, typer.Option("--force", help="replace an existing run")] = False,
@@ -76,9 +76,9 @@ def map_command(
 ) -> None:
     """Align the scans, build the trajectory and the maps, and measure them against ground truth.
 
-    Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply, map.png,
-    map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with loops), metrics.json;
-    atomically. With many datasets, OUT/<name>/ for each.
+    Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply and
+    cloud.pcd, map.png, map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with
+    loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
     """
     # on use: the matcher (numba) and pandas load for `map` alone
     from toolkit.mapping import map_dataset
@@ -94,7 +94,7 @@ def map_command(
     if scheduler != "none" and method != Method.GAUSSIAN:
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     if scheduler == "none":
-        run = map_dataset(dataset, out, method, voxel, force)
+        run = map_dataset(dataset, out, method, voxel, force, loops=loops)
     else:
         from toolkit.app.fleet import client_for, matcher_for, on_shared_storage  # Dask, on use
         from toolkit.dataset import SCANS  # with the line above
@@ -102,7 +102,7 @@ def map_command(
         with client_for(scheduler) as client:
             scans = dataset / SCANS if on_shared_storage(scheduler) else None
             matcher = matcher_for(client, scans=scans) if client is not None else None
-            run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
+            run = map_dataset(dataset, out, method, voxel, force, matcher=matcher, loops=loops)
     if quiet:
         return
     metrics = json.loads((run / "metrics.json").read_text())
