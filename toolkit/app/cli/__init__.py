@@ -36,6 +36,7 @@ def fail(message: str) -> None:
 
 
 def main() -> None:
+    from toolkit.app import signals
     from toolkit.errors import ToolkitError
 
     try:
@@ -43,7 +44,8 @@ def main() -> None:
         # raising SystemExit, so that errors below can be printed as one line.
         rc = app(standalone_mode=False)
         if rc == 130:
-            typer.echo("interrupted; no output written", err=True)
+            typer.echo(signals.stopped_message(), err=True)
+            rc = signals.exit_code()
         if isinstance(rc, int) and rc != 0:
             sys.exit(rc)
     except ToolkitError as e:
@@ -52,8 +54,7 @@ def main() -> None:
     except typer.Exit as e:
         sys.exit(e.exit_code)
     except (typer.Abort, KeyboardInterrupt):
-        typer.echo("interrupted; no output written", err=True)
-        sys.exit(130)
+        signals.exit_stopped()
     except Exception as e:  # a usage error, or a bug: still one line
         show = getattr(e, "format_message", None)
         if show is not None:  # click's exceptions (typer bundles its own click)
