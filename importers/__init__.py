@@ -11,7 +11,7 @@ import pkgutil
 from collections.abc import Sequence
 from pathlib import Path
 
-from importers.base import Importer, ImportOptions
+from importers.base import Importer, ImportOptions, check_readable
 from toolkit.errors import ToolkitError
 
 __all__ = [
@@ -73,7 +73,7 @@ def _claims(path: Path) -> list[Importer]:
 def _logs_in(directory: Path, importer: Importer | None) -> list[tuple[Importer, Path]]:
     """The files directly in `directory` that an importer (the given one, or any) claims."""
     candidates = [importer] if importer else [cls() for cls in _REGISTRY.values()]
-    files = [child for child in sorted(directory.iterdir()) if child.is_file()]
+    files = [c for c in sorted(directory.iterdir()) if c.is_file() and not c.name.startswith(".")]
     return [(imp, f) for f in files for imp in candidates if imp.sniff(f)]
 
 
@@ -129,7 +129,6 @@ def import_log(
     if not paths:
         raise ToolkitError("no source given")
     for p in paths:
-        if not p.exists():
-            raise ToolkitError("no such file or directory", file=p)
+        check_readable(p)
     importer, paths = resolve(fmt, paths)
     return importer.import_to(paths, Path(out), options or ImportOptions(), force=force)

@@ -7,6 +7,8 @@ import bz2
 import gzip
 import io
 import lzma
+import os
+import stat
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -67,8 +69,31 @@ class Importer(ABC):
 _MAGIC = {b"\x1f\x8b": gzip.open, b"BZh": bz2.open, b"\xfd7zXZ": lzma.open}
 
 
+def check_readable(path: Path) -> None:
+    """Refuse, before opening it, what is neither a regular file nor a directory: reading a
+    FIFO blocks until someone writes to it, a device (/dev/zero) never ends."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise ToolkitError("no such file or directory", file=path) from None
+    except OSError as e:
+        raise ToolkitError(f"cannot read: {e.strerror}", file=path) from None
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        kind = (
+            "a FIFO"
+            if stat.S_ISFIFO(mode)
+            else "a device"
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket"
+            if stat.S_ISSOCK(mode)
+            else "not a regular file"
+        )
+        raise ToolkitError(f"is {kind}, not a log file; refused", file=path)
+
+
 def open_binary(path: Path) -> IO[bytes]:
     """Open a file for reading, decompressing gzip, bzip2 or xz by its first bytes."""
+    check_readable(path)
     try:
         f = open(path, "rb")  # noqa: SIM115 - returned to the caller
     except FileNotFoundError:

@@ -369,8 +369,71 @@ def make_meta(
 # ---------------------------------------------------------------- whole datasets
 
 
+MAX_POSITION = 1e6  # m: beyond any robot's log (1000 km); a corrupt field, not a pose
+MAX_RANGE = 1e6  # m: beyond any laser
+TIME_BACKWARDS = 1e-3  # s: scan times may not go back by more (t is non-decreasing)
+
+
+def plausible_poses(
+    frame: pd.DataFrame | None, report: ImportReport, what: str
+) -> pd.DataFrame | None:
+    """`frame` without the poses no robot can have (a non-finite field, a position beyond
+    `MAX_POSITION`), dropped and counted in `report` under `what`."""
+    if frame is None or not len(frame):
+        return frame
+    values = frame[["t", "x", "y", "theta"]].to_numpy(np.float64)
+    bad = ~np.isfinite(values).all(axis=1) | (np.abs(values[:, 1:3]) > MAX_POSITION).any(axis=1)
+    if not bad.any():
+        return frame
+    first = int(np.argmax(bad))
+    report.drop(
+        f"{what}: implausible pose (non-finite, or beyond {MAX_POSITION:.0e} m)",
+        int(bad.sum()),
+        f"row {first} (t={values[first, 0]!r}, x={values[first, 1]!r}, y={values[first, 2]!r})",
+    )
+    return frame.loc[~bad].reset_index(drop=True)
+
+
+def check_scans(t: np.ndarray, ranges: np.ndarray | None, where: Path | None) -> int:
+    """Refuse scan times that are not finite or go backwards (beyond `TIME_BACKWARDS`); set
+    impossible ranges (infinite, negative, beyond `MAX_RANGE`) to NaN, in place. Returns how
+    many ranges were set to NaN."""
+    if len(t) and not np.isfinite(t).all():
+        i = int(np.argmax(~np.isfinite(t)))
+        raise FormatError(f"scan {i} has time {t[i]!r}; the importer let it through", file=where)
+    back = np.diff(t) < -TIME_BACKWARDS
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        raise FormatError(
+            f"scan times go backwards at scan {i} ({t[i - 1]!r} -> {t[i]!r} s)", file=where
+        )
+    if ranges is None or not ranges.size:
+        return 0
+    with np.errstate(invalid="ignore"):
+        bad = ~((ranges >= 0) & (ranges <= MAX_RANGE)) & ~np.isnan(ranges)
+    count = int(np.count_nonzero(bad))
+    if count:
+        ranges[bad] = np.nan
+    return count
+
+
 def write_dataset_files(ds: Dataset, directory: Path, *, scans_written: bool = False) -> None:
-    """Write every table and meta.json of `ds` into an existing directory."""
+    """Write every table and meta.json of `ds` into an existing directory, after the
+    plausibility checks (`check_scans`, `plausible_poses`) that no dataset may fail."""
+    report = ds.report
+    files = ds.meta.get("source", {}).get("files") or [{}]
+    source = Path(files[0].get("path", "dataset"))
+    fixed = check_scans(ds.t, None if scans_written else ds.ranges, source)
+    for extra in ds.lasers.values():
+        fixed += check_scans(extra.t, extra.ranges, source)
+    if fixed:
+        report.note(f"{fixed} impossible range(s) (infinite, negative, > 1e6 m) set to NaN")
+    ds.odometry = plausible_poses(ds.odometry, report, "odometry")
+    ds.groundtruth = plausible_poses(ds.groundtruth, report, "groundtruth")
+    for name in list(ds.poses):
+        ds.poses[name] = plausible_poses(ds.poses[name], report, name)  # type: ignore[assignment]
+    if report.records_dropped or report.notes or "import_report" in ds.meta:
+        ds.meta["import_report"] = report.to_dict()
     if not scans_written:
         write_scans(directory / SCANS, ds.t, ds.ranges)
     for name, extra in ds.lasers.items():

@@ -313,6 +313,8 @@ def _find(
         for child in sorted(directory.iterdir()):
             if child.name.startswith("."):  # hidden: temporary and lock files of writers
                 continue
+            if not (child.is_file() or child.is_dir()):  # FIFOs, devices, sockets: not logs
+                continue
             if claimed(child):  # sniffed once: every importer's sniffer runs
                 found.append((child, name(child, root)))
             elif child.is_dir():

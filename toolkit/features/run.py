@@ -78,7 +78,9 @@ def _check_covers(frame: pd.DataFrame, scan_t: np.ndarray, path: Path) -> None:
     bad = ~np.isfinite(values).all(axis=1)
     if bad.any():
         raise ToolkitError(
-            f"trajectory has {int(bad.sum())} non-finite pose(s)", file=path, record=f"row {int(np.argmax(bad))}"
+            f"trajectory has {int(bad.sum())} non-finite pose(s)",
+            file=path,
+            record=f"row {int(np.argmax(bad))}",
         )
     t = values[:, 0]
     lo, hi = t.min(), t.max()
