@@ -15,7 +15,8 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -462,6 +463,19 @@ def save(ds: Dataset, out: str | Path, force: bool = False) -> Path:
     return out
 
 
+@contextmanager
+def _reading(file: Path) -> Iterator[None]:
+    """A damaged dataset file (truncated Parquet, wrong columns, a meta.json that is no
+    dataset's) as a one-line error naming it, not an exception from pyarrow."""
+    try:
+        yield
+    except ToolkitError:
+        raise
+    except (pa.ArrowException, OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        what = " ".join(str(e).split())[:200] or type(e).__name__
+        raise FormatError(f"damaged or not a dataset's file ({what})", file=file) from None
+
+
 def load(path: str | Path) -> Dataset:
     """Read a dataset directory written by `toolkit import` (or `save`)."""
     path = Path(path)
@@ -474,22 +488,31 @@ def load(path: str | Path) -> Dataset:
         meta = json.loads(meta_path.read_text())
     except json.JSONDecodeError as e:
         raise ToolkitError(f"invalid JSON: {e.msg}", file=meta_path, record=e.lineno) from None
-    laser = LaserGeometry.from_dict(meta["laser"])
-    t, ranges = read_scans(path / SCANS)
+    with _reading(meta_path):
+        laser = LaserGeometry.from_dict(meta["laser"])
+        extra = dict(meta.get("lasers", {}))
+    with _reading(path / SCANS):
+        t, ranges = read_scans(path / SCANS)
     lasers = {}
-    for name, geometry in meta.get("lasers", {}).items():
-        lt, lr = read_scans(path / f"scans-{name}.parquet")
-        lasers[name] = Scans(lt, lr, LaserGeometry.from_dict(geometry))
-    poses = {
-        p.stem.removeprefix("poses-"): pd.read_parquet(p)
-        for p in sorted(path.glob("poses-*.parquet"))
-    }
+    for name, geometry in extra.items():
+        file = path / f"scans-{name}.parquet"
+        with _reading(file):
+            lt, lr = read_scans(file)
+            lasers[name] = Scans(lt, lr, LaserGeometry.from_dict(geometry))
+    poses = {}
+    for p in sorted(path.glob("poses-*.parquet")):
+        with _reading(p):
+            poses[p.stem.removeprefix("poses-")] = pd.read_parquet(p)
+    with _reading(path / ODOMETRY):
+        odometry = read_poses(path / ODOMETRY)
+    with _reading(path / GROUNDTRUTH):
+        groundtruth = read_poses(path / GROUNDTRUTH)
     return Dataset(
         t=t,
         ranges=ranges,
         laser=laser,
-        odometry=read_poses(path / ODOMETRY),
-        groundtruth=read_poses(path / GROUNDTRUTH),
+        odometry=odometry,
+        groundtruth=groundtruth,
         meta=meta,
         lasers=lasers,
         poses=poses,
