@@ -9,15 +9,16 @@ import io
 import lzma
 import os
 import stat
+import zlib
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, ClassVar
 
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import Dataset, write_dataset_files
-from toolkit.errors import ToolkitError
+from toolkit.errors import FormatError, ToolkitError
 
 
 @dataclass
@@ -130,3 +131,89 @@ def strip_compression_suffix(name: str) -> str:
     while Path(name).suffix.lower() in COMPRESSION_SUFFIXES:
         name = Path(name).stem
     return name
+
+
+# ---------------------------------------------------------------- bounded text reading
+
+BLOCK_BYTES = 1 << 20  # decompressed bytes read at a time
+MAX_LINE_BYTES = 1 << 20  # no log line is this long (a 10 000-beam scan is ~80 kB)
+MAX_RATIO = 200  # decompressed / compressed: text logs compress 3-20x; a bomb 1000x
+MAX_EXTRA_BYTES = 64 << 20  # ... plus this much, for tiny files of very repetitive text
+
+
+class TextBlocks:
+    """The decompressed text of a log in blocks of whole lines, with bounded memory.
+
+        reader = TextBlocks(path)
+        for block in reader:  # str, whole lines; the last one may lack its newline
+            ...
+        reader.unterminated, reader.error  # after the loop
+
+    A line longer than `MAX_LINE_BYTES` (binary data, /dev/zero's NULs) or a compressed file
+    that decompresses to more than `MAX_RATIO` times its size (plus `MAX_EXTRA_BYTES`: a
+    decompression bomb) is a FormatError. A damaged compressed stream ends the blocks; its
+    error is in `error` (what came before it was read), or a FormatError if nothing came."""
+
+    def __init__(self, path: Path, block: int = BLOCK_BYTES) -> None:
+        self.path = path
+        self.block = block
+        self.unterminated = False  # the text does not end with a newline
+        self.error: str | None = None
+        self.bytes = 0  # decompressed bytes read
+
+    def __iter__(self) -> Iterator[str]:
+        compressed = head_raw(self.path).startswith(tuple(_MAGIC))
+        limit = self.path.stat().st_size * MAX_RATIO + MAX_EXTRA_BYTES if compressed else None
+        # compressed: small reads, so that a damaged stream loses only its last one
+        step = min(self.block, 1 << 16) if compressed else self.block
+        rest = b""
+        with open_binary(self.path) as f:
+            done = False
+            while not done:
+                pieces, have = [rest], len(rest)
+                while have < self.block:
+                    try:
+                        data = f.read(step)
+                    except (OSError, EOFError, lzma.LZMAError, zlib.error) as e:
+                        if not self.bytes:
+                            raise FormatError(f"cannot read: {e}", file=self.path) from None
+                        self.error = str(e)
+                        data = b""
+                    if not data:
+                        done = True
+                        break
+                    self.bytes += len(data)
+                    if limit is not None and self.bytes > limit:
+                        raise FormatError(
+                            f"decompresses to more than {MAX_RATIO}x its size "
+                            f"({self.bytes >> 20} MB so far): not a log (a decompression bomb?)",
+                            file=self.path,
+                        )
+                    pieces.append(data)
+                    have += len(data)
+                    if b"\n" not in data:
+                        self._check_line(b"".join(pieces))
+                data = b"".join(pieces)
+                cut = data.rfind(b"\n") + 1
+                rest = data[cut:]
+                self._check_line(rest)
+                if cut:
+                    yield data[:cut].decode("utf-8", errors="replace")
+        if rest:
+            self.unterminated = True
+            yield rest.decode("utf-8", errors="replace")
+
+    def _check_line(self, rest: bytes) -> None:
+        if len(rest) > MAX_LINE_BYTES:
+            raise FormatError(
+                f"a line longer than {MAX_LINE_BYTES >> 20} MB after {self.bytes} bytes: "
+                "not a text log",
+                file=self.path,
+            )
+
+
+def head_raw(path: Path, n: int = 6) -> bytes:
+    """The first `n` bytes of the file as stored (compressed or not)."""
+    check_readable(path)
+    with open(path, "rb") as f:
+        return f.read(n)
