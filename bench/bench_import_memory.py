@@ -45,9 +45,12 @@ def carmen_log(path: Path, megabytes: float) -> int:
     assert odo is not None
     tiled_odo = odo.loc[np.tile(np.arange(len(odo)), copies)].reset_index(drop=True)
     tiled_odo["t"] = tiled_odo["t"].to_numpy() + np.repeat(np.arange(copies) * span, len(odo))
+    rng = np.random.default_rng(0)  # mm noise per copy, so that Parquet cannot dedupe copies
+    ranges = np.tile(ds.ranges, (copies, 1))
+    ranges += rng.normal(0, 0.005, ranges.shape).astype(np.float32)
     big = Dataset(
         t=np.tile(ds.t, copies) + shift,
-        ranges=np.tile(ds.ranges, (copies, 1)),
+        ranges=ranges,
         laser=ds.laser,
         odometry=tiled_odo,
     )

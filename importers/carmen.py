@@ -47,7 +47,7 @@ import math
 import re
 from array import array
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -139,12 +139,14 @@ class _LayoutRows:
     """A laser message's lines of one layout: their numbers, positions among the message's
     lines, and their numeric fields converted in blocks (the tokens are not kept)."""
 
-    cols: np.ndarray  # token columns of the fields, see `_columns`
+    cols: np.ndarray  # token columns of the fields, see `_columns`; the ranges' first
+    beams: int  # ranges: the first `beams` fields, kept as float32 (converted via float64)
     numbers: array = field(default_factory=lambda: array("q"))
     index: array = field(default_factory=lambda: array("q"))
     ok: bytearray = field(default_factory=bytearray)  # per line: its fields are numbers
     pending: list[list[str]] = field(default_factory=list)
-    blocks: list[np.ndarray] = field(default_factory=list)  # values of the ok lines
+    blocks: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # ok lines:
+    # (ranges float32, the other fields float64)
 
     def add(self, number: int, index: int, tokens: list[str]) -> None:
         lo, hi = int(self.cols.min()), int(self.cols.max()) + 1
@@ -170,7 +172,8 @@ class _LayoutRows:
                 except ValueError:
                     self.ok.append(0)
             values = np.array(good).reshape(len(good), cols.size)
-        self.blocks.append(values)
+        ranges = values[:, : self.beams].astype(np.float32)
+        self.blocks.append((ranges, values[:, self.beams :].copy()))
         self.pending = []
 
 
@@ -192,7 +195,7 @@ class _LaserLines:
             if rows is None:
                 cols = _columns(msg, *lay)
                 flat = np.concatenate([cols[k] for k in _FIELDS if k in cols])
-                rows = self.layouts[lay] = _LayoutRows(flat)
+                rows = self.layouts[lay] = _LayoutRows(flat, lay[0])
             rows.add(number, self.count, tokens)
         self.count += 1
 
@@ -250,7 +253,7 @@ class _LaserStream:
     name: str
     lines: np.ndarray  # (S,) line numbers
     index: np.ndarray  # (S,) position among this laser's lines in the file (for scan order)
-    ranges: np.ndarray  # (S, B) float64
+    ranges: np.ndarray  # (S, B) float32 (parsed as float64, as the file's text)
     laser_pose: np.ndarray  # (S, 3)
     robot_pose: np.ndarray  # (S, 3)
     stamp: np.ndarray | None  # (S,) message timestamps, None without a clock
@@ -392,6 +395,7 @@ def _parse_laser(
             why = f"beam count {lay[0]} (the log's is {n})" if lay[0] != n else (
                 "wrong number of fields")  # fmt: skip
             drops.add(why, np.frombuffer(rows.numbers, dtype=np.int64))
+            rows.blocks = []
     rows = lines.layouts[main]
     ok = np.frombuffer(bytes(rows.ok), dtype=np.uint8).astype(bool)
     numbers = np.frombuffer(rows.numbers, dtype=np.int64)
@@ -400,12 +404,22 @@ def _parse_laser(
     if not ok.any():
         return None
     cols = _columns(msg, n, m, clock)
-    values = np.concatenate(rows.blocks) if len(rows.blocks) > 1 else rows.blocks[0]
-    rows.blocks = []
-    split = np.cumsum([cols[k].size for k in _FIELDS if k in cols])[:-1]
-    parts = dict(
-        zip([k for k in _FIELDS if k in cols], np.split(values, split, axis=1), strict=True)
-    )
+    # the fields in arrays of their own, block by block (each block freed once copied)
+    sizes = {k: cols[k].size for k in _FIELDS if k in cols}
+    total = sum(len(r) for r, _ in rows.blocks)
+    parts = {k: np.empty((total, size), np.float32 if k == "ranges" else np.float64)
+             for k, size in sizes.items()}  # fmt: skip
+    at = 0
+    while rows.blocks:
+        ranges, rest = rows.blocks.pop(0)
+        parts["ranges"][at : at + len(ranges)] = ranges
+        col = 0
+        for k, size in sizes.items():
+            if k != "ranges":
+                parts[k][at : at + len(ranges)] = rest[:, col : col + size]
+                col += size
+        at += len(ranges)
+        del ranges, rest
     return _LaserStream(
         name=msg,
         lines=numbers[ok],
@@ -478,12 +492,26 @@ def longest_in_order(stamp: np.ndarray) -> np.ndarray:
 
 def no_return_code(ranges: np.ndarray) -> float | None:
     """The largest value recurring at least CODE_MIN_COUNT times: the scanner's no-return code."""
-    values = ranges[np.isfinite(ranges)]
-    if values.size == 0:
+    # by blocks of rows (a log's distinct values are few: mm steps), so that no copy of the
+    # whole log is sorted
+    parts = [np.unique(block[np.isfinite(block)], return_counts=True)
+             for block in _row_blocks(ranges)]  # fmt: skip
+    if not parts or not sum(u.size for u, _ in parts):
         return None
-    uniq, counts = np.unique(values, return_counts=True)
+    uniq, inverse = np.unique(np.concatenate([u for u, _ in parts]), return_inverse=True)
+    counts = np.bincount(inverse, weights=np.concatenate([c for _, c in parts]))
     frequent = uniq[counts >= CODE_MIN_COUNT]
-    return float(frequent[-1]) if frequent.size else None
+    return _as_printed(frequent[-1]) if frequent.size else None
+
+
+def _as_printed(value: float) -> float:
+    """A float32 range as the decimal the log printed (81.91, not 81.91000366)."""
+    return float(str(np.float32(value)))
+
+
+def _row_blocks(a: np.ndarray, rows: int = 4096) -> Iterator[np.ndarray]:
+    for lo in range(0, len(a), rows):
+        yield a[lo : lo + rows]
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -618,21 +646,26 @@ class _Reader:
             decisions["clock_fallback"] = why
             decisions["rate_hz"] = hz
         assert t is not None
-        ranges = s.ranges
-        bad = ~np.isfinite(ranges) | (ranges < 0)
+        ranges = s.ranges  # in place: this laser's own converted values (memory: one copy)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(ranges) | (ranges < 0)
         if bad.any():
             report.note(f"{name}: {int(bad.sum())} range values NaN, inf or negative -> NaN")
-            ranges = np.where(bad, np.nan, ranges)
+            ranges[bad] = np.nan
+        del bad
         geometry, code, how_code = self._geometry(s, ranges)
         if code is not None:
-            no_return = ranges >= code
-            ranges = np.where(no_return, np.nan, ranges)
+            with np.errstate(invalid="ignore"):
+                no_return = ranges >= code
+            ranges[no_return] = np.nan
             report.note(f"{name}: no-return code {code:g} m ({how_code}): "
                         f"{int(no_return.sum())} values >= {code:g} m -> NaN")  # fmt: skip
+            del no_return
             decisions[f"{name}_no_return_from"] = round(float(code), 6)
         decisions[f"{name}_range_max"] = geometry.range_max
         decisions[f"{name}_range_max_source"] = how_code
         scans = Scans(t, ranges.astype(np.float32), geometry)
+        s.ranges = s.ranges[:0]  # the float64 values are no longer needed: free them
         return _Built(scans, s, t, time_source, decisions)
 
     def _geometry(
@@ -677,8 +710,8 @@ class _Reader:
             else:
                 how += "; none found"
         if range_max is None:
-            finite = ranges[np.isfinite(ranges)]
-            range_max = float(finite.max()) if finite.size else 81.91
+            top = np.nanmax(ranges, initial=-np.inf) if ranges.size else -np.inf
+            range_max = _as_printed(top) if np.isfinite(top) else 81.91
             how += ", range_max = the largest reading"
         return LaserGeometry(n, float(start), float(res), range_max, **self._mount(s)), code, how
 
