@@ -165,7 +165,7 @@ class TextBlocks:
         compressed = head_raw(self.path).startswith(tuple(_MAGIC))
         limit = self.path.stat().st_size * MAX_RATIO + MAX_EXTRA_BYTES if compressed else None
         # compressed: small reads, so that a damaged stream loses only its last one
-        step = min(self.block, 1 << 16) if compressed else self.block
+        step = min(self.block, 1 << 13) if compressed else self.block
         rest = b""
         with open_binary(self.path) as f:
             done = False
