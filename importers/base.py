@@ -14,7 +14,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, ClassVar
+from typing import IO, Any, ClassVar
 
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import Dataset, write_dataset_files
@@ -154,14 +154,15 @@ class TextBlocks:
     decompression bomb) is a FormatError. A damaged compressed stream ends the blocks; its
     error is in `error` (what came before it was read), or a FormatError if nothing came."""
 
-    def __init__(self, path: Path, block: int = BLOCK_BYTES) -> None:
+    def __init__(self, path: Path, block: int = BLOCK_BYTES, text: bool = True) -> None:
         self.path = path
         self.block = block
+        self.text = text  # False: yield the blocks as bytes
         self.unterminated = False  # the text does not end with a newline
         self.error: str | None = None
         self.bytes = 0  # decompressed bytes read
 
-    def __iter__(self) -> Iterator[str]:
+    def __iter__(self) -> Iterator[Any]:
         compressed = head_raw(self.path).startswith(tuple(_MAGIC))
         limit = self.path.stat().st_size * MAX_RATIO + MAX_EXTRA_BYTES if compressed else None
         # compressed: small reads, so that a damaged stream loses only its last one
@@ -198,10 +199,13 @@ class TextBlocks:
                 rest = data[cut:]
                 self._check_line(rest)
                 if cut:
-                    yield data[:cut].decode("utf-8", errors="replace")
+                    yield self._out(data[:cut])
         if rest:
             self.unterminated = True
-            yield rest.decode("utf-8", errors="replace")
+            yield self._out(rest)
+
+    def _out(self, data: bytes) -> str | bytes:
+        return data.decode("utf-8", errors="replace") if self.text else data
 
     def _check_line(self, rest: bytes) -> None:
         if len(rest) > MAX_LINE_BYTES:
