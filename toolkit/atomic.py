@@ -108,6 +108,8 @@ def _write_error(e: OSError, out: Path, tmp: Path | None) -> ToolkitError:
         if tmp is not None:
             with suppress(ValueError):
                 where = out / where.relative_to(tmp)
+        if where.parent == out.parent and where.name.startswith(f".{out.name}."):
+            where = out  # our temporary or lock file beside it: the user knows OUT
     what = {
         errno.ENOSPC: "no space left on the device",
         errno.EDQUOT: "disk quota exceeded",
