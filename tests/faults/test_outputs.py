@@ -86,13 +86,12 @@ def test_two_writers_to_one_output_cannot_both_succeed(tmp_path: Path) -> None:
     out = tmp_path / "out"
     with atomic_dir(out) as tmp:
         (tmp / "a").write_text("first")
-        with pytest.raises(ToolkitError, match="another toolkit command is writing it now"):
-            with atomic_dir(out, force=True):
-                pass
-    assert (out / "a").read_text() == "first"
-    with pytest.raises(OutputExistsError):  # and after it: refused without --force
-        with atomic_dir(out):
+        busy = pytest.raises(ToolkitError, match="another toolkit command is writing it now")
+        with busy, atomic_dir(out, force=True):
             pass
+    assert (out / "a").read_text() == "first"
+    with pytest.raises(OutputExistsError), atomic_dir(out):  # after it: refused without --force
+        pass
     assert hidden(tmp_path) == []
 
 
@@ -111,10 +110,10 @@ def test_concurrent_cli_writers(small: dict[str, Path], tmp_path: Path, cli: Cli
 
 def test_an_output_created_meanwhile_is_not_replaced(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    with pytest.raises(OutputExistsError, match="appeared while this command ran"):
-        with atomic_dir(out) as tmp:
-            (tmp / "mine").write_text("x")
-            out.mkdir()  # e.g. another program, not holding the lock
+    appeared = pytest.raises(OutputExistsError, match="appeared while this command ran")
+    with appeared, atomic_dir(out) as tmp:
+        (tmp / "mine").write_text("x")
+        out.mkdir()  # e.g. another program, not holding the lock
     assert list(out.iterdir()) == []
     assert hidden(tmp_path) == []
 
