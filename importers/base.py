@@ -137,8 +137,8 @@ def strip_compression_suffix(name: str) -> str:
 
 BLOCK_BYTES = 1 << 20  # decompressed bytes read at a time
 MAX_LINE_BYTES = 1 << 20  # no log line is this long (a 10 000-beam scan is ~80 kB)
-MAX_RATIO = 200  # decompressed / compressed: text logs compress 3-20x; a bomb 1000x
-MAX_EXTRA_BYTES = 64 << 20  # ... plus this much, for tiny files of very repetitive text
+MAX_RATIO = 50  # decompressed / compressed: real text logs compress 2-5x; a bomb 1000x
+MAX_EXTRA_BYTES = 16 << 20  # ... plus this much, for small files of very repetitive text
 
 
 class TextBlocks:
@@ -171,8 +171,8 @@ class TextBlocks:
         with open_binary(self.path) as f:
             done = False
             while not done:
-                pieces, have = [rest], len(rest)
-                while have < self.block:
+                pieces, have, tail = [rest], 0, len(rest)  # tail: bytes since the last \n
+                while have < self.block:  # a block of new data after the cut line
                     try:
                         data = f.read(step)
                     except (OSError, EOFError, lzma.LZMAError, zlib.error) as e:
@@ -192,12 +192,15 @@ class TextBlocks:
                         )
                     pieces.append(data)
                     have += len(data)
-                    if b"\n" not in data:
-                        self._check_line(b"".join(pieces))
+                    newline = data.rfind(b"\n")
+                    tail = tail + len(data) if newline < 0 else len(data) - newline - 1
+                    if tail > MAX_LINE_BYTES:
+                        self._long_line()
                 data = b"".join(pieces)
                 cut = data.rfind(b"\n") + 1
                 rest = data[cut:]
-                self._check_line(rest)
+                if len(rest) > MAX_LINE_BYTES:
+                    self._long_line()
                 if cut:
                     yield self._out(data[:cut])
         if rest:
@@ -207,13 +210,12 @@ class TextBlocks:
     def _out(self, data: bytes) -> str | bytes:
         return data.decode("utf-8", errors="replace") if self.text else data
 
-    def _check_line(self, rest: bytes) -> None:
-        if len(rest) > MAX_LINE_BYTES:
-            raise FormatError(
-                f"a line longer than {MAX_LINE_BYTES >> 20} MB after {self.bytes} bytes: "
-                "not a text log",
-                file=self.path,
-            )
+    def _long_line(self) -> None:
+        raise FormatError(
+            f"a line longer than {MAX_LINE_BYTES >> 20} MB after {self.bytes} bytes: "
+            "not a text log",
+            file=self.path,
+        )
 
 
 def head_raw(path: Path, n: int = 6) -> bytes:
