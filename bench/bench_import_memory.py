@@ -86,7 +86,8 @@ def measure(fmt: str, src: Path, out: Path, name: str) -> dict[str, object]:
         [sys.executable, "-m", "toolkit", "import", fmt, str(src), "--out", str(out), "-q"]
     )
     parquet = sum(p.stat().st_size for p in out.glob("*.parquet")) / 1e6 if out.exists() else 0
-    size = src.stat().st_size / 1e6
+    files = [src] if src.is_file() else [p for p in src.rglob("*") if p.is_file()]
+    size = sum(p.stat().st_size for p in files) / 1e6
     return {
         "name": name,
         "input_mb": round(size, 1),
