@@ -193,7 +193,9 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
     parts: list[np.ndarray] = []
     bad_total, garbage_total, first_bad = 0, 0, None
     rows_before = 0
-    while data is not None:
+    block: bytes | None = data
+    while block is not None:
+        data = block
         if sep == " ":
             data = re.sub(rb"(?m)^ | $", b"", re.sub(rb"[ \t]+", b" ", data))
         values, garbage, bad = _parse_block(path, data, sep, ncols, skip)
@@ -207,7 +209,7 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
         parts.append(values[~garbage])
         skip = 0
         nxt = next(blocks, None)
-        data = None if nxt is None else _clean(nxt)
+        block = None if nxt is None else _clean(nxt)
     values = np.concatenate(parts) if len(parts) > 1 else parts[0]
     return Numbers(values, bad_total + garbage_total, first_bad, header, header_skipped)
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT, Cli
+from toolkit.dataset import Dataset
 
 ENV = {**os.environ, "TOOLKIT_NO_PROGRESS": "1"}
 
@@ -22,7 +23,10 @@ def run(*args: object, timeout: float = 60) -> subprocess.CompletedProcess[str]:
     """`toolkit ARGS` in a process with a deadline (a blocked read fails the test) and an
     address-space cap of 2 GB (unbounded reading fails it too)."""
     limit = "import resource; resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30));"
-    code = limit + "import runpy, sys; sys.argv = ['toolkit', *sys.argv[1:]]; runpy.run_module('toolkit', run_name='__main__')"
+    code = (
+        limit
+        + "import runpy, sys; sys.argv = ['toolkit', *sys.argv[1:]]; runpy.run_module('toolkit', run_name='__main__')"
+    )
     return subprocess.run([sys.executable, "-c", code, *map(str, args)], env=ENV,
                           capture_output=True, text=True, timeout=timeout)  # fmt: skip
 
@@ -96,7 +100,9 @@ def test_rawseeds_invalid_utf8_is_one_line(tmp_path: Path) -> None:
     assert err == f"error: {laser}:6: not a number: byte 0xff"
 
 
-def test_an_implausible_odometry_is_dropped_and_counted(small: dict[str, Path], tmp_path: Path, cli: Cli) -> None:
+def test_an_implausible_odometry_is_dropped_and_counted(
+    small: dict[str, Path], tmp_path: Path, cli: Cli
+) -> None:
     """A rosbag whose odometry reads x = 7.9e165 m (and another NaN): those poses are
     dropped and counted; the rest imports."""
     import importers
@@ -133,13 +139,15 @@ def test_scan_times_going_backwards_are_an_error(tmp_path: Path) -> None:
     assert np.isnan(toolkit_load(tmp_path / "ok").ranges[:, 1:]).all()
 
 
-def toolkit_load(path: Path):  # noqa: ANN201 - a Dataset
+def toolkit_load(path: Path) -> Dataset:
     import toolkit
 
     return toolkit.load(path)
 
 
-def test_table_in_blocks_equals_table_whole(small: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_table_in_blocks_equals_table_whole(
+    small: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The table importer reads in blocks of lines: the same dataset whatever the block."""
     import importers
     from importers import table

@@ -12,7 +12,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import pytest
@@ -114,7 +114,7 @@ FAST = [(signal.SIGINT, "writing"), (signal.SIGTERM, "writing"), (signal.SIGKILL
 ALL = [(s, w) for s in SIGNALS for w in ("early", "writing", "late")]
 
 
-def _cases(fast: list[tuple[int, str]]) -> list[object]:
+def _cases(fast: Sequence[tuple[int, str]]) -> list[object]:
     return [
         pytest.param(s, w, id=f"{signal.Signals(s).name}-{w}")
         if (s, w) in fast
