@@ -390,7 +390,8 @@ def plausible_poses(
     report.drop(
         f"{what}: implausible pose (non-finite, or beyond {MAX_POSITION:.0e} m)",
         int(bad.sum()),
-        f"row {first} (t={values[first, 0]!r}, x={values[first, 1]!r}, y={values[first, 2]!r})",
+        f"row {first} (t={float(values[first, 0])!r}, x={float(values[first, 1])!r}, "
+        f"y={float(values[first, 2])!r})",
     )
     return frame.loc[~bad].reset_index(drop=True)
 
@@ -401,12 +402,13 @@ def check_scans(t: np.ndarray, ranges: np.ndarray | None, where: Path | None) ->
     many ranges were set to NaN."""
     if len(t) and not np.isfinite(t).all():
         i = int(np.argmax(~np.isfinite(t)))
-        raise FormatError(f"scan {i} has time {t[i]!r}; the importer let it through", file=where)
+        raise FormatError(f"scan {i} has time {float(t[i])!r}", file=where)
     back = np.diff(t) < -TIME_BACKWARDS
     if back.any():
         i = int(np.argmax(back)) + 1
         raise FormatError(
-            f"scan times go backwards at scan {i} ({t[i - 1]!r} -> {t[i]!r} s)", file=where
+            f"scan times go backwards at scan {i} ({float(t[i - 1])!r} -> {float(t[i])!r} s)",
+            file=where,
         )
     if ranges is None or not ranges.size:
         return 0
