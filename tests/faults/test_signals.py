@@ -69,7 +69,7 @@ def check_stopped(code: int, err: str, sig: int, when: str) -> None:
         return
     assert code in ((0, 128 + sig, -sig) if when == "late" else (0, 128 + sig)), err
     assert "Traceback" not in err and "Exception ignored" not in err, err
-    if code:
+    if code == 128 + sig:
         assert err.strip().splitlines()[-1].startswith("interrupted ("), err
 
 
