@@ -149,24 +149,28 @@ def atomic_dir(out: str | Path, force: bool = False, update: bool = False) -> It
             if update and out.is_dir():
                 shutil.copytree(out, tmp, dirs_exist_ok=True, copy_function=_link_or_copy)
             yield tmp
-            if out.exists():
-                if not (force or update):  # created meanwhile by something else
-                    raise OutputExistsError("appeared while this command ran; not replaced",
-                                            file=out)  # fmt: skip
-                trash = out.with_name(f".{out.name}.old-{os.getpid()}")
-                os.replace(out, trash)
-                os.replace(tmp, out)
-                if trash.is_dir():
-                    shutil.rmtree(trash, ignore_errors=True)
-                else:
-                    trash.unlink(missing_ok=True)
-            else:
-                os.replace(tmp, out)
+            if out.exists() and not (force or update):  # created meanwhile by something else
+                raise OutputExistsError("appeared while this command ran; not replaced", file=out)
+            _replace(tmp, out)
         except BaseException as e:
             shutil.rmtree(tmp, ignore_errors=True)
             if isinstance(e, OSError) and e.errno in _WRITE_ERRORS:
                 raise _write_error(e, out, tmp) from None
             raise
+
+
+def _replace(tmp: Path, out: Path) -> None:
+    """Rename `tmp` (a file or a directory) to `out`, replacing whatever `out` is."""
+    if out.exists():
+        trash = out.with_name(f".{out.name}.old-{os.getpid()}")
+        os.replace(out, trash)
+        os.replace(tmp, out)
+        if trash.is_dir():
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            trash.unlink(missing_ok=True)
+    else:
+        os.replace(tmp, out)
 
 
 def _link_or_copy(src: str, dst: str) -> None:

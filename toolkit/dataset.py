@@ -425,10 +425,10 @@ def write_dataset_files(ds: Dataset, directory: Path, *, scans_written: bool = F
     plausibility checks (`check_scans`, `plausible_poses`) that no dataset may fail."""
     report = ds.report
     files = ds.meta.get("source", {}).get("files") or [{}]
-    source = Path(files[0].get("path", "dataset"))
-    fixed = check_scans(ds.t, None if scans_written else ds.ranges, source)
+    origin = Path(files[0].get("path", "dataset"))  # what errors name
+    fixed = check_scans(ds.t, None if scans_written else ds.ranges, origin)
     for extra in ds.lasers.values():
-        fixed += check_scans(extra.t, extra.ranges, source)
+        fixed += check_scans(extra.t, extra.ranges, origin)
     if fixed:
         report.note(f"{fixed} impossible range(s) (infinite, negative, > 1e6 m) set to NaN")
     ds.odometry = plausible_poses(ds.odometry, report, "odometry")
