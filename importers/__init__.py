@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
-from importers.base import FLAGS, FormatOptions, Importer, ImportOptions, not_a_log
+from importers.base import FLAGS, FormatOptions, Importer, ImportOptions, check_readable, not_a_log
 from toolkit.errors import ToolkitError
 
 __all__ = [
@@ -126,7 +126,11 @@ def _claims(path: Path) -> list[AnyImporter]:
 def _logs_in(directory: Path, importer: AnyImporter | None) -> list[tuple[AnyImporter, Path]]:
     """The files directly in `directory` that an importer (the given one, or any) claims."""
     candidates = [importer] if importer else [cls() for cls in _REGISTRY.values()]
-    files = [c for c in sorted(directory.iterdir()) if c.is_file() and not not_a_log(c)]
+    files = [
+        c
+        for c in sorted(directory.iterdir())
+        if c.is_file() and not c.name.startswith(".") and not not_a_log(c)
+    ]
     return [(imp, f) for f in files for imp in candidates if imp.sniff(f)]
 
 
@@ -193,8 +197,7 @@ def import_log(
     if not paths:
         raise ToolkitError("no source given")
     for p in paths:
-        if not p.exists():
-            raise ToolkitError("no such file or directory", file=p)
+        check_readable(p)
     if fmt != "auto":  # the options before the sources: a typo fails fast
         read_options(get(fmt), options)
     importer, paths = resolve(fmt, paths)

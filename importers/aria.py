@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import csv
 import io
-import lzma
 import math
 import re
 from collections.abc import Iterator, Sequence
@@ -40,7 +39,7 @@ import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import FormatOptions, Importer, head_bytes, open_text, option
+from importers.base import FormatOptions, Importer, TextBlocks, head_bytes, option
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, PoseStream, make_meta, pose_frame
 from toolkit.errors import FormatError, ToolkitError
@@ -49,7 +48,8 @@ from toolkit.progress import task
 MM = 0.001
 DEFAULT_RANGE_MAX = 81.91
 MAX_BEAMS = 10000
-PROGRESS_LINES = 4096
+_KNOWN_TAGS = ("scanId", "scan1Id", "velocities", "locationTypes", "robotRaw")
+PARSE_ROWS = 4096  # laser lines converted in one call (bounded memory)
 SUFFIXES = (".2d", ".2d.gz", ".2d.bz2", ".2d.xz")
 LASER_TAGS = ("scan1", "sick1")
 TIME_TAGS = ("logTime", "time")
@@ -64,9 +64,33 @@ class _Scans:
         self.width = 0  # numbers per laser line
         self.lines: list[int] = []
         self.t: list[float] = []
-        self.text: list[str] = []  # the laser lines' numbers, parsed all at once in _build
+        self.text: list[str] = []  # the laser lines' numbers not yet converted
         self.robot: list[tuple[float, float, float] | None] = []
         self.global_: list[tuple[float, float, float] | None] = []
+        self._ok: list[np.ndarray] = []  # converted, PARSE_ROWS texts at a time
+        self._values: list[np.ndarray] = []
+
+    def add_text(self, text: str) -> None:
+        """A laser line's numbers; converted in blocks, so that the text is not all kept."""
+        self.text.append(text)
+        if len(self.text) >= PARSE_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self.text:
+            ok, values = parse_rows(self.text, self.width)
+            self._ok.append(ok)
+            self._values.append(values)
+            self.text = []
+
+    def parsed(self) -> tuple[np.ndarray, np.ndarray]:
+        """(ok per laser line, values of the ok ones), as `parse_rows` of all of them."""
+        self._flush()
+        if not self._ok:
+            return parse_rows([], self.width)
+        ok, values = np.concatenate(self._ok), np.concatenate(self._values)
+        self._ok, self._values = [], []
+        return ok, values
 
 
 @dataclass(frozen=True)
@@ -151,18 +175,22 @@ def _lines(path: Path, report: ImportReport) -> Iterator[tuple[int, str]]:
     """Numbered lines; a damaged compressed stream ends them (noted), what came before is kept."""
     number = 0
     size = path.stat().st_size
-    try:
-        with open_text(path) as f, task(f"reading {path.name}", total=size) as (bar, job):
-            done = 0
-            for number, line in enumerate(f, 1):
-                done += len(line)
-                if number % PROGRESS_LINES == 0:
-                    bar.update(TaskID(job), completed=min(done, size))
-                yield number, line
-    except (OSError, EOFError, lzma.LZMAError) as e:
-        if number == 0:
-            raise FormatError(f"cannot read or decompress: {e}", file=path) from None
-        report.note(f"compressed stream damaged after line {number} ({e}): the rest is lost")
+    reader = TextBlocks(path)  # bounded: line length and decompressed size capped
+    with task(f"reading {path.name}", total=size) as (bar, job):
+        for block in reader:
+            # as a text file reads: \r\n and \r are newlines
+            lines = block.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+            last = lines.pop()  # "" after the block's final newline, else the cut last line
+            for line in lines:
+                number += 1
+                yield number, line + "\n"
+            if last:
+                number += 1
+                yield number, last
+            bar.update(TaskID(job), completed=min(reader.bytes, size))
+    if reader.error is not None:
+        report.note(f"compressed stream damaged after line {number} ({reader.error}): "
+                    "the rest is lost")  # fmt: skip
 
 
 def parse_rows(texts: list[str], width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -240,7 +268,7 @@ def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]]
                 scans.width = 2 * beams if tag == "scan1" else beams
                 scans.lines.append(number)
                 scans.t.append(math.nan if t is None else t)
-                scans.text.append(rest)
+                scans.add_text(rest)
                 scans.robot.append(robot)
                 scans.global_.append(robot_global)
             t = robot = robot_global = None
@@ -269,7 +297,7 @@ def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]]
                     header["conf"] = header[tag]
                 if tag in ("sick1pose", "scan1pose"):
                     header["pose"] = header[tag]
-        elif tag not in ("scanId", "scan1Id", "velocities", "locationTypes", "robotRaw"):
+        elif tag not in _KNOWN_TAGS and len(unknown) < 100:  # garbage: millions of words
             unknown.add(tag)
     if unknown:
         report.note(f"unknown tags ignored: {', '.join(sorted(unknown))}")
@@ -358,7 +386,7 @@ def _build(
     rate: float | None = None,
 ) -> Dataset:
     tag = header["laser_tag"][0] if "laser_tag" in header else "scan1"
-    ok, values = parse_rows(scans.text, scans.width)
+    ok, values = scans.parsed()
     bad = np.flatnonzero(~ok)
     if bad.size:
         where = f"line {scans.lines[int(bad[0])]}"

@@ -45,8 +45,9 @@ from __future__ import annotations
 import bisect
 import math
 import re
+from array import array
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -56,7 +57,7 @@ import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import FormatOptions, Importer, head_bytes, open_text, option
+from importers.base import FormatOptions, Importer, TextBlocks, head_bytes, option
 from toolkit import se2
 from toolkit.atomic import atomic_file
 from toolkit.dataset import (
@@ -80,7 +81,8 @@ MIN_DISTINCT = 0.5
 #: ... or more than this fraction are out of order
 MAX_OUT_OF_ORDER = 0.25
 NOMINAL_RATE = 1.0
-PROGRESS_STEP = 8192
+CONVERT_ROWS = 512  # laser lines whose tokens are held before converting them in one call
+MAX_PARAMS = 1000  # distinct PARAM names and other words kept (a garbage file has millions)
 
 #: old-format beam layouts: beams -> (first angle, step), degrees
 OLD_LAYOUTS: dict[int, tuple[float, float]] = {
@@ -104,19 +106,147 @@ RANGE_PARAM = "toolkit_laser_range_max"
 _NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^[-+]?(nan|inf)$", re.IGNORECASE)
 
 
+class _Drops:
+    """Damaged lines by reason: how many, the first and the last one (file order), so that
+    a log of millions of damaged lines costs a few numbers, not a list."""
+
+    def __init__(self) -> None:
+        self.count: dict[str, int] = {}
+        self.first: dict[str, int] = {}
+        self.last: dict[str, int] = {}
+
+    def add(self, reason: str, numbers: np.ndarray | int) -> None:
+        arr = np.atleast_1d(np.asarray(numbers, dtype=np.int64))
+        if not arr.size:
+            return
+        self.count[reason] = self.count.get(reason, 0) + int(arr.size)
+        self.first[reason] = min(self.first.get(reason, int(arr.min())), int(arr.min()))
+        self.last[reason] = max(self.last.get(reason, 0), int(arr.max()))
+
+    def merge(self, other: _Drops) -> None:
+        for reason, count in other.count.items():
+            self.count[reason] = self.count.get(reason, 0) + count
+            self.first[reason] = min(self.first.get(reason, other.first[reason]),
+                                     other.first[reason])  # fmt: skip
+            self.last[reason] = max(self.last.get(reason, 0), other.last[reason])
+
+    def report(self, report: ImportReport, path: Path, last_line: int) -> None:
+        """Into `report`, first-seen first; the unterminated last line (`last_line`) under
+        its own reason, unless the reason is a value's or a beam count's."""
+        for reason in sorted(self.count, key=self.first.__getitem__):
+            count, first = self.count[reason], self.first[reason]
+            exempt = reason.endswith("non-numeric value") or reason.startswith("beam count")
+            if last_line and self.last[reason] == last_line and not exempt:
+                count -= 1
+                report.drop("truncated last line", 1, _where(path, last_line))
+            if count:
+                report.drop(reason, count, _where(path, first))
+
+
 @dataclass
-class _Line:
-    number: int  # 1-based line number in the file
-    tokens: list[str]
+class _LayoutRows:
+    """A laser message's lines of one layout: their numbers, positions among the message's
+    lines, and their numeric fields converted in blocks (the tokens are not kept)."""
+
+    cols: np.ndarray  # token columns of the fields, see `_columns`; the ranges' first
+    beams: int  # ranges: the first `beams` fields, kept as float32 (converted via float64)
+    numbers: array = field(default_factory=lambda: array("q"))
+    index: array = field(default_factory=lambda: array("q"))
+    ok: bytearray = field(default_factory=bytearray)  # per line: its fields are numbers
+    pending: list[list[str]] = field(default_factory=list)
+    blocks: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # ok lines:
+    # (ranges float32, the other fields float64)
+
+    def add(self, number: int, index: int, tokens: list[str]) -> None:
+        lo, hi = int(self.cols.min()), int(self.cols.max()) + 1
+        self.numbers.append(number)
+        self.index.append(index)
+        self.pending.append(tokens[lo:hi])
+        if len(self.pending) >= CONVERT_ROWS:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self.pending:
+            return
+        cols = self.cols - self.cols.min()
+        try:
+            values = np.array(self.pending, dtype=np.float64)[:, cols]
+            self.ok.extend(b"\x01" * len(self.pending))
+        except ValueError:  # find the damaged lines, only on this slow path
+            good = []
+            for row in self.pending:
+                try:
+                    good.append(np.array(row, dtype=np.float64)[cols])
+                    self.ok.append(1)
+                except ValueError:
+                    self.ok.append(0)
+            values = np.array(good).reshape(len(good), cols.size)
+        ranges = values[:, : self.beams].astype(np.float32)
+        self.blocks.append((ranges, values[:, self.beams :].copy()))
+        self.pending = []
+
+
+@dataclass
+class _LaserLines:
+    """One laser message's lines: per layout (beams, remissions, clock) the converted
+    fields; lines whose layout cannot be told, by reason."""
+
+    count: int = 0
+    layouts: dict[tuple[int, int, bool], _LayoutRows] = field(default_factory=dict)
+    bad: _Drops = field(default_factory=_Drops)
+
+    def add(self, msg: str, number: int, tokens: list[str]) -> None:
+        lay = _layout(msg, tokens)
+        if isinstance(lay, str):
+            self.bad.add(lay, number)
+        else:
+            rows = self.layouts.get(lay)
+            if rows is None:
+                cols = _columns(msg, *lay)
+                flat = np.concatenate([cols[k] for k in _FIELDS if k in cols])
+                rows = self.layouts[lay] = _LayoutRows(flat, lay[0])
+            rows.add(number, self.count, tokens)
+        self.count += 1
+
+
+@dataclass
+class _PoseLines:
+    """ODOM or TRUEPOS lines: x, y, theta and timestamp of those with 10 fields."""
+
+    count: int = 0
+    seven: int = 0  # lines of 7 fields (no timestamp)
+    numbers: array = field(default_factory=lambda: array("q"))
+    values: array = field(default_factory=lambda: array("d"))  # 4 per line
+    wrong: list[int] = field(default_factory=list)  # first and last line without 10 fields
+    wrong_count: int = 0
+    non_numeric: list[int] = field(default_factory=list)
+
+    def add(self, number: int, tokens: list[str]) -> None:
+        self.count += 1
+        self.seven += len(tokens) == 7
+        if len(tokens) != 10:
+            if len(self.wrong) < 2:  # the first and the last are what the report needs
+                self.wrong.append(number)
+            else:
+                self.wrong[-1] = number
+            self.wrong_count += 1
+            return
+        try:
+            fields = [float(tokens[i]) for i in (1, 2, 3, 7)]
+        except ValueError:
+            self.non_numeric.append(number)
+            return
+        self.numbers.append(number)
+        self.values.extend(fields)
 
 
 @dataclass
 class _Lines:
-    """The data lines of a log, sorted by message; everything else counted."""
+    """The data lines of a log, by message, converted as they are read; the rest counted."""
 
-    lasers: dict[str, list[_Line]] = field(default_factory=dict)
-    odom: list[_Line] = field(default_factory=list)
-    truepos: list[_Line] = field(default_factory=list)
+    lasers: dict[str, _LaserLines] = field(default_factory=dict)
+    odom: _PoseLines = field(default_factory=_PoseLines)
+    truepos: _PoseLines = field(default_factory=_PoseLines)
     params: dict[str, list[str]] = field(default_factory=dict)
     skipped: Counter[str] = field(default_factory=Counter)
     dpslam_odometry: int = 0  # DP-SLAM Odometry lines, all
@@ -132,7 +262,7 @@ class _LaserStream:
     name: str
     lines: np.ndarray  # (S,) line numbers
     index: np.ndarray  # (S,) position among this laser's lines in the file (for scan order)
-    ranges: np.ndarray  # (S, B) float64
+    ranges: np.ndarray  # (S, B) float32 (parsed as float64, as the file's text)
     laser_pose: np.ndarray  # (S, 3)
     robot_pose: np.ndarray  # (S, 3)
     stamp: np.ndarray | None  # (S,) message timestamps, None without a clock
@@ -144,30 +274,29 @@ class _LaserStream:
 
 
 def _split_lines(path: Path) -> _Lines:
-    """One pass over the file: tokens of every data line, grouped by message."""
-    chunks: list[str] = []
-    cut = None
-    with open_text(path) as f:
-        try:
-            while chunk := f.read(1 << 16):  # small: a damaged stream loses only its last one
-                chunks.append(chunk)
-        except (OSError, EOFError) as e:  # a damaged compressed stream: keep what came out
-            cut = str(e)
-    text = "".join(chunks)
-    if cut is not None and not text:
-        raise FormatError(f"cannot read: {cut}", file=path)
-    if not text.strip():
-        raise FormatError("empty file", file=path)
-    out = _Lines(stream_error=cut)
-    lines = text.splitlines()
-    if not text.endswith(("\n", "\r")):
-        out.last_line = len(lines)
+    """One pass over the file in blocks (bounded memory: `TextBlocks`): every data line
+    filed under its message, laser and pose fields converted to numbers as they come."""
+    out = _Lines()
+    reader = TextBlocks(path)
+    number = 0
+    seen_text = False
     dpslam_pose: list[str] | None = None
-    with task(f"reading {path.name}", total=len(lines)) as (bar, job):
-        for number, line in enumerate(lines, start=1):
-            if not number % PROGRESS_STEP:
-                bar.advance(TaskID(job), PROGRESS_STEP)
-            dpslam_pose = _sort_line(out, number, line, dpslam_pose)
+    size = path.stat().st_size
+    with task(f"reading {path.name}", total=size) as (bar, job):
+        for block in reader:
+            seen_text = seen_text or bool(block.strip())
+            for line in block.splitlines():
+                number += 1
+                dpslam_pose = _sort_line(out, number, line, dpslam_pose)
+            bar.update(TaskID(job), completed=min(size, reader.bytes))
+    for laser in out.lasers.values():
+        for rows in laser.layouts.values():
+            rows.flush()
+    out.stream_error = reader.error
+    if not seen_text:
+        raise FormatError("empty file", file=path)
+    if reader.unterminated:
+        out.last_line = number
     return out
 
 
@@ -180,14 +309,16 @@ def _sort_line(
         return dpslam_pose
     msg = tokens[0]
     if msg in OLD_LASERS or msg in NEW_LASERS:
-        out.lasers.setdefault(msg, []).append(_Line(number, tokens))
+        out.lasers.setdefault(msg, _LaserLines()).add(msg, number, tokens)
     elif msg == "ODOM":
-        out.odom.append(_Line(number, tokens))
+        out.odom.add(number, tokens)
     elif msg == "TRUEPOS":
-        out.truepos.append(_Line(number, tokens))
+        out.truepos.add(number, tokens)
     elif msg == "PARAM":
-        if len(tokens) >= 3:
-            out.params.setdefault(tokens[1], []).append(tokens[2])
+        if len(tokens) >= 3 and len(out.params) < MAX_PARAMS:
+            values = out.params.setdefault(tokens[1], [])
+            if len(values) < MAX_PARAMS:
+                values.append(tokens[2])
     elif msg.lower() == "odometry":
         out.dpslam_odometry += 1
         dpslam_pose = tokens[1:4] if len(tokens) == 4 else None
@@ -196,9 +327,14 @@ def _sort_line(
     elif msg.lower() == "laser":
         # as an old-format laser line without clock: laser pose = robot pose = Odometry
         pose = dpslam_pose if dpslam_pose is not None else ["nan"] * 3
-        out.lasers.setdefault(DPSLAM_LASER, []).append(_Line(number, tokens + pose + pose))
+        out.lasers.setdefault(DPSLAM_LASER, _LaserLines()).add(
+            DPSLAM_LASER, number, tokens + pose + pose
+        )
     else:
-        out.skipped[msg] += 1
+        if msg in out.skipped or len(out.skipped) < MAX_PARAMS:
+            out.skipped[msg] += 1
+        else:
+            out.skipped["(other words)"] += 1
     return dpslam_pose
 
 
@@ -243,74 +379,66 @@ def _columns(msg: str, n: int, m: int, clock: bool) -> dict[str, np.ndarray]:
     return cols
 
 
+_FIELDS = ("ranges", "poses", "header", "stamp")
+
+
 def _where(path: Path, line: int) -> str:
     return f"{path}:{line}"
 
 
-def _to_float(rows: list[list[str]], cols: np.ndarray) -> np.ndarray:
-    """The given token columns of equally long rows as floats: numpy parses one contiguous
-    slice of each row (all numeric fields of a message lie between the tag and the host)."""
-    lo, hi = int(cols.min()), int(cols.max()) + 1
-    if not rows:
-        return np.empty((0, cols.size))
-    return np.array([r[lo:hi] for r in rows], dtype=np.float64)[:, cols - lo]
-
-
 def _parse_laser(
-    path: Path, msg: str, entries: list[_Line], last_line: int, report: ImportReport
+    path: Path, msg: str, lines: _LaserLines, last_line: int, report: ImportReport
 ) -> _LaserStream | None:
-    """Keep the lines of the log's majority layout; convert each field in one numpy call."""
-    layouts: list[tuple[int, int, bool] | str] = [_layout(msg, e.tokens) for e in entries]
-    good = Counter(lay for lay in layouts if not isinstance(lay, str))
-    if not good:
-        for e, lay in zip(entries, layouts, strict=True):
-            why = lay if isinstance(lay, str) else "wrong number of ranges"
-            report.drop(_reason(why, e.number, last_line), 1, _where(path, e.number))
+    """Keep the lines of the log's majority layout (their fields were converted while
+    reading); count the others by reason."""
+    drops = _Drops()
+    drops.merge(lines.bad)
+    if not lines.layouts:
+        drops.report(report, path, last_line)
         return None
-    n, m, clock = good.most_common(1)[0][0]
-    keep: list[int] = []
-    for i, (e, lay) in enumerate(zip(entries, layouts, strict=True)):
-        if isinstance(lay, str):
-            report.drop(_reason(lay, e.number, last_line), 1, _where(path, e.number))
-        elif lay[0] != n:
-            report.drop(f"beam count {lay[0]} (the log's is {n})", 1, _where(path, e.number))
-        elif lay != (n, m, clock):
-            report.drop(_reason("wrong number of fields", e.number, last_line), 1,
-                        _where(path, e.number))  # fmt: skip
-        else:
-            keep.append(i)
+    counts = Counter({lay: len(rows.numbers) for lay, rows in lines.layouts.items()})
+    main = counts.most_common(1)[0][0]
+    n, m, clock = main
+    for lay, rows in lines.layouts.items():
+        if lay != main:
+            why = f"beam count {lay[0]} (the log's is {n})" if lay[0] != n else (
+                "wrong number of fields")  # fmt: skip
+            drops.add(why, np.frombuffer(rows.numbers, dtype=np.int64))
+            rows.blocks = []
+    rows = lines.layouts[main]
+    ok = np.frombuffer(bytes(rows.ok), dtype=np.uint8).astype(bool)
+    numbers = np.frombuffer(rows.numbers, dtype=np.int64)
+    drops.add("non-numeric value", numbers[~ok])
+    drops.report(report, path, last_line)
+    if not ok.any():
+        return None
     cols = _columns(msg, n, m, clock)
-    order = ("ranges", "poses", "header", "stamp")
-    flat = np.concatenate([cols[k] for k in order if k in cols])
-    rows = [entries[i].tokens for i in keep]
-    try:
-        values = _to_float(rows, flat)
-    except ValueError:  # find the damaged lines, only on this slow path
-        ok = []
-        for i in keep:
-            try:
-                _to_float([entries[i].tokens], flat)
-                ok.append(i)
-            except ValueError:
-                report.drop("non-numeric value", 1, _where(path, entries[i].number))
-        keep = ok
-        rows = [entries[i].tokens for i in keep]
-        values = _to_float(rows, flat)
-    if not keep:
-        return None
-    split = np.cumsum([cols[k].size for k in order if k in cols])[:-1]
-    parts = dict(zip([k for k in order if k in cols], np.split(values, split, axis=1), strict=True))
-    idx = np.asarray(keep)
+    # the fields in arrays of their own, block by block (each block freed once copied)
+    sizes = {k: cols[k].size for k in _FIELDS if k in cols}
+    total = sum(len(r) for r, _ in rows.blocks)
+    parts = {k: np.empty((total, size), np.float32 if k == "ranges" else np.float64)
+             for k, size in sizes.items()}  # fmt: skip
+    at = 0
+    while rows.blocks:
+        ranges, rest = rows.blocks.pop(0)
+        parts["ranges"][at : at + len(ranges)] = ranges
+        col = 0
+        for k, size in sizes.items():
+            if k != "ranges":
+                parts[k][at : at + len(ranges)] = rest[:, col : col + size]
+                col += size
+        at += len(ranges)
+        del ranges, rest
     return _LaserStream(
         name=msg,
-        lines=np.array([entries[i].number for i in keep]),
-        index=idx,
+        lines=numbers[ok],
+        index=np.frombuffer(rows.index, dtype=np.int64)[ok],
         ranges=parts["ranges"],
         laser_pose=parts["poses"][:, :3],
         robot_pose=parts["poses"][:, 3:],
         stamp=parts["stamp"][:, 0] if clock else None,
         header=parts["header"] if msg in NEW_LASERS else None,
-        read=len(entries),
+        read=lines.count,
     )
 
 
@@ -373,12 +501,26 @@ def longest_in_order(stamp: np.ndarray) -> np.ndarray:
 
 def no_return_code(ranges: np.ndarray) -> float | None:
     """The largest value recurring at least CODE_MIN_COUNT times: the scanner's no-return code."""
-    values = ranges[np.isfinite(ranges)]
-    if values.size == 0:
+    # by blocks of rows (a log's distinct values are few: mm steps), so that no copy of the
+    # whole log is sorted
+    parts = [np.unique(block[np.isfinite(block)], return_counts=True)
+             for block in _row_blocks(ranges)]  # fmt: skip
+    if not parts or not sum(u.size for u, _ in parts):
         return None
-    uniq, counts = np.unique(values, return_counts=True)
+    uniq, inverse = np.unique(np.concatenate([u for u, _ in parts]), return_inverse=True)
+    counts = np.bincount(inverse, weights=np.concatenate([c for _, c in parts]))
     frequent = uniq[counts >= CODE_MIN_COUNT]
-    return float(frequent[-1]) if frequent.size else None
+    return _as_printed(frequent[-1]) if frequent.size else None
+
+
+def _as_printed(value: float) -> float:
+    """A float32 range as the decimal the log printed (81.91, not 81.91000366)."""
+    return float(str(np.float32(value)))
+
+
+def _row_blocks(a: np.ndarray, rows: int = 4096) -> Iterator[np.ndarray]:
+    for lo in range(0, len(a), rows):
+        yield a[lo : lo + rows]
 
 
 def _pose_frame(t: np.ndarray, pose: np.ndarray) -> pd.DataFrame:
@@ -429,7 +571,7 @@ class _Reader:
             stream = _parse_laser(path, msg, entries, lines.last_line, report)
             if stream is not None:
                 streams[msg] = stream
-        read = sum(len(v) for v in lines.lasers.values())
+        read = sum(v.count for v in lines.lasers.values())
         if not streams:
             first = next(iter(report.examples.values()), "?")
             raise FormatError(f"no usable laser line: all {read} are damaged (first at {first})",
@@ -446,7 +588,7 @@ class _Reader:
                         "the lines before the damage were read")  # fmt: skip
         for name, count in sorted(lines.skipped.items()):
             report.note(f"skipped {count} {name} line(s): not used")
-        report.records_read = read + len(lines.odom) + len(lines.truepos) + lines.dpslam_odometry
+        report.records_read = read + lines.odom.count + lines.truepos.count + lines.dpslam_odometry
         kept = sum(b.scans.t.size for b in built.values())
         report.records_kept = kept + decisions.get("odom_lines_kept", 0)
         report.records_kept += decisions.get("truepos_lines_kept", 0)
@@ -509,21 +651,26 @@ class _Reader:
             decisions["clock_fallback"] = why
             decisions["rate_hz"] = hz
         assert t is not None
-        ranges = s.ranges
-        bad = ~np.isfinite(ranges) | (ranges < 0)
+        ranges = s.ranges  # in place: this laser's own converted values (memory: one copy)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(ranges) | (ranges < 0)
         if bad.any():
             report.note(f"{name}: {int(bad.sum())} range values NaN, inf or negative -> NaN")
-            ranges = np.where(bad, np.nan, ranges)
+            ranges[bad] = np.nan
+        del bad
         geometry, code, how_code = self._geometry(s, ranges)
         if code is not None:
-            no_return = ranges >= code
-            ranges = np.where(no_return, np.nan, ranges)
+            with np.errstate(invalid="ignore"):
+                no_return = ranges >= code
+            ranges[no_return] = np.nan
             report.note(f"{name}: no-return code {code:g} m ({how_code}): "
                         f"{int(no_return.sum())} values >= {code:g} m -> NaN")  # fmt: skip
+            del no_return
             decisions[f"{name}_no_return_from"] = round(float(code), 6)
         decisions[f"{name}_range_max"] = geometry.range_max
         decisions[f"{name}_range_max_source"] = how_code
         scans = Scans(t, ranges.astype(np.float32), geometry)
+        s.ranges = s.ranges[:0]  # the float64 values are no longer needed: free them
         return _Built(scans, s, t, time_source, decisions)
 
     def _geometry(
@@ -565,8 +712,8 @@ class _Reader:
             else:
                 how += "; none found"
         if range_max is None:
-            finite = ranges[np.isfinite(ranges)]
-            range_max = float(finite.max()) if finite.size else 81.91
+            top = np.nanmax(ranges, initial=-np.inf) if ranges.size else -np.inf
+            range_max = _as_printed(top) if np.isfinite(top) else 81.91
             how += ", range_max = the largest reading"
         return LaserGeometry(n, float(start), float(res), range_max, **self._mount(s)), code, how
 
@@ -611,7 +758,7 @@ class _Reader:
         which = self.options.poses
         clock = main.time_source == "log"
         odometry: pd.DataFrame | None = None
-        if self.lines.odom:
+        if self.lines.odom.count:
             odometry = self._stamped("ODOM", self.lines.odom, clock, decisions)
         if odometry is not None:
             decisions["odometry"] = "ODOM lines at their own times"
@@ -621,7 +768,7 @@ class _Reader:
         else:
             decisions["odometry"] = "none"
         truepos = None
-        if self.lines.truepos:
+        if self.lines.truepos.count:
             truepos = self._stamped("TRUEPOS", self.lines.truepos, clock, decisions)
         poses: dict[str, pd.DataFrame] = {}
         groundtruth = truepos
@@ -641,40 +788,34 @@ class _Reader:
         return odometry, groundtruth, poses
 
     def _stamped(
-        self, msg: str, entries: list[_Line], clock: bool, decisions: dict[str, Any]
+        self, msg: str, lines: _PoseLines, clock: bool, decisions: dict[str, Any]
     ) -> pd.DataFrame | None:
         """ODOM or TRUEPOS poses at their own times, or None when there is no usable clock."""
         report, path = self.report, self.path
-        if all(len(e.tokens) == 7 for e in entries):
+        if lines.seven == lines.count:
             report.note(f"{msg} lines not used: they have no timestamps")
             return None
-        good = [e for e in entries if len(e.tokens) == 10]
-        for e in entries:
-            if len(e.tokens) != 10:
-                report.drop(_reason(f"{msg} wrong number of fields", e.number, self.lines.last_line),
-                            1, _where(path, e.number))  # fmt: skip
-        rows: list[list[str]] = [e.tokens for e in good]
-        cols = np.array([1, 2, 3, 7])
-        try:
-            values = _to_float(rows, cols)
-        except ValueError:
-            ok = []
-            for e in good:
-                try:
-                    _to_float([e.tokens], cols)
-                    ok.append(e)
-                except ValueError:
-                    report.drop(f"{msg} non-numeric value", 1, _where(path, e.number))
-            good = ok
-            values = _to_float([e.tokens for e in good], cols)
+        if lines.wrong_count:
+            first, last = lines.wrong[0], lines.wrong[-1]
+            count = lines.wrong_count
+            if self.lines.last_line and last == self.lines.last_line:
+                count -= 1
+                report.drop("truncated last line", 1, _where(path, last))
+            if count:
+                report.drop(f"{msg} wrong number of fields", count, _where(path, first))
+        if lines.non_numeric:
+            report.drop(f"{msg} non-numeric value", len(lines.non_numeric),
+                        _where(path, lines.non_numeric[0]))  # fmt: skip
+        values = np.frombuffer(lines.values, dtype=np.float64).reshape(-1, 4)
+        numbers = np.frombuffer(lines.numbers, dtype=np.int64)
         if not clock:
             report.note(f"{msg} lines not used: the scans have no usable clock to align them to")
             return None
         finite = np.isfinite(values).all(axis=1)
         if not finite.all():
             report.drop(f"{msg} NaN or inf value", int((~finite).sum()),
-                        _where(path, good[int(np.argmin(finite))].number))  # fmt: skip
-            values, good = values[finite], [e for e, f in zip(good, finite, strict=True) if f]
+                        _where(path, int(numbers[int(np.argmin(finite))])))  # fmt: skip
+            values, numbers = values[finite], numbers[finite]
         stamp = values[:, 3]
         keep = longest_in_order(stamp)
         why = broken_clock(stamp, keep)
@@ -684,7 +825,7 @@ class _Reader:
         late = np.flatnonzero(~keep)
         if late.size:
             report.drop(f"{msg} timestamp out of order", late.size,
-                        _where(path, good[late[0]].number))  # fmt: skip
+                        _where(path, int(numbers[late[0]])))  # fmt: skip
         values = values[keep]
         decisions[f"{msg.lower()}_lines_kept"] = int(keep.sum())
         if not len(values):

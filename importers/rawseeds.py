@@ -79,6 +79,7 @@ from toolkit.dataset import (
     ScansWriter,
     load,
     make_meta,
+    plausible_poses,
     pose_frame,
     write_poses,
 )
@@ -329,6 +330,10 @@ def parse_chunk(
         for i, n in enumerate(names)
     }
     bad: list[tuple[int, str]] = []
+    if not chunk.data.isascii():  # numbers are ASCII; pyarrow's row handler chokes on bad UTF-8
+        pos = next(i for i, b in enumerate(chunk.data) if b > 127)
+        line = chunk.first_line + chunk.data.count(b"\n", 0, pos)
+        raise FormatError(f"not a number: byte 0x{chunk.data[pos]:02x}", file=path, record=line)
 
     def skip(row: pacsv.InvalidRow) -> str:
         bad.append((row.number if row.number is not None else 1 << 62, str(row.text)))
@@ -752,6 +757,7 @@ class Rawseeds(Importer[RawseedsOptions, RawseedsWriteOptions]):
             report.note("Hokuyo mounting is not documented: x = y = z = 0, yaw 0 front / pi rear")
         if "ODOMETRY_XYT" in files:
             odo = read_pose_stream(files["ODOMETRY_XYT"], 7, (0, 4, 5, 6), report, "odometry: ")
+            odo = plausible_poses(odo, report, "odometry")  # type: ignore[assignment]
             write_poses(tmp / ODOMETRY, odo)
         else:
             report.note("no ODOMETRY_XYT file: imported without odometry")
@@ -763,6 +769,7 @@ class Rawseeds(Importer[RawseedsOptions, RawseedsWriteOptions]):
                 continue
             ncols = POSE_STREAMS[stream]
             poses = read_pose_stream(files[stream], ncols, (0, 1, 2, 3), report, f"{stream}: ")
+            poses = plausible_poses(poses, report, stream)  # type: ignore[assignment]
             if choice == gt_choice:
                 write_poses(tmp / GROUNDTRUTH, poses)
                 gt_meta["file"] = files[stream].name

@@ -45,9 +45,9 @@ from importers import register
 from importers.base import (
     FormatOptions,
     Importer,
+    TextBlocks,
     head_bytes,
     looks_like_tum,
-    open_binary,
     option,
 )
 from toolkit import se2
@@ -162,16 +162,20 @@ def _is_number(token: bytes) -> bool:
     return bool(_NUMBER.match(token))
 
 
+TABLE_BLOCK = 8 << 20  # bytes of whole lines parsed at a time (bounded memory)
+
+
 def read_numbers(path: Path, sep_option: str | None) -> Numbers:
-    """All rows of a numeric text table, with pyarrow's CSV reader (no Python loop per row)."""
-    with open_binary(path) as f:
-        try:
-            data = f.read()
-        except (OSError, EOFError) as e:
-            raise FormatError(f"cannot read: {e}", file=path) from None
-    header = _header_options(data[:4096].decode("utf-8", "replace"))
-    data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").translate(_GARBLE)
-    data = re.sub(rb"(?m)^[ \t]*#[^\n]*\n?", b"", data)
+    """All rows of a numeric text table, with pyarrow's CSV reader (no Python loop per row),
+    block by block of whole lines (`TextBlocks`: bounded memory, capped lines)."""
+    reader = TextBlocks(path, TABLE_BLOCK, text=False)
+    blocks = iter(reader)
+    try:
+        first = next(blocks)
+    except StopIteration:
+        raise FormatError("no data rows", file=path) from None
+    header = _header_options(first[:4096].decode("utf-8", "replace"))
+    data = _clean(first)
     lines = [ln for ln in data[:65536].split(b"\n")[:50] if ln.strip()]
     if not lines:
         raise FormatError("no data rows", file=path)
@@ -183,8 +187,6 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
     else:
         raise ToolkitError(f"-O sep={sep_name!r}: one of comma, whitespace, tab, semicolon")
     if sep == " ":
-        data = re.sub(rb"[ \t]+", b" ", data)
-        data = re.sub(rb"(?m)^ | $", b"", data)
         lines = [re.sub(rb"[ \t]+", b" ", ln).strip() for ln in lines]
     split = [ln.split(sep.encode()) for ln in lines]
     skip = 0
@@ -195,6 +197,41 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
         raise FormatError("no data rows", file=path)
     counts = pd.Series([len(s) for s in split]).mode()
     ncols = int(counts.iloc[0])
+    header_skipped = skip == 1
+    parts: list[np.ndarray] = []
+    bad_total, garbage_total, first_bad = 0, 0, None
+    rows_before = 0
+    block: bytes | None = data
+    while block is not None:
+        data = block
+        if sep == " ":
+            data = re.sub(rb"(?m)^ | $", b"", re.sub(rb"[ \t]+", b" ", data))
+        values, garbage, bad = _parse_block(path, data, sep, ncols, skip)
+        if first_bad is None and bad:
+            first_bad = f"line {bad[0] + rows_before}" if bad[0] >= 0 else "a row"
+        elif first_bad is None and garbage.any():
+            first_bad = f"data row {int(np.flatnonzero(garbage)[0]) + 1 + rows_before}"
+        rows_before += len(values) + len(bad) + skip
+        bad_total += len(bad)
+        garbage_total += int(garbage.sum())
+        parts.append(values[~garbage])
+        skip = 0
+        nxt = next(blocks, None)
+        block = None if nxt is None else _clean(nxt)
+    values = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    return Numbers(values, bad_total + garbage_total, first_bad, header, header_skipped)
+
+
+def _clean(data: bytes) -> bytes:
+    """Newlines unified, non-text bytes made '?', comment lines removed (line by line)."""
+    data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").translate(_GARBLE)
+    return re.sub(rb"(?m)^[ \t]*#[^\n]*\n?", b"", data)
+
+
+def _parse_block(
+    path: Path, data: bytes, sep: str, ncols: int, skip: int
+) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """(values, garbage rows, numbers of rows with the wrong field count) of one block."""
     bad: list[int] = []
 
     def invalid(row: pacsv.InvalidRow) -> str:
@@ -220,18 +257,16 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
                 [c.to_numpy(zero_copy_only=False) for c in table.columns]
             ).astype(np.float64, copy=False)
             garbage = np.zeros(len(values), dtype=bool)
-        except pa.ArrowInvalid:  # some token is not a number: find the rows, drop them
+        except pa.ArrowInvalid as e:  # some token is not a number: find the rows, drop them
+            if "Empty CSV" in str(e):
+                return np.zeros((0, ncols)), np.zeros(0, dtype=bool), bad
             values, garbage = _to_float(parse(pa.string()))
     except (pa.ArrowInvalid, UnicodeDecodeError) as e:
+        if "Empty CSV" in str(e):
+            return np.zeros((0, ncols)), np.zeros(0, dtype=bool), bad
         what = " ".join(str(e).split())[:160]
         raise FormatError(f"not a numeric table: {what}", file=path) from None
-    rows_bad = int(garbage.sum())
-    first = None
-    if bad:
-        first = f"line {bad[0]}" if bad[0] >= 0 else "a row"
-    elif rows_bad:
-        first = f"data row {int(np.flatnonzero(garbage)[0]) + 1}"
-    return Numbers(values[~garbage], len(bad) + rows_bad, first, header, skip == 1)
+    return values.reshape(len(values), ncols), garbage, bad
 
 
 def _to_float(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:

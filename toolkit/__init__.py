@@ -12,17 +12,23 @@ from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-from toolkit.dataset import Dataset, ImportReport, LaserGeometry, load, save
 from toolkit.errors import ToolkitError
 
 if TYPE_CHECKING:
     from toolkit import align
+    from toolkit.dataset import Dataset, ImportReport, LaserGeometry, load, save
     from toolkit.poses import trajectory
+
+_DATASET = ("Dataset", "ImportReport", "LaserGeometry", "load", "save")
 
 
 def __getattr__(name: str) -> object:
     """`toolkit.align` and `toolkit.trajectory(ds, method)` load the numba matcher on first
-    use, so that commands which do not align (info, import, ...) start without it."""
+    use, so that commands which do not align (info, import, ...) start without it; the
+    dataset names load pandas and pyarrow on first use, so that the `toolkit` command can
+    set up its signal handling before any heavy import (`toolkit.app.entry`)."""
+    if name in _DATASET:
+        return getattr(importlib.import_module("toolkit.dataset"), name)
     if name == "align":
         return importlib.import_module("toolkit.align")
     if name == "trajectory":

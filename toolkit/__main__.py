@@ -1,5 +1,5 @@
 """`python -m toolkit` is the `toolkit` command."""
 
-from toolkit.app.cli import main
+from toolkit.app.entry import main
 
 main()

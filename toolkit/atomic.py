@@ -1,15 +1,26 @@
-"""Write a directory or a file so that an interrupted command leaves nothing half written."""
+"""Write a directory or a file so that an interrupted command leaves nothing half written.
+
+`atomic_dir(OUT)` writes into a temporary directory `.OUT.XXXXXXXX.tmp` beside OUT and renames
+it into place only when the block succeeds. While it works it holds an exclusive lock on
+`.OUT.lock` (flock: released by the kernel when the process dies, however it dies), so that
+  - a second writer to the same OUT fails at once instead of silently replacing the first;
+  - temporary directories that a killed writer left behind (SIGKILL, a Dask worker killed by
+    its nanny, a power cut) are recognised as stale and removed by the next writer.
+"""
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from toolkit.errors import OutputExistsError
+from toolkit.errors import OutputExistsError, ToolkitError
 
 
 def _umask() -> int:
@@ -29,23 +40,130 @@ def check_output(out: Path, force: bool) -> None:
         raise OutputExistsError("exists; pass --force to replace it", file=out)
 
 
+def lock_path(out: Path) -> Path:
+    return out.with_name(f".{out.name}.lock")
+
+
 @contextmanager
-def atomic_dir(out: str | Path, force: bool = False) -> Iterator[Path]:
+def output_lock(out: Path) -> Iterator[None]:
+    """Hold the exclusive lock of output `out`; another holder makes this a one-line error.
+
+    The lock file is removed on release; a waiter that opened the old file re-checks that it
+    locked the file now at the path (the classic unlink-safe flock protocol)."""
+    path = lock_path(out)
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as e:
+            raise _write_error(e, out, None) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise ToolkitError(
+                "another toolkit command is writing it now; wait for it or stop it", file=out
+            ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder removed the file while we waited: lock the new one
+    try:
+        yield
+    finally:
+        with suppress(OSError):
+            os.unlink(path)
+        os.close(fd)
+
+
+def remove_stale(out: Path) -> list[Path]:
+    """Remove the temporary files and directories that killed writers of `out` left beside it
+    (call with the output's lock held: then no live writer owns them). Returns what went."""
+    pattern = re.compile(rf"\.{re.escape(out.name)}\.([a-z0-9_]{{8}}\.tmp|old-\d+)")
+    removed = []
+    try:
+        siblings = list(out.parent.iterdir())
+    except OSError:
+        return []
+    for p in siblings:
+        if pattern.fullmatch(p.name):
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+def _write_error(e: OSError, out: Path, tmp: Path | None) -> ToolkitError:
+    """An OSError while writing `out` as a one-line error naming the user's path (not the
+    temporary one) and what went wrong: disk full, read-only, permission denied."""
+    name = e.filename
+    if name is None:
+        where = out
+    else:
+        where = Path(os.fsdecode(name))
+        if tmp is not None:
+            with suppress(ValueError):
+                where = out / where.relative_to(tmp)
+        if where.parent == out.parent and where.name.startswith(f".{out.name}."):
+            where = out  # our temporary or lock file beside it: the user knows OUT
+    what = {
+        errno.ENOSPC: "no space left on the device",
+        errno.EDQUOT: "disk quota exceeded",
+        errno.EROFS: "read-only file system",
+        errno.EACCES: "permission denied",
+        errno.EPERM: "operation not permitted",
+    }.get(e.errno or 0, e.strerror or str(e))
+    return ToolkitError(f"cannot write: {what}; nothing was written", file=where)
+
+
+_WRITE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO)
+
+
+@contextmanager
+def atomic_dir(out: str | Path, force: bool = False, update: bool = False) -> Iterator[Path]:
     """Yield a temporary directory beside `out`; rename it to `out` only if the block succeeds.
 
-    On any exception (or Ctrl-C) the temporary directory is removed and `out` is untouched.
-    """
+    On any exception (or Ctrl-C, SIGTERM) the temporary directory is removed and `out` is
+    untouched; after SIGKILL the next writer of `out` removes it. With `update`, the
+    temporary directory starts as a copy of `out` (hard links) and replaces it without
+    --force: a command that adds files to an existing directory, all or none of them."""
     out = Path(out)
-    check_output(out, force)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    check_output(out, force or update)
     try:
-        _publish_mode(tmp, 0o777)
-        yield tmp
-        _replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise _write_error(e, out, None) from None
+    with output_lock(out):
+        remove_stale(out)
+        check_output(out, force or update)
+        try:
+            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        except OSError as e:
+            raise _write_error(e, out, None) from None
+        try:
+            _publish_mode(tmp, 0o777)
+            if update and out.is_dir():
+                shutil.copytree(out, tmp, dirs_exist_ok=True, copy_function=_link_or_copy)
+            yield tmp
+            if out.exists() and not (force or update):  # created meanwhile by something else
+                raise OutputExistsError("appeared while this command ran; not replaced", file=out)
+            _replace(tmp, out)
+        except BaseException as e:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(e, OSError) and e.errno in _WRITE_ERRORS:
+                raise _write_error(e, out, tmp) from None
+            raise
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 def _replace(tmp: Path, out: Path) -> None:
@@ -82,14 +200,19 @@ def atomic_path(out: str | Path) -> Iterator[Path]:
 def atomic_file(out: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `out`; it replaces `out` only if the block succeeds."""
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    except OSError as e:
+        raise _write_error(e, out, None) from None
     os.close(fd)
     tmp = Path(name)
     try:
         _publish_mode(tmp, 0o666)
         yield tmp
         os.replace(tmp, out)
-    except BaseException:
+    except BaseException as e:
         tmp.unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.errno in _WRITE_ERRORS:
+            raise _write_error(e, out, None) from None
         raise

@@ -18,7 +18,8 @@ import base64
 import datetime as _dt
 import hashlib
 import json
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -577,9 +578,75 @@ def make_meta(
 # ---------------------------------------------------------------- whole datasets
 
 
+MAX_POSITION = 1e6  # m: beyond any robot's log (1000 km); a corrupt field, not a pose
+MAX_RANGE = 1e6  # m: beyond any laser
+TIME_BACKWARDS = 1e-3  # s: scan times may not go back by more (t is non-decreasing)
+
+
+def plausible_poses(
+    frame: pd.DataFrame | None, report: ImportReport, what: str
+) -> pd.DataFrame | None:
+    """`frame` without the poses no robot can have (a non-finite field, a position beyond
+    `MAX_POSITION`), dropped and counted in `report` under `what`."""
+    if frame is None or not len(frame):
+        return frame
+    values = frame[["t", "x", "y", "theta"]].to_numpy(np.float64)
+    bad = ~np.isfinite(values).all(axis=1) | (np.abs(values[:, 1:3]) > MAX_POSITION).any(axis=1)
+    if not bad.any():
+        return frame
+    first = int(np.argmax(bad))
+    report.drop(
+        f"{what}: implausible pose (non-finite, or beyond {MAX_POSITION:.0e} m)",
+        int(bad.sum()),
+        f"row {first} (t={float(values[first, 0])!r}, x={float(values[first, 1])!r}, "
+        f"y={float(values[first, 2])!r})",
+    )
+    kept: pd.DataFrame = frame.loc[~bad].reset_index(drop=True)
+    return kept
+
+
+def check_scans(t: np.ndarray, ranges: np.ndarray | None, where: Path | None) -> int:
+    """Refuse scan times that are not finite or go backwards (beyond `TIME_BACKWARDS`); set
+    impossible ranges (infinite, negative, beyond `MAX_RANGE`) to NaN, in place. Returns how
+    many ranges were set to NaN."""
+    if len(t) and not np.isfinite(t).all():
+        i = int(np.argmax(~np.isfinite(t)))
+        raise FormatError(f"scan {i} has time {float(t[i])!r}", file=where)
+    back = np.diff(t) < -TIME_BACKWARDS
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        raise FormatError(
+            f"scan times go backwards at scan {i} ({float(t[i - 1])!r} -> {float(t[i])!r} s)",
+            file=where,
+        )
+    if ranges is None or not ranges.size:
+        return 0
+    with np.errstate(invalid="ignore"):
+        bad = ~((ranges >= 0) & (ranges <= MAX_RANGE)) & ~np.isnan(ranges)
+    count = int(np.count_nonzero(bad))
+    if count:
+        ranges[bad] = np.nan
+    return count
+
+
 def write_dataset_files(ds: Dataset, directory: Path, *, scans_written: bool = False) -> None:
-    """Write every table and meta.json of `ds` into an existing directory."""
+    """Write every table and meta.json of `ds` into an existing directory, after the
+    plausibility checks (`check_scans`, `plausible_poses`) that no dataset may fail."""
     source = ds.meta.get("source")
+    report = ds.report
+    files = ds.meta.get("source", {}).get("files") or [{}]
+    origin = Path(files[0].get("path", "dataset"))  # what errors name
+    fixed = check_scans(ds.t, None if scans_written else ds.ranges, origin)
+    for extra in ds.lasers.values():
+        fixed += check_scans(extra.t, extra.ranges, origin)
+    if fixed:
+        report.note(f"{fixed} impossible range(s) (infinite, negative, > 1e6 m) set to NaN")
+    ds.odometry = plausible_poses(ds.odometry, report, "odometry")
+    ds.groundtruth = plausible_poses(ds.groundtruth, report, "groundtruth")
+    for name in list(ds.poses):
+        ds.poses[name] = plausible_poses(ds.poses[name], report, name)  # type: ignore[assignment]
+    if report.records_dropped or report.notes or "import_report" in ds.meta:
+        ds.meta["import_report"] = report.to_dict()
     if not scans_written:
         write_scans(directory / SCANS, ds.t, ds.ranges, ds.laser, source)
     for name, extra in ds.lasers.items():
@@ -608,6 +675,19 @@ def save(ds: Dataset, out: str | Path, force: bool = False) -> Path:
     return out
 
 
+@contextmanager
+def _reading(file: Path) -> Iterator[None]:
+    """A damaged dataset file (truncated Parquet, wrong columns, a meta.json that is no
+    dataset's) as a one-line error naming it, not an exception from pyarrow."""
+    try:
+        yield
+    except ToolkitError:
+        raise
+    except (pa.ArrowException, OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        what = " ".join(str(e).split())[:200] or type(e).__name__
+        raise FormatError(f"damaged or not a dataset's file ({what})", file=file) from None
+
+
 def read_meta(path: Path) -> dict[str, Any]:
     """The meta.json of the dataset directory `path`; ToolkitError unless it is one."""
     if not path.is_dir():
@@ -626,22 +706,32 @@ def load(path: str | Path) -> Dataset:
     """Read a dataset directory written by `toolkit import` (or `save`)."""
     path = Path(path)
     meta = read_meta(path)
-    laser = LaserGeometry.from_dict(meta["laser"])
-    t, ranges = read_scans(path / SCANS)
+    meta_path = path / META
+    with _reading(meta_path):
+        laser = LaserGeometry.from_dict(meta["laser"])
+        extra = dict(meta.get("lasers", {}))
+    with _reading(path / SCANS):
+        t, ranges = read_scans(path / SCANS)
     lasers = {}
-    for name, geometry in meta.get("lasers", {}).items():
-        lt, lr = read_scans(path / f"scans-{name}.parquet")
-        lasers[name] = Scans(lt, lr, LaserGeometry.from_dict(geometry))
-    poses = {
-        p.stem.removeprefix("poses-"): pq.ParquetFile(p).read().to_pandas()
-        for p in sorted(path.glob("poses-*.parquet"))
-    }
+    for name, geometry in extra.items():
+        file = path / f"scans-{name}.parquet"
+        with _reading(file):
+            lt, lr = read_scans(file)
+            lasers[name] = Scans(lt, lr, LaserGeometry.from_dict(geometry))
+    poses = {}
+    for p in sorted(path.glob("poses-*.parquet")):
+        with _reading(p):
+            poses[p.stem.removeprefix("poses-")] = pq.ParquetFile(p).read().to_pandas()
+    with _reading(path / ODOMETRY):
+        odometry = read_poses(path / ODOMETRY)
+    with _reading(path / GROUNDTRUTH):
+        groundtruth = read_poses(path / GROUNDTRUTH)
     return Dataset(
         t=t,
         ranges=ranges,
         laser=laser,
-        odometry=read_poses(path / ODOMETRY),
-        groundtruth=read_poses(path / GROUNDTRUTH),
+        odometry=odometry,
+        groundtruth=groundtruth,
         meta=meta,
         lasers=lasers,
         poses=poses,

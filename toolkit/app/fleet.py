@@ -25,6 +25,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -63,6 +64,11 @@ def parse_scheduler(scheduler: str | None, workers: int | None = None) -> tuple[
         if n < 1:
             raise ToolkitError(f"--scheduler {scheduler!r}: needs at least one worker")
         return "local", n
+    if not re.fullmatch(r"([a-z]+://)?[A-Za-z0-9_.\-\[\]:]+:\d+/?", scheduler):
+        raise ToolkitError(
+            f"--scheduler {scheduler!r}: use none, local, local:N or a running Dask "
+            "scheduler's address (tcp://HOST:PORT)"
+        )
     return scheduler, workers or 0
 
 
@@ -82,7 +88,7 @@ def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Cl
                 n_workers=n,
                 threads_per_worker=1,
                 processes=True,
-                dashboard_address=":0",
+                dashboard_address="127.0.0.1:0",  # ":0" would serve it on every interface
                 host="127.0.0.1",
             ) as cluster,
             Client(cluster) as client,
@@ -91,7 +97,7 @@ def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Cl
         return
     try:
         client = Client(kind, timeout=CONNECT_TIMEOUT)
-    except OSError as e:
+    except (OSError, ValueError, TypeError) as e:
         raise ToolkitError(f"cannot reach the Dask scheduler at {kind}: {e}") from None
     with client:
         yield client
@@ -309,6 +315,10 @@ def _find(
     def walk(directory: Path, root: Path) -> list[tuple[Path, Path]]:
         found: list[tuple[Path, Path]] = []
         for child in sorted(directory.iterdir()):
+            if child.name.startswith("."):  # hidden: temporary and lock files of writers
+                continue
+            if not (child.is_file() or child.is_dir()):  # FIFOs, devices, sockets: not logs
+                continue
             if claimed(child):  # sniffed once: every importer's sniffer runs
                 found.append((child, name(child, root)))
             elif child.is_dir():
@@ -395,6 +405,37 @@ def is_complete(dataset: Path, source: Path) -> bool:
     return all(p.is_file() and sha256(p) == digest for p, digest in listed.items())
 
 
+def is_toolkit_dataset(path: Path) -> bool:
+    """A directory holding a finished import's meta.json (of any source): the toolkit's own
+    output, which a fleet import may replace without --force when its source changed."""
+    from toolkit.dataset import META
+
+    try:
+        meta = json.loads((path / META).read_text())
+        return isinstance(meta, dict) and "format" in meta.get("source", {})
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def is_toolkit_run(path: Path) -> bool:
+    """A directory holding a `toolkit map` run's config.json: the toolkit's own output."""
+    try:
+        config = json.loads((path / "config.json").read_text())
+        return isinstance(config, dict) and "method" in config and "dataset" in config
+    except (OSError, ValueError):
+        return False
+
+
+def _may_replace(target: Path, force: bool, ours: Callable[[Path], bool]) -> bool:
+    """Whether a fleet task may replace `target`: it is absent, --force was given, or it is
+    the toolkit's own output (stale: its source changed). Anything else is the user's."""
+    if force or not target.exists() or ours(target):
+        return True
+    raise ToolkitError(
+        "exists and is not the toolkit's output; pass --force to replace it", file=target
+    )
+
+
 def _attempt(source: Path, target: Path, work: Callable[[], str]) -> Outcome:
     """Run `work` (returning "written" or "skipped"); every failure becomes an Outcome."""
     try:
@@ -415,7 +456,8 @@ def _import_one(
 
         if not force and is_complete(out, source):
             return "skipped"
-        importers.import_log(fmt, [source], out, options, force=True)
+        replace = _may_replace(out, force, is_toolkit_dataset)
+        importers.import_log(fmt, [source], out, options, force=replace)
         return "written"
 
     return _attempt(source, out, work)
@@ -506,7 +548,8 @@ def _map_one(
             return "skipped"
         if threads:
             _cap_threads(threads)
-        map_dataset(dataset, run, method, voxel, force=True, matcher=matcher)
+        replace = _may_replace(run, force, is_toolkit_run)
+        map_dataset(dataset, run, method, voxel, force=replace, matcher=matcher)
         return "written"
 
     return _attempt(dataset, run, work)

@@ -9,6 +9,8 @@ spans that hold no scan, and overlapping spans of different features.
 from __future__ import annotations
 
 import csv
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,14 +52,42 @@ def _tolerance(t: np.ndarray) -> float:
     return max(1e-6, 1e-12 * scale)
 
 
+MAX_BYTES = 16 << 20  # a regions CSV names a few spans: far below this
+
+
+def _read_text(path: Path) -> str:
+    """The file as UTF-8 text; what is no text file (a PNG, a FIFO, a huge file) is a
+    one-line error."""
+    try:
+        mode = os.stat(path).st_mode
+        if not stat.S_ISREG(mode):
+            kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file (FIFO, device)"
+            raise FormatError(f"is {kind}; expected a CSV file", file=path)
+        if os.stat(path).st_size > MAX_BYTES:
+            raise FormatError(f"larger than {MAX_BYTES >> 20} MB; not a regions CSV", file=path)
+        data = path.read_bytes()
+    except OSError as e:
+        raise FormatError(f"cannot read: {e.strerror}", file=path) from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise FormatError(
+            f"not a text CSV (byte 0x{data[e.start]:02x} at offset {e.start}: an image?)",
+            file=path,
+        ) from None
+    if "\x00" in text:
+        raise FormatError("not a text CSV (NUL byte)", file=path)
+    return text
+
+
 def read_regions(path: str | Path, t: np.ndarray) -> list[Span]:
     """Read and check a regions CSV against the scan times `t` (non-decreasing)."""
     path = Path(path)
+    text = _read_text(path)
     try:
-        text = path.read_text()
-    except OSError as e:
-        raise FormatError(f"cannot read: {e.strerror}", file=path) from None
-    rows = list(csv.reader(text.splitlines()))
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as e:
+        raise FormatError(f"not a CSV: {e}", file=path) from None
     if not rows or not any(cell.strip() for cell in rows[0]):
         raise FormatError("empty file; expected a header feature,start,end", file=path, record=1)
     header = [c.strip().lower() for c in rows[0]]

@@ -7,7 +7,7 @@ RUN/ (created if needed; it may already hold `toolkit map`'s outputs):
     labels-cloud.ply     3D cloud, returns at the laser height, coloured by label
     labels-metrics.json  configuration, pose source, counts, timing (and scores vs truth)
 
-Everything is computed first, then each file is written atomically.
+Everything is computed first, then RUN is written atomically as a whole (toolkit.atomic).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from toolkit.atomic import atomic_file
+from toolkit.atomic import atomic_dir, atomic_file
 from toolkit.dataset import Dataset, PoseStream, load, write_described
 from toolkit.errors import ToolkitError
 from toolkit.features.classify import Labels, classify
@@ -42,6 +42,7 @@ def scan_poses(ds: Dataset, trajectory: Path | None = None) -> tuple[np.ndarray 
     if trajectory is not None:
         frame = read_trajectory(trajectory)  # Parquet, TUM or CSV
         source = f"trajectory {trajectory}"
+        _check_covers(frame, ds.t, trajectory)
     elif ds.groundtruth is not None and len(ds.groundtruth):
         frame, source = ds.groundtruth, "groundtruth"
     elif ds.odometry is not None and len(ds.odometry):
@@ -49,6 +50,34 @@ def scan_poses(ds: Dataset, trajectory: Path | None = None) -> tuple[np.ndarray 
     else:
         return None, "none (no poses: fixed switching per scan, no map figure)"
     return PoseStream.from_frame(frame).at(ds.t), source
+
+
+COVER_TOLERANCE = 1.0  # s: how far the scans may run past a given trajectory's ends
+
+
+def _check_covers(frame: pd.DataFrame, scan_t: np.ndarray, path: Path) -> None:
+    """A given trajectory must have finite poses and span the scans (within
+    `COVER_TOLERANCE`): interpolation would otherwise hold its last pose for the rest."""
+    values = frame[["t", "x", "y", "theta"]].to_numpy(np.float64)
+    if not len(values):
+        raise ToolkitError("trajectory has no poses", file=path)
+    bad = ~np.isfinite(values).all(axis=1)
+    if bad.any():
+        raise ToolkitError(
+            f"trajectory has {int(bad.sum())} non-finite pose(s)",
+            file=path,
+            record=f"row {int(np.argmax(bad))}",
+        )
+    t = values[:, 0]
+    lo, hi = t.min(), t.max()
+    outside = (scan_t < lo - COVER_TOLERANCE) | (scan_t > hi + COVER_TOLERANCE)
+    if len(scan_t) and outside.any():
+        raise ToolkitError(
+            f"trajectory covers {lo:.3f}..{hi:.3f} s but the scans run {scan_t[0]:.3f}.."
+            f"{scan_t[-1]:.3f} s ({int(outside.sum())} of {len(scan_t)} scans outside); "
+            "is it this dataset's?",
+            file=path,
+        )
 
 
 def _truth_labels(ds: Dataset, truth: Path | None = None) -> np.ndarray | None:
@@ -110,21 +139,26 @@ def label_run(
     if truth_labels is not None:
         metrics["truth"] = _scores(truth_labels, labels, training)
 
-    out.mkdir(parents=True, exist_ok=True)
-    _write_labels(out / "labels.parquet", ds.t, labels)
-    model.save(out / "model.json")
-    if poses is not None:
-        from toolkit.features.figures import membership_figure, write_cloud
+    # RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
+    # interrupted label leaves RUN as it was.
+    with atomic_dir(out, update=True) as tmp:
+        for name in (*OUTPUTS, "labels-metrics.json"):
+            (tmp / name).unlink(missing_ok=True)  # never write through a link to the old RUN
+        _write_labels(tmp / "labels.parquet", ds.t, labels)
+        model.save(tmp / "model.json")
+        if poses is not None:
+            from toolkit.features.figures import membership_figure, write_cloud
 
-        with atomic_file(out / "membership.png") as tmp:
-            membership_figure(
-                tmp, ds.ranges, poses, ds.laser, labels, training,
-                title=f"{ds.path.name if ds.path else dataset}: feature membership ({pose_source})",
-            )  # fmt: skip
-        with atomic_file(out / "labels-cloud.ply") as tmp:
-            metrics["cloud_points"] = write_cloud(tmp, ds.ranges, poses, ds.laser, labels)
-    with atomic_file(out / "labels-metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
+            with atomic_file(tmp / "membership.png") as png:
+                membership_figure(
+                    png, ds.ranges, poses, ds.laser, labels, training,
+                    title=f"{ds.path.name if ds.path else dataset}: feature membership "
+                    f"({pose_source})",
+                )  # fmt: skip
+            with atomic_file(tmp / "labels-cloud.ply") as ply:
+                metrics["cloud_points"] = write_cloud(ply, ds.ranges, poses, ds.laser, labels)
+        with atomic_file(tmp / "labels-metrics.json") as js:
+            js.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
     return metrics
 
 

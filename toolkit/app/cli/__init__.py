@@ -80,6 +80,7 @@ def fail(message: str) -> None:
 
 
 def main() -> None:
+    from toolkit.app import signals
     from toolkit.errors import ToolkitError
 
     try:
@@ -87,7 +88,8 @@ def main() -> None:
         # raising SystemExit, so that errors below can be printed as one line.
         rc = app(prog_name="toolkit", standalone_mode=False)
         if rc == 130:
-            typer.echo("interrupted; no output written", err=True)
+            typer.echo(signals.stopped_message(), err=True)
+            rc = signals.exit_code()
         if isinstance(rc, int) and rc != 0:
             sys.exit(rc)
     except ToolkitError as e:
@@ -96,8 +98,7 @@ def main() -> None:
     except typer.Exit as e:
         sys.exit(e.exit_code)
     except (typer.Abort, KeyboardInterrupt):
-        typer.echo("interrupted; no output written", err=True)
-        sys.exit(130)
+        signals.exit_stopped()
     except Exception as e:  # a usage error, or a bug: still one line
         show = getattr(e, "format_message", None)
         if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
