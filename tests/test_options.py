@@ -251,7 +251,7 @@ def test_help_shows_flags_as_flags_and_types_in_words(columns: int) -> None:
     assert re.search(r"^\s+--force\s+replace an existing run", flags, re.M)
     assert re.search(r"^\s+--out DIR\s", flags, re.M)
     # no hard line break of the docstring shows through: the paragraph is rewrapped
-    assert "map.png,\n  metrics.json" not in flags and "map.png, metrics.json" in flags
+    assert "(ROS map_server)" in flags and "trajectory.tum (evo)," in flags
 
 
 def test_force_is_a_flag_and_takes_no_value(

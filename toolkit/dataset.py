@@ -676,7 +676,7 @@ def save(ds: Dataset, out: str | Path, force: bool = False) -> Path:
 
 
 @contextmanager
-def _reading(file: Path) -> Iterator[None]:
+def reading(file: Path) -> Iterator[None]:
     """A damaged dataset file (truncated Parquet, wrong columns, a meta.json that is no
     dataset's) as a one-line error naming it, not an exception from pyarrow."""
     try:
@@ -707,24 +707,24 @@ def load(path: str | Path) -> Dataset:
     path = Path(path)
     meta = read_meta(path)
     meta_path = path / META
-    with _reading(meta_path):
+    with reading(meta_path):
         laser = LaserGeometry.from_dict(meta["laser"])
         extra = dict(meta.get("lasers", {}))
-    with _reading(path / SCANS):
+    with reading(path / SCANS):
         t, ranges = read_scans(path / SCANS)
     lasers = {}
     for name, geometry in extra.items():
         file = path / f"scans-{name}.parquet"
-        with _reading(file):
+        with reading(file):
             lt, lr = read_scans(file)
             lasers[name] = Scans(lt, lr, LaserGeometry.from_dict(geometry))
     poses = {}
     for p in sorted(path.glob("poses-*.parquet")):
-        with _reading(p):
+        with reading(p):
             poses[p.stem.removeprefix("poses-")] = pq.ParquetFile(p).read().to_pandas()
-    with _reading(path / ODOMETRY):
+    with reading(path / ODOMETRY):
         odometry = read_poses(path / ODOMETRY)
-    with _reading(path / GROUNDTRUTH):
+    with reading(path / GROUNDTRUTH):
         groundtruth = read_poses(path / GROUNDTRUTH)
     return Dataset(
         t=t,

@@ -16,12 +16,14 @@ import pyarrow.parquet as pq
 
 from toolkit.dataset import (
     GROUNDTRUTH,
+    META,
     ODOMETRY,
     SCANS,
     LaserGeometry,
     column_numpy,
     read_meta,
     read_scans,
+    reading,
 )
 
 if TYPE_CHECKING:
@@ -65,24 +67,27 @@ def summary_of(path: str | Path) -> dict[str, Any]:
     """`summary` of the dataset directory `path`, reading only the columns it needs."""
     path = Path(path)
     meta = read_meta(path)
-    t, ranges = read_scans(path / SCANS)
+    with reading(path / SCANS):
+        t, ranges = read_scans(path / SCANS)
     streams = {}
     for name, file in (("odometry", ODOMETRY), ("groundtruth", GROUNDTRUTH)):
-        table = pq.ParquetFile(path / file).read(["x", "y"]) if (path / file).exists() else None
+        with reading(path / file):
+            table = pq.ParquetFile(path / file).read(["x", "y"]) if (path / file).exists() else None
         streams[name] = (
             None
             if table is None
             else (column_numpy(table.column("x")), column_numpy(table.column("y")))
         )
-    lasers = {
-        name: pq.ParquetFile(path / f"scans-{name}.parquet").metadata.num_rows
-        for name in meta.get("lasers", {})
-    }
-    poses = {
-        p.stem.removeprefix("poses-"): pq.ParquetFile(p).metadata.num_rows
-        for p in sorted(path.glob("poses-*.parquet"))
-    }
-    laser = LaserGeometry.from_dict(meta["laser"])
+    lasers = {}
+    for name in meta.get("lasers", {}):
+        with reading(path / f"scans-{name}.parquet"):
+            lasers[name] = pq.ParquetFile(path / f"scans-{name}.parquet").metadata.num_rows
+    poses = {}
+    for p in sorted(path.glob("poses-*.parquet")):
+        with reading(p):
+            poses[p.stem.removeprefix("poses-")] = pq.ParquetFile(p).metadata.num_rows
+    with reading(path / META):
+        laser = LaserGeometry.from_dict(meta["laser"])
     return _summary(path, meta, laser, t, ranges, streams, lasers, poses)
 
 

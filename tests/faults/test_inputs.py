@@ -158,7 +158,9 @@ def test_table_in_blocks_equals_table_whole(
     src.write_text("".join(lines))
     whole = importers.get("table").read([src], importers.read_options(importers.get("table"), None))
     monkeypatch.setattr(table, "TABLE_BLOCK", 4096)
-    blocks = importers.get("table").read([src], importers.read_options(importers.get("table"), None))
+    blocks = importers.get("table").read(
+        [src], importers.read_options(importers.get("table"), None)
+    )
     np.testing.assert_array_equal(whole.ranges, blocks.ranges)
     np.testing.assert_array_equal(whole.t, blocks.t)
     assert whole.report.records_dropped == blocks.report.records_dropped == 1
