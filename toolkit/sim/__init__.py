@@ -28,9 +28,11 @@ from toolkit.progress import task
 from toolkit.sim.geometry import World
 from toolkit.sim.laser import LaserModel
 from toolkit.sim.odometry import OdometryModel
-from toolkit.sim.scenarios import SCENARIOS, Scenario, sample_path
+from toolkit.sim.procedural import random_world
+from toolkit.sim.scenarios import SCENARIOS as FIXED_SCENARIOS
+from toolkit.sim.scenarios import Scenario, sample_path
+from toolkit.sim.truth import REGION_PARTS, training_regions
 from toolkit.sim.truth import sections as _sections
-from toolkit.sim.truth import training_regions
 
 __all__ = [
     "SCENARIOS",
@@ -42,6 +44,8 @@ __all__ = [
 ]
 
 PATH_PARAMS = ("scans", "speed", "turn_rate", "t0")
+# "random": a new world per seed (toolkit/sim/procedural.py), its parameter `route` the path
+SCENARIOS: dict[str, Any] = {**FIXED_SCENARIOS, "random": random_world}
 
 
 @dataclass
@@ -94,11 +98,21 @@ class Simulation:
         return frame
 
 
-def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, OdometryModel]:
-    """The scenario and the models with `params` applied; unknown names are an error."""
+def parameters(
+    scenario: str, seed: int = 0, **params: Any
+) -> tuple[Scenario, LaserModel, OdometryModel]:
+    """The scenario and the models with `params` applied; unknown names are an error. The
+    random scenario's world is drawn from `seed`, its path from the parameter `route`."""
     if scenario not in SCENARIOS:
         raise ToolkitError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
-    scn = SCENARIOS[scenario]()
+    route = params.pop("route", None)
+    if route is not None and scenario != "random":
+        raise ToolkitError("route is a parameter of the random scenario only")
+    try:
+        route = int(route or 0)
+    except (TypeError, ValueError):
+        raise ToolkitError(f"route must be an integer, not {route!r}") from None
+    scn = random_world(seed, route) if scenario == "random" else SCENARIOS[scenario]()
     laser_fields = {f.name for f in dataclasses.fields(LaserModel)}
     odo_fields = {f.name for f in dataclasses.fields(OdometryModel)}
     unknown = set(params) - laser_fields - odo_fields - set(PATH_PARAMS)
@@ -127,8 +141,9 @@ def parameters(scenario: str, **params: Any) -> tuple[Scenario, LaserModel, Odom
 
 
 def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
-    """Simulate `scenario` ("corridor" or "building") with the models' parameters `params`."""
-    scn, laser, odometry = parameters(scenario, **params)
+    """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
+    `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`)."""
+    scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
     t = np.round(scn.t0 + times, 3)  # whole ms: every format (ARIA prints ms) keeps t exactly
@@ -136,9 +151,12 @@ def simulate(scenario: str, seed: int = 0, **params: Any) -> Simulation:
         ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
     odo = odometry.integrate(truth, rng)
     labels = scn.labels(laser.origins(truth)[0])  # what the scanner has beside it
-    regions = training_regions(t, labels, along=path_distance(truth[:, :2]))
+    regions = training_regions(
+        t, labels, along=path_distance(truth[:, :2]), parts=scn.region_parts or REGION_PARTS
+    )
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
+        **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
         **laser.to_dict(),
         **odometry.to_dict(),
         "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),

@@ -53,7 +53,12 @@ def _config(path: Path | None) -> dict[str, Any]:
 
 @app.command("simulate")
 def simulate_command(
-    scenario: Annotated[str, typer.Argument(help="corridor (the paper's Fig. 1) or building")],
+    scenario: Annotated[
+        str,
+        typer.Argument(
+            help="corridor (the paper's Fig. 1), building, or random (a new world per --seed; -p route=1: the other way through it)"
+        ),
+    ],
     out: Annotated[Path, typer.Option("--out", "-o", help="directory to write")],
     fmt: Annotated[
         str,
