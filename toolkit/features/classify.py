@@ -26,6 +26,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from toolkit.features.descriptors import describe
 from toolkit.features.model import (
     BIN_STEP,
     Config,
@@ -594,10 +595,8 @@ def classify(
     it a fixed switching probability per scan is used.
     """
     model.check_laser(_laser_like(model, ranges))
-    ll = loglik(model, ranges, chunk)
-    ll *= model.temperature
     cfg = model.config
-    scores = per_class(model, ll)
+    scores = class_scores(model, ranges, chunk)
     if cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)
@@ -605,6 +604,24 @@ def classify(
         prob = smooth(prob, switch_probability(cfg, len(prob), poses), cfg.smoothing)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
+
+
+def class_scores(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
+    """Per scan and class, the log-score the HMM takes as evidence (S, K): the descriptor
+    classifier's log-probabilities, plus `beam_term` times the per-beam model's tempered
+    log-posterior; without descriptors, the per-beam model's tempered log-likelihood."""
+    cfg = model.config
+    if model.places is None or not cfg.descriptors:
+        return per_class(model, loglik(model, ranges, chunk) * model.temperature)
+    out = np.empty((len(ranges), len(model.classes)))
+    for i in range(0, len(ranges), 8 * chunk):
+        block = ranges[i : i + 8 * chunk]
+        scores = model.places.log_proba(describe(block, model.laser), none=cfg.none_class)
+        if cfg.beam_term:
+            beams = per_class(model, loglik(model, block, chunk) * model.temperature)
+            scores = scores + cfg.beam_term * np.log(softmax(beams))
+        out[i : i + len(block)] = scores
+    return out
 
 
 def _laser_like(model: FeatureModel, ranges: np.ndarray) -> Any:

@@ -61,6 +61,8 @@ import numpy as np
 from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
+from toolkit.features.descriptors import describe, place_columns
+from toolkit.features.places import C_DEFAULT, PlaceClassifier, fit_places
 from toolkit.features.regions import Span
 
 MODEL_VERSION = 1
@@ -88,6 +90,14 @@ class Config:
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
+    descriptors: bool = True  # the place classifier on scan descriptors (places.py); False:
+    # the per-beam model alone (the paper's, and the options above)
+    descriptor_c: float = C_DEFAULT  # inverse L2 strength of the descriptors' regression
+    view_ahead: bool = False  # also the descriptors of the view ahead (the next place)
+    priors: bool = False  # the places' shares of the training log in the regression
+    self_training: int = 3  # rounds of self-training on the rest of the training log
+    beam_term: float = 1.0  # weight of the per-beam model's log-posterior added to the
+    # descriptors' (0: not used)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -98,6 +108,7 @@ class Config:
 
 
 PAPER = Config(
+    descriptors=False,
     no_return=False,
     noise_sigma=None,
     shifts=0,
@@ -110,7 +121,11 @@ PAPER = Config(
 )
 # the option that meets the calibration target on the simulator (see the README's ablation)
 SURROUNDINGS = Config(
-    none_model="surroundings", strict_returns=True, evidence_length=0.15, lateral_weight=None
+    descriptors=False,
+    none_model="surroundings",
+    strict_returns=True,
+    evidence_length=0.15,
+    lateral_weight=None,
 )
 LATERAL_CHOICES = (0.0, 1.0, 2.0)
 SMOOTHINGS = ("none", "forward", "forward-backward")
@@ -145,6 +160,7 @@ class FeatureModel:
     background: Background | None = None
     spans: list[dict[str, Any]] = field(default_factory=list)
     fit_report: dict[str, Any] = field(default_factory=dict)
+    places: PlaceClassifier | None = None  # the classifier on scan descriptors
 
     @property
     def names(self) -> list[str]:
@@ -186,6 +202,8 @@ class FeatureModel:
                 for k, name in enumerate(self.features)
             ],
         }
+        if self.places is not None:
+            out["places"] = self.places.to_dict()
         if self.background is not None:
             out["background"] = {
                 "p_return": arr(self.background.p_return),
@@ -236,6 +254,7 @@ class FeatureModel:
                 background=background,
                 spans=list(d.get("training_spans", [])),
                 fit_report=dict(d.get("fit_report", {})),
+                places=PlaceClassifier.from_dict(d["places"]) if "places" in d else None,
             )
         except (KeyError, TypeError, ValueError) as e:
             raise FormatError(
@@ -418,9 +437,31 @@ def fit(
     if config.lateral_weight is None:
         model, choice = choose_lateral(model, ranges, components, held)
     _calibrate(model, ranges, components, held)
+    if config.descriptors:
+        model.places = _fit_places(ranges, laser, components, config)
+        model.fit_report["descriptor_temperature"] = round(model.places.temperature, 4)
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
     return model
+
+
+def _fit_places(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    components: list[tuple[str, np.ndarray]],
+    config: Config,
+) -> PlaceClassifier:
+    """The descriptor classifier from the training scans, each component a span."""
+    idx = np.concatenate([i for _, i in components])
+    y = np.concatenate([[name] * len(i) for name, i in components])
+    groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
+    x = describe(ranges, laser)
+    rest = np.ones(len(ranges), dtype=bool)
+    rest[idx] = False
+    columns = np.arange(x.shape[1]) if config.view_ahead else place_columns()
+    return fit_places(
+        x[idx], y, groups, config.descriptor_c, columns, x[rest], config.self_training
+    )
 
 
 def _statistics(
