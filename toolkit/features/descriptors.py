@@ -93,7 +93,11 @@ def place_columns() -> np.ndarray:
 def describe(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
     """Descriptors (S x D float64) of scans (S x B, NaN = no return)."""
     bearing = laser.angles + laser.yaw
-    sector = np.clip(((bearing + np.pi / 2) / (np.pi / SECTORS)).astype(np.int64), 0, SECTORS - 1)
+    # sectors mirror each other exactly: (0, 15°] left is [-15°, 0) right (the beam straight
+    # ahead counts on the left)
+    ring = np.clip(np.ceil(np.abs(bearing) / (np.pi / SECTORS) - 1e-9) - 1, 0, SECTORS // 2 - 1)
+    half = SECTORS // 2
+    sector = np.where(bearing < 0, half - 1 - ring, half + ring).astype(np.int64)
     sums = np.empty((len(ranges), _SUMS))
     per_sector = np.empty((len(ranges), 4, SECTORS))
     beside = np.empty((len(ranges), 2, 3))

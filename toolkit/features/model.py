@@ -460,8 +460,9 @@ def _fit_places(
     rest[idx] = False
     columns = np.arange(x.shape[1]) if config.view_ahead else place_columns()
     return fit_places(
-        x[idx], y, groups, config.descriptor_c, columns, x[rest], config.self_training
-    )
+        x[idx], y, groups, config.descriptor_c, columns, x[rest], config.self_training,
+        config.priors,
+    )  # fmt: skip
 
 
 def _statistics(

@@ -110,7 +110,7 @@ def fit_places(
     columns: np.ndarray | None = None,
     unlabelled: np.ndarray | None = None,
     rounds: int = SELF_TRAINING_ROUNDS,
-    priors: bool = True,
+    priors: bool = False,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
