@@ -161,7 +161,10 @@ def test_temperature_is_the_design_effect_of_correlated_beams() -> None:
     base = np.full((n, b), 3.0)
     independent = base + rng.normal(0, 0.05, (n, b))
     common = base + rng.normal(0, 0.05, (n, 1))  # one offset for all beams: fully correlated
-    cfg = Config(shifts=0, robust=0.0, none_class=False, noise_sigma=0.001, range_rel_sigma=0.0)
+    cfg = Config(
+        descriptors=False, shifts=0, robust=0.0, none_class=False, noise_sigma=0.001,
+        range_rel_sigma=0.0,
+    )  # fmt: skip
     taus = []
     for scans in (independent, common):
         model = fit(scans.astype(np.float32), LASER, {"wall": np.arange(n)}, cfg)
@@ -194,7 +197,7 @@ def test_standing_still_adds_no_evidence(world) -> None:  # type: ignore[no-unty
     no surer of its place than one that scanned it once; without it the HMM counts the view
     five times and grows more confident."""
     ranges, poses, _, training = world
-    model = fit(ranges, LASER, training)
+    model = fit(ranges, LASER, training, Config(descriptors=False))  # the per-beam model
     assert model.config.evidence_length and model.config.smoothing == "forward-backward"
     once = classify(model, ranges, poses)
     still = np.repeat(np.arange(len(ranges)), 5)
@@ -238,8 +241,8 @@ def test_probabilities_and_labels_on_the_ray_cast_world(world) -> None:  # type:
     test = np.ones(len(label), dtype=bool)
     test[np.concatenate(list(training.values()))] = False
     scores = {}
-    for name, config in (("paper", PAPER), ("toolkit", Config())):
-        model = fit(ranges, LASER, training, config)
+    for name, config in (("paper", PAPER), ("toolkit", Config(descriptors=False))):
+        model = fit(ranges, LASER, training, config)  # the per-beam models
         out = classify(model, ranges, poses)
         assert out.prob.shape == (len(ranges), len(model.classes))
         assert np.allclose(out.prob.sum(axis=1), 1.0)

@@ -154,10 +154,11 @@ def fit_places(
                 np.concatenate(zs), np.concatenate(ys), sample_weight=np.concatenate(ws)
             )
     order = [list(lr.classes_).index(k) for k in classes]
-    coef, intercept = lr.coef_[order], lr.intercept_[order]
-    if len(classes) == 2:  # sklearn keeps one row for two classes
-        coef = np.vstack([-lr.coef_[0] / 2, lr.coef_[0] / 2])[order]
-        intercept = np.array([-lr.intercept_[0] / 2, lr.intercept_[0] / 2])[order]
+    coef, intercept = lr.coef_, lr.intercept_
+    if len(lr.classes_) == 2:  # sklearn keeps one row for two classes: the second's odds
+        coef = np.vstack([-coef[0] / 2, coef[0] / 2])
+        intercept = np.array([-intercept[0] / 2, intercept[0] / 2])
+    coef, intercept = coef[order], intercept[order]
     centres = np.array([z[y == k].mean(axis=0) for k in classes])
     within = z - centres[[classes.index(k) for k in y]]
     precision = LedoitWolf().fit(within).precision_
