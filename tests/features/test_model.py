@@ -13,23 +13,23 @@ import pytest
 from tests.features.world import LASER, cast, drive
 from toolkit.errors import ToolkitError
 from toolkit.features import PAPER, Config, FeatureModel, classify, fit, loglik
-from toolkit.features.classify import (
+from toolkit.features.classify import smooth
+from toolkit.features.fitting import (
+    beam_statistics,
+    fit_background,
+    fit_temperature,
+    shifted_copies,
+)
+from toolkit.features.likelihood import (
     background_loglik,
     beam_terms,
     beam_weights,
+    commonness,
     feature_loglik,
-    fit_temperature,
     robust_loglik,
-    smooth,
     world_terms,
 )
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
-from toolkit.features.model import (
-    beam_statistics,
-    commonness,
-    fit_background,
-    shifted_copies,
-)
 
 
 @pytest.fixture(scope="module")

@@ -32,12 +32,13 @@ import numpy as np
 import pandas as pd
 
 from toolkit.features.classify import classify
+from toolkit.features.fitting import fit
 from toolkit.features.metrics import (
     balanced_accuracy,
     expected_calibration_error,
     per_class_recall,
 )
-from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
+from toolkit.features.model import PAPER, SURROUNDINGS, Config
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim.truth import REGION_PARTS, training_regions
 

@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from toolkit.errors import ToolkitError
+
 C_DEFAULT = 0.03  # inverse L2 strength of the logistic regression (tuned on random seeds 0-9)
 SELF_TRAINING_ROUNDS = 3
 SELF_TRAINING_CONFIDENCE = 0.8
@@ -124,6 +126,7 @@ def fit_places(
     hundred of corridor."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
+    # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
     from sklearn.covariance import LedoitWolf
     from sklearn.linear_model import LogisticRegression
     from sklearn.preprocessing import StandardScaler
@@ -131,8 +134,6 @@ def fit_places(
     y = np.asarray(y).astype(str)
     classes = list(dict.fromkeys(y))
     if len(classes) < 2:
-        from toolkit.errors import ToolkitError
-
         raise ToolkitError("the descriptor model needs at least two places to tell apart")
     scaler = StandardScaler().fit(x)
     scale = np.where(scaler.scale_ > 1e-9, scaler.scale_, 1.0)

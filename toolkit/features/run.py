@@ -26,12 +26,13 @@ from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, load
 from toolkit.errors import ToolkitError
 from toolkit.features.classify import Labels, classify
+from toolkit.features.fitting import fit
 from toolkit.features.metrics import (
     balanced_accuracy,
     expected_calibration_error,
     per_class_recall,
 )
-from toolkit.features.model import Config, FeatureModel, fit
+from toolkit.features.model import Config, FeatureModel
 from toolkit.features.regions import read_regions, training_components, training_indices
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")

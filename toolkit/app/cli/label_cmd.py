@@ -123,7 +123,7 @@ def label_command(
     if smoothing is not None:
         if smoothing not in SMOOTHINGS:
             raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
-        config = replace(base, smoothing=smoothing)
+        config = replace(base, smoothing=smoothing)  # type: ignore[arg-type]  # checked above
     if robust is not None:
         if not 0.0 <= robust < 1.0:
             raise ToolkitError(f"--robust {robust}: a weight in [0, 1)")
