@@ -41,6 +41,7 @@ HIST_EDGES = np.array([0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0])  # m, 10 b
 SECTORS = 12  # 15 degrees each over -90..90
 GAPS = np.array([0.5, 1.5, 3.0])  # m: jumps between neighbouring beams
 BESIDE = 1.0  # m: end points within this distance ahead or behind the laser are beside it
+CELL = 0.001  # m: the log and the histogram bin of a range are looked up on this grid
 _SUMS = 14 + len(GAPS) + len(HIST_EDGES) + 2  # per-scan accumulators (see _accumulate)
 
 
@@ -98,6 +99,9 @@ def describe(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
     ring = np.clip(np.ceil(np.abs(bearing) / (np.pi / SECTORS) - 1e-9) - 1, 0, SECTORS // 2 - 1)
     half = SECTORS // 2
     sector = np.where(bearing < 0, half - 1 - ring, half + ring).astype(np.int64)
+    cells = np.arange(int(CAP / CELL) + 2) * CELL + CELL / 2
+    log_of = np.log(np.maximum(cells, 0.01))
+    bin_of = np.searchsorted(HIST_EDGES, cells, side="right").astype(np.int64)
     sums = np.empty((len(ranges), _SUMS))
     per_sector = np.empty((len(ranges), 4, SECTORS))
     beside = np.empty((len(ranges), 2, 3))
@@ -106,7 +110,8 @@ def describe(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
         np.cos(bearing),
         np.sin(bearing),
         sector,
-        HIST_EDGES,
+        log_of,
+        bin_of,
         GAPS,
         CAP,
         BESIDE,
@@ -123,7 +128,8 @@ def _accumulate(  # pragma: no cover - numba
     cos: np.ndarray,
     sin: np.ndarray,
     sector: np.ndarray,
-    edges: np.ndarray,
+    log_of: np.ndarray,
+    bin_of: np.ndarray,
     gaps: np.ndarray,
     cap: float,
     near: float,
@@ -133,7 +139,9 @@ def _accumulate(  # pragma: no cover - numba
 ) -> None:
     """Per scan, the sums the descriptors are made of, in one pass over its beams."""
     s_count, nb = ranges.shape
-    n_gaps, n_edges = len(gaps), len(edges)
+    n_gaps, n_bins = len(gaps), int(bin_of.max()) + 1
+    inv_cell = 1.0 / CELL
+    last = len(log_of) - 1
     for s in numba.prange(s_count):
         acc = np.zeros(_SUMS)
         sec = np.zeros((4, SECTORS))  # count, sum log, sum log^2, no-returns
@@ -144,7 +152,8 @@ def _accumulate(  # pragma: no cover - numba
             r = ranges[s, b]
             ok = np.isfinite(r) and r < cap
             rc = r if ok else cap
-            lr = np.log(max(rc, 0.01))
+            cell = min(int(rc * inv_cell), last)
+            lr = log_of[cell]
             acc[0] += ok
             acc[1] += rc
             acc[2] += rc * rc
@@ -161,19 +170,16 @@ def _accumulate(  # pragma: no cover - numba
                 acc[5] += d
                 acc[6] += d * d
                 acc[7] += 0.5 * (px * y - x * py)  # area: fan of triangles from the origin
-                acc[8] += np.hypot(x - px, y - py)  # perimeter
+                acc[8] += np.sqrt((x - px) ** 2 + (y - py) ** 2)  # perimeter
                 for g in range(n_gaps):
                     if d > gaps[g]:
                         acc[14 + g] += 1.0
             else:
                 acc[8] += rc  # from the origin to the first end point
             if ok:
-                k = 0
-                while k < n_edges and rc >= edges[k]:
-                    k += 1
-                acc[14 + n_gaps + k] += 1.0
+                acc[14 + n_gaps + bin_of[cell]] += 1.0
             else:
-                acc[14 + n_gaps + n_edges + 1] += 1.0
+                acc[14 + n_gaps + n_bins] += 1.0
             if abs(x) < near:  # beside the laser: how far the space reaches sideways
                 k = 1 if y > 0 else 0
                 ay = abs(y)
