@@ -52,3 +52,23 @@ def test_descriptor_model_learns_places_the_paper_model_does_not(world, tmp_path
             assert np.allclose(classify(again, ds.ranges, poses).prob, labels.prob)
     assert scores["default"] > 0.6  # seed 3: 0.6-0.7 (seeds 0-9: 0.75 mean)
     assert scores["default"] > scores["paper"] + 0.2
+
+
+def test_compiled_finish_equals_the_numpy_reference(world) -> None:  # type: ignore[no-untyped-def]
+    from toolkit.features import descriptors as d
+
+    ds = world.dataset
+    seen: dict[str, np.ndarray] = {}
+    accumulate = d._accumulate
+
+    def keep(*args):  # type: ignore[no-untyped-def]
+        accumulate(*args)
+        seen["sums"], seen["sectors"], seen["beside"] = args[-3], args[-2], args[-1]
+
+    d._accumulate = keep
+    try:
+        x = describe(ds.ranges, ds.laser)
+    finally:
+        d._accumulate = accumulate
+    ref = d._finish(seen["sums"], seen["sectors"], seen["beside"], ds.n_beams)
+    assert np.allclose(x, ref, rtol=0, atol=1e-9)

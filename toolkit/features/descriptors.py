@@ -119,7 +119,9 @@ def describe(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
         per_sector,
         beside,
     )
-    return _finish(sums, per_sector, beside, ranges.shape[1])
+    out = np.empty((len(ranges), len(names())))
+    _finish_compiled(sums, per_sector, beside, ranges.shape[1], out)
+    return out
 
 
 @numba.njit(parallel=True, cache=True)
@@ -204,7 +206,8 @@ def _accumulate(  # pragma: no cover - numba
 
 
 def _finish(sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams: int) -> np.ndarray:
-    """The descriptors from the accumulated sums (S x few dozen: cheap in numpy)."""
+    """The descriptors from the accumulated sums, in numpy: the reference `describe`'s
+    compiled finish (`_finish_compiled`) is tested equal to."""
     n = float(beams)
     ng, ne = len(GAPS), len(HIST_EDGES)
 
@@ -259,3 +262,84 @@ def _finish(sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams:
             a, b = values[:, SECTORS - 1 - k], values[:, k]  # left and its mirror, right
             cols += [np.minimum(a, b), np.maximum(a, b)]
     return np.column_stack(cols)
+
+
+@numba.njit(parallel=True, cache=True)
+def _finish_compiled(  # pragma: no cover - numba
+    sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams: int, out: np.ndarray
+) -> None:
+    """`_finish` compiled, one scan per iteration in parallel (the same columns)."""
+    n = float(beams)
+    ng, nh = len(GAPS), len(HIST_EDGES) + 2
+    half = SECTORS // 2
+    for s in numba.prange(sums.shape[0]):
+        a = sums[s]
+        c = 0
+        out[s, c] = a[0] / n
+        mean = a[1] / n
+        out[s, c + 1] = mean
+        out[s, c + 2] = np.sqrt(max(a[2] / n - mean * mean, 0.0))
+        mean = a[3] / n
+        out[s, c + 3] = mean
+        out[s, c + 4] = np.sqrt(max(a[4] / n - mean * mean, 0.0))
+        mean = a[5] / (n - 1)
+        out[s, c + 5] = mean
+        out[s, c + 6] = np.sqrt(max(a[6] / (n - 1) - mean * mean, 0.0))
+        c = 7
+        for g in range(ng):
+            out[s, c + g] = a[14 + g] / (n - 1)
+        c += ng
+        near0 = np.log(max(beside[s, 0, 0], 0.05))
+        near1 = np.log(max(beside[s, 1, 0], 0.05))
+        far0 = np.log(max(beside[s, 0, 1], 0.05))
+        far1 = np.log(max(beside[s, 1, 1], 0.05))
+        width = np.log(np.exp(near0) + np.exp(near1))
+        area = max(abs(a[7]), 1e-3)
+        perimeter = max(a[8], 1e-3)
+        mx, my = a[9] / n, a[10] / n
+        cxx, cyy, cxy = a[11] / n - mx * mx, a[12] / n - my * my, a[13] / n - mx * my
+        half_trace, det = 0.5 * (cxx + cyy), cxx * cyy - cxy * cxy
+        root = np.sqrt(max(half_trace * half_trace - det, 0.0))
+        major, minor = max(half_trace + root, 1e-4), max(half_trace - root, 1e-4)
+        out[s, c] = np.log(area) - 2 * width
+        out[s, c + 1] = np.log(perimeter) - width
+        out[s, c + 2] = 4 * np.pi * area / (perimeter * perimeter)
+        out[s, c + 3] = 0.5 * np.log(major)
+        out[s, c + 4] = 0.5 * np.log(minor)
+        out[s, c + 5] = np.sqrt(minor / major)
+        c += 6
+        for k in range(nh):
+            out[s, c + k] = a[14 + ng + k] / n
+        c += nh
+        first = per_sector[s, 1, 0] / max(per_sector[s, 0, 0], 1.0)
+        last = per_sector[s, 1, SECTORS - 1] / max(per_sector[s, 0, SECTORS - 1], 1.0)
+        out[s, c] = np.log(np.exp(first) + np.exp(last))
+        c += 1
+        near0, near1, far0, far1 = near0 - width, near1 - width, far0 - width, far1 - width
+        pairs = (
+            (near0, near1),
+            (far0, far1),
+            (far0 - near0, far1 - near1),
+            (np.log1p(beside[s, 0, 2]), np.log1p(beside[s, 1, 2])),
+        )
+        for u, v in pairs:
+            out[s, c] = min(u, v)
+            out[s, c + 1] = max(u, v)
+            c += 2
+        out[s, c] = width
+        c += 1
+        for what in range(3):
+            for k in range(half):
+                vals = np.empty(2)
+                for m, j in enumerate((SECTORS - 1 - k, k)):
+                    count = max(per_sector[s, 0, j], 1.0)
+                    mean_log = per_sector[s, 1, j] / count
+                    if what == 0:
+                        vals[m] = mean_log - width
+                    elif what == 1:
+                        vals[m] = per_sector[s, 3, j] / count
+                    else:
+                        vals[m] = np.sqrt(max(per_sector[s, 2, j] / count - mean_log**2, 0.0))
+                out[s, c] = min(vals[0], vals[1])
+                out[s, c + 1] = max(vals[0], vals[1])
+                c += 2
