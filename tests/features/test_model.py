@@ -267,3 +267,11 @@ def test_balanced_accuracy_and_ece_by_hand() -> None:
     # bin (0.933, 1]: acc 1 vs conf 0.95; bin (0.533, 0.6]: acc 0.5 vs conf 0.55
     assert expected_calibration_error(conf, correct) == pytest.approx(0.5 * 0.05 + 0.5 * 0.05)
     assert loglik is not None
+
+
+def test_config_choices_are_checked_once_when_made() -> None:
+    for bad in ({"smoothing": "sideways"}, {"none_model": "nothing"}, {"temperature": "hot"}):
+        with pytest.raises(ToolkitError, match=next(iter(bad))):
+            Config(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ToolkitError, match="robust"):
+        Config(robust=1.0)
