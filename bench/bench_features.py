@@ -6,9 +6,10 @@ feature; a last row keeps the regions' two spans per feature as two components e
 mixture: twice the work). Rows: the paper's literal per-scan model (the Gaussian
 log-likelihood as one matrix product per chunk); robust beams and the "none" class (a compiled
 kernel over scans in parallel; tempered posteriors); with the HMM forward filter along the
-path (streaming); the toolkit's default, forward-backward with the evidence length; and the
-option that meets the accuracy targets, `--none-model surroundings` (lateral 2), with one and
-two components per feature.
+path (streaming); the per-beam model's forward-backward with the evidence length (the former
+default); the scan descriptors' classifier (docs/places.md) alone and with the per-beam term
+(the default); and `--none-model surroundings` (lateral 2), with one and two components per
+feature.
 Median of 3 runs after a warm-up on a small slice (compiles the kernels).
 """
 
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from toolkit.features import PAPER, Config, classify, fit
-from toolkit.features.evaluate import LATERAL2
+from toolkit.features.evaluate import BEAMS, LATERAL2
 from toolkit.features.regions import spans_from_frame, training_indices
 
 SCANS = 1_000_000
@@ -61,10 +62,13 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
     rows: list[dict[str, object]] = []
     configs = [
         ("paper (literal, matrix product)", PAPER, None),
-        ("robust + none, no smoothing", dataclasses.replace(Config(), smoothing="none"), None),
-        ("+ HMM forward filter (streaming)", dataclasses.replace(Config(), smoothing="forward", evidence_length=None), poses),
-        ("toolkit default (forward-backward, evidence length)", Config(), poses),
-        ("default, two components per feature (the regions' spans)", Config(), poses),
+        ("per-beam: robust + none, no smoothing", dataclasses.replace(BEAMS, smoothing="none"), None),
+        ("per-beam: + HMM forward filter (streaming)", dataclasses.replace(BEAMS, smoothing="forward", evidence_length=None), poses),
+        ("per-beam: forward-backward, evidence length (the former default)", BEAMS, poses),
+        ("per-beam: two components per feature (the regions' spans)", BEAMS, poses),
+        ("descriptors alone (no per-beam term), HMM", dataclasses.replace(Config(), beam_term=0.0), poses),
+        ("toolkit default: descriptors + per-beam term, HMM", Config(), poses),
+        ("toolkit default, two components per feature", Config(), poses),
         ("--none-model surroundings (lateral 2, as its spans choose)", LATERAL2, poses),
         ("--none-model surroundings, two components per feature", LATERAL2, poses),
 ]  # fmt: skip

@@ -40,16 +40,15 @@ if [[ -d $REAL ]]; then
     toolkit map "$DATA/dpslam_loop5" --out "$RUNS/dpslam_loop5-gaussian" --force
 fi
 
-# 3. Label: places taught from 10 scans each, along the corrected trajectory. The simulated
-# logs with --none-model surroundings (the setting that meets the accuracy and calibration
-# targets there, see the README); the real Intel log with the default.
+# 3. Label: places taught from 10 scans each, along the corrected trajectory, with the default
+# model (scan descriptors, docs/places.md) on every log.
 step "label corridor"
 toolkit label "$DATA/corridor" --regions datasets/corridor-carmen/regions.csv \
-    --none-model surroundings --truth datasets/corridor-carmen/truth.parquet \
+    --truth datasets/corridor-carmen/truth.parquet \
     --trajectory "$RUNS/corridor-gaussian/trajectory.parquet" --out "$RUNS/corridor-labels" --force
 step "label building"
 toolkit label "$DATA/building" --regions datasets/building-rawseeds/regions.csv \
-    --none-model surroundings --truth datasets/building-rawseeds/truth.parquet \
+    --truth datasets/building-rawseeds/truth.parquet \
     --trajectory "$RUNS/building-gaussian/trajectory.parquet" --out "$RUNS/building-labels" --force
 if [[ -d $REAL ]]; then
     step "label intel (corridor vs room, regions chosen on its map)"

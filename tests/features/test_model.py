@@ -13,23 +13,23 @@ import pytest
 from tests.features.world import LASER, cast, drive
 from toolkit.errors import ToolkitError
 from toolkit.features import PAPER, Config, FeatureModel, classify, fit, loglik
-from toolkit.features.classify import (
+from toolkit.features.classify import smooth
+from toolkit.features.fitting import (
+    beam_statistics,
+    fit_background,
+    fit_temperature,
+    shifted_copies,
+)
+from toolkit.features.likelihood import (
     background_loglik,
     beam_terms,
     beam_weights,
+    commonness,
     feature_loglik,
-    fit_temperature,
     robust_loglik,
-    smooth,
     world_terms,
 )
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
-from toolkit.features.model import (
-    beam_statistics,
-    commonness,
-    fit_background,
-    shifted_copies,
-)
 
 
 @pytest.fixture(scope="module")
@@ -161,7 +161,10 @@ def test_temperature_is_the_design_effect_of_correlated_beams() -> None:
     base = np.full((n, b), 3.0)
     independent = base + rng.normal(0, 0.05, (n, b))
     common = base + rng.normal(0, 0.05, (n, 1))  # one offset for all beams: fully correlated
-    cfg = Config(shifts=0, robust=0.0, none_class=False, noise_sigma=0.001, range_rel_sigma=0.0)
+    cfg = Config(
+        descriptors=False, shifts=0, robust=0.0, none_class=False, noise_sigma=0.001,
+        range_rel_sigma=0.0,
+    )  # fmt: skip
     taus = []
     for scans in (independent, common):
         model = fit(scans.astype(np.float32), LASER, {"wall": np.arange(n)}, cfg)
@@ -194,7 +197,7 @@ def test_standing_still_adds_no_evidence(world) -> None:  # type: ignore[no-unty
     no surer of its place than one that scanned it once; without it the HMM counts the view
     five times and grows more confident."""
     ranges, poses, _, training = world
-    model = fit(ranges, LASER, training)
+    model = fit(ranges, LASER, training, Config(descriptors=False))  # the per-beam model
     assert model.config.evidence_length and model.config.smoothing == "forward-backward"
     once = classify(model, ranges, poses)
     still = np.repeat(np.arange(len(ranges)), 5)
@@ -238,8 +241,8 @@ def test_probabilities_and_labels_on_the_ray_cast_world(world) -> None:  # type:
     test = np.ones(len(label), dtype=bool)
     test[np.concatenate(list(training.values()))] = False
     scores = {}
-    for name, config in (("paper", PAPER), ("toolkit", Config())):
-        model = fit(ranges, LASER, training, config)
+    for name, config in (("paper", PAPER), ("toolkit", Config(descriptors=False))):
+        model = fit(ranges, LASER, training, config)  # the per-beam models
         out = classify(model, ranges, poses)
         assert out.prob.shape == (len(ranges), len(model.classes))
         assert np.allclose(out.prob.sum(axis=1), 1.0)
@@ -276,3 +279,11 @@ def test_loglik_scores_taught_scans_highest_under_their_own_feature(world) -> No
         for feature, idx in training.items():
             best = np.argmax(ll[idx, : len(rows)], axis=1)
             assert np.mean([rows[b] == feature for b in best]) >= 0.9, (config, feature)
+
+
+def test_config_choices_are_checked_once_when_made() -> None:
+    for bad in ({"smoothing": "sideways"}, {"none_model": "nothing"}, {"temperature": "hot"}):
+        with pytest.raises(ToolkitError, match=next(iter(bad))):
+            Config(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ToolkitError, match="robust"):
+        Config(robust=1.0)

@@ -9,9 +9,11 @@ whole log with calibrated probabilities.
 
 from __future__ import annotations
 
-from toolkit.features.classify import Labels, classify, loglik
+from toolkit.features.classify import Labels, classify
+from toolkit.features.fitting import fit
+from toolkit.features.likelihood import loglik
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
-from toolkit.features.model import PAPER, Config, FeatureModel, fit
+from toolkit.features.model import PAPER, Config, FeatureModel
 from toolkit.features.regions import (
     Span,
     read_regions,

@@ -1,10 +1,22 @@
-"""Scoring on the simulator's labelled logs, and the ablation table: the paper's literal
-per-scan model, then each improvement added in turn, every row measured the same way
-(train on the simulator's regions: 10 scans per feature, 5 where the place begins and 5
-where it ends; score all other scans against the true labels). A last row scores the best
-option on the older protocol, one 10-scan burst at each place's middle.
+"""Evaluation: the train / test protocol on random worlds, its ablation, and the scores on the
+simulator's fixed scenarios.
 
-    python -m toolkit.features.evaluate [--seed N [N ...]] [--recall] [--out table.md]
+The protocol (issue 16): for each seed, teach on one run through a random world (its regions:
+ten scans per place, in one or two spans, as a user picks them) and score
+
+    (a) the rest of that run (every scan but the training ones),
+    (b) a second run through the same world, the other way round, at another speed and
+        lateral offset (`route=1`),
+    (c) another world of the generator with the same place kinds (seed + 1000): transfer,
+
+each against the true place of every scan: balanced accuracy (mean and 10th percentile over
+the seeds), top-label ECE, and precision and recall per place (means over the seeds). Each
+row of the ablation adds one part to the one before; the default row is `Config()`.
+
+    python -m toolkit.features.evaluate [--seeds 100-119] [--scenarios] [--out table.md]
+
+Seeds 0-9 are the development seeds (every constant was tuned on them); 100-119 are held out,
+run only to measure.
 """
 
 from __future__ import annotations
@@ -20,45 +32,40 @@ import numpy as np
 import pandas as pd
 
 from toolkit.features.classify import classify
+from toolkit.features.fitting import fit
 from toolkit.features.metrics import (
     balanced_accuracy,
     expected_calibration_error,
     per_class_recall,
 )
-from toolkit.features.model import PAPER, SURROUNDINGS, Config, fit
+from toolkit.features.model import PAPER, SURROUNDINGS, Config
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import Simulation
 from toolkit.sim.truth import REGION_PARTS, training_regions
 
-# The ablation: each row adds one decision to the one before; the default row is Config().
 FULL = Config()
-STREAM = dataclasses.replace(FULL, smoothing="forward", evidence_length=None)
-AROUND = dataclasses.replace(FULL, none_model="surroundings")
-ALIKE = dataclasses.replace(SURROUNDINGS, lateral_weight=0.0)  # every beam alike
-LATERAL = dataclasses.replace(SURROUNDINGS, lateral_weight=1.0)
-LATERAL2 = dataclasses.replace(SURROUNDINGS, lateral_weight=2.0)
+BEAMS = Config(descriptors=False)  # the per-beam model alone (the former default)
+LATERAL2 = dataclasses.replace(SURROUNDINGS, lateral_weight=2.0)  # bench: as its spans choose
+ALL_VIEW = dataclasses.replace(
+    FULL, view_ahead=True, self_training=0, none_class=False, beam_term=0.0
+)
+DESCRIPTORS = dataclasses.replace(FULL, beam_term=0.0)
 ABLATION: list[tuple[str, Config]] = [
-    ("paper: per-scan Gaussian, Eq. 8-9 literal", PAPER),
-    ("+ no-return as a Bernoulli per beam", dataclasses.replace(PAPER, no_return=True)),
-    ("+ variance floor (sensor noise)", dataclasses.replace(PAPER, no_return=True, noise_sigma=FULL.noise_sigma)),
-    ("+ none class (background of the log)", dataclasses.replace(STREAM, robust=0.0, shifts=0, temperature="none", smoothing="none")),
-    ("+ robust beams (mixture with the background)", dataclasses.replace(STREAM, shifts=0, temperature="none", smoothing="none")),
-    ("+ beam-shifted training copies", dataclasses.replace(STREAM, temperature="none", smoothing="none")),
-    ("+ temperature (leave-one-out design effect)", dataclasses.replace(STREAM, smoothing="none")),
-    ("+ HMM forward filter along the path (Eq. 7): streaming", STREAM),
-    ("+ forward-backward (offline: the whole log)", dataclasses.replace(STREAM, smoothing="forward-backward")),
-    ("+ evidence length 0.5 m", FULL),
-    ("option: + none = the features' surroundings", AROUND),
-    ("option: + strict returns", dataclasses.replace(AROUND, strict_returns=True)),
-    ("option: + evidence length 0.15 m (--lateral 0)", ALIKE),
-    ("option: + lateral beams, |sin(bearing)| (--lateral 1)", LATERAL),
-    ("option: lateral beams, |sin(bearing)|^2 (--lateral 2)", LATERAL2),
-    ("option: lateral weight by leave-one-span-out (--none-model surroundings)", SURROUNDINGS),
-    ("alternative: forward filter with evidence length 0.5 m", dataclasses.replace(FULL, smoothing="forward")),
-    ("alternative: strict returns alone", dataclasses.replace(FULL, strict_returns=True)),
-    ("alternative: default + lateral beams", dataclasses.replace(FULL, lateral_weight=1.0)),
+    ("paper: per-beam Gaussians, Eq. 8-9 literal (--paper)", PAPER),
+    ("per-beam model, robust, none = world, HMM (the former default; --none-model world)", BEAMS),
+    ("per-beam model, --none-model surroundings (the former tuned option)", SURROUNDINGS),
+    ("descriptors (all, view ahead included) + logistic regression + HMM", ALL_VIEW),
+    ("+ descriptors of the place only (view ahead left out)", dataclasses.replace(ALL_VIEW, view_ahead=False)),
+    ("+ self-training on the training log", dataclasses.replace(DESCRIPTORS, none_class=False)),
+    ("+ none of these (distance gate)", DESCRIPTORS),
+    ("+ per-beam model as a term (weight 1)", FULL),
+    ("alternative: without the HMM (per scan)", dataclasses.replace(FULL, smoothing="none")),
+    ("alternative: per-beam term weight 0.3", dataclasses.replace(FULL, beam_term=0.3)),
+    ("alternative: + the places' shares of the log (EM priors)", dataclasses.replace(FULL, priors=True)),
 ]  # fmt: skip
-BURST = "protocol: --none-model surroundings, taught by one 10-scan burst per feature"
+TRANSFER = 1000  # protocol (c): the world of seed + this
+DEVELOPMENT_SEEDS = tuple(range(10))
+HELD_OUT_SEEDS = tuple(range(100, 120))
 
 
 @dataclass
@@ -113,56 +120,116 @@ def score(
     )
 
 
-def ablation(
-    seed: int | tuple[int, ...] = 0, scenarios: tuple[str, ...] = ("corridor", "building")
-) -> pd.DataFrame:
-    """One row per configuration: balanced accuracy and ECE per scenario (and seed)."""
+def worlds(seed: int) -> dict[str, Any]:
+    """The three runs of the protocol for one seed: a (teach and score), b (same world,
+    other route), c (another world)."""
     from toolkit.sim import simulate
 
-    seeds = (seed,) if isinstance(seed, int) else tuple(seed)
-    sims = {(s, k): simulate(s, seed=k) for s in scenarios for k in seeds}
+    return {
+        "a": simulate("random", seed=seed),
+        "b": simulate("random", seed=seed, route=1),
+        "c": simulate("random", seed=seed + TRANSFER),
+    }
+
+
+def protocol_scores(config: Config, runs: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Teach on run a's regions; per run a, b, c: balanced accuracy, ECE, precision and
+    recall per place (a: the scans other than the training ones)."""
+    train = runs["a"]
+    ds = train.dataset
+    spans = spans_from_frame(train.regions, ds.t)
+    training = training_indices(spans)
+    model = fit(ds.ranges, ds.laser, training, config, spans)
+    out = {}
+    for key, sim in runs.items():
+        d = sim.dataset
+        labels = classify(model, d.ranges, d.groundtruth[["x", "y", "theta"]].to_numpy())
+        test = np.ones(d.n_scans, dtype=bool)
+        if key == "a":
+            test[np.concatenate(list(training.values()))] = False
+        truth, predicted = np.asarray(sim.labels)[test], labels.label[test]
+        out[key] = {
+            "ba": balanced_accuracy(truth, predicted),
+            "ece": expected_calibration_error(labels.confidence[test], truth == predicted),
+            "recall": per_class_recall(truth, predicted),
+            "precision": {
+                str(c): float(np.mean(truth[predicted == c] == c))
+                for c in np.unique(truth)
+                if (predicted == c).any()
+            },
+            "none": float(np.mean(predicted == "none")),
+        }
+    return out
+
+
+def protocol(
+    configs: list[tuple[str, Config]], seeds: tuple[int, ...]
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The protocol's table (a row per configuration) and, for the first configuration
+    marked default (else the first), precision and recall per place and run."""
+    results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
+    for seed in seeds:
+        runs = worlds(seed)
+        for name, config in configs:
+            results[name].append(protocol_scores(config, runs))
     rows = []
-    for name, config, parts in [
-        *((n, c, REGION_PARTS) for n, c in ABLATION),
-        (BURST, SURROUNDINGS, 1),
-    ]:
+    for name, config in configs:
+        per_seed = results[name]
         row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
-        for s in scenarios:
-            for k in seeds:
-                r = score(s, config, k, sims[s, k], parts)
-                tag = s if len(seeds) == 1 else f"{s} s{k}"
-                row[f"{tag} BA"] = round(r.balanced_accuracy, 3)
-                row[f"{tag} ECE"] = round(r.ece, 3)
+        for key in "abc":
+            ba = np.array([r[key]["ba"] for r in per_seed])
+            row[f"({key}) BA mean"] = round(float(ba.mean()), 3)
+            row[f"({key}) BA P10"] = round(float(np.percentile(ba, 10)), 3)
+        for key in "abc":
+            row[f"({key}) ECE"] = round(float(np.mean([r[key]["ece"] for r in per_seed])), 3)
+        precision = _mean_per_place(per_seed, "a", "precision")
+        row["(a) min precision"] = round(min(precision.values()), 3) if precision else float("nan")
+        row["(a) none share"] = round(float(np.mean([r["a"]["none"] for r in per_seed])), 3)
+        rows.append(row)
+    chosen = next((n for n, c in configs if c == FULL), configs[0][0])
+    places = []
+    for key in "abc":
+        precision = _mean_per_place(results[chosen], key, "precision")
+        recall = _mean_per_place(results[chosen], key, "recall")
+        for place in sorted(recall):
+            places.append(
+                {
+                    "run": key,
+                    "place": place,
+                    "precision": round(precision.get(place, float("nan")), 3),
+                    "recall": round(recall[place], 3),
+                }
+            )
+    return pd.DataFrame(rows), pd.DataFrame(places)
+
+
+def _mean_per_place(per_seed: list[dict[str, Any]], key: str, what: str) -> dict[str, float]:
+    values: dict[str, list[float]] = {}
+    for r in per_seed:
+        for place, v in r[key][what].items():
+            values.setdefault(place, []).append(v)
+    return {p: float(np.mean(v)) for p, v in values.items()}
+
+
+def scenarios_table(
+    configs: list[tuple[str, Config]],
+    seed: int = 0,
+    names: tuple[str, ...] = ("corridor", "building"),
+) -> pd.DataFrame:
+    """Balanced accuracy and ECE on the simulator's fixed scenarios, a row per configuration."""
+    from toolkit.sim import simulate
+
+    sims = {s: simulate(s, seed=seed) for s in names}
+    rows = []
+    for name, config in configs:
+        row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
+        for s in names:
+            r = score(s, config, seed, sims[s])
+            row[f"{s} BA"] = round(r.balanced_accuracy, 3)
+            row[f"{s} ECE"] = round(r.ece, 3)
+            row[f"{s} min recall"] = round(min(r.recall.values()), 3)
         rows.append(row)
     return pd.DataFrame(rows)
-
-
-RECALL_ROWS = {
-    "default": FULL,
-    "--none-model surroundings --lateral 0": ALIKE,
-    "--none-model surroundings --lateral 1": LATERAL,
-    "--none-model surroundings (lateral auto)": SURROUNDINGS,
-}
-
-
-def recall_table(
-    configs: dict[str, Config] | None = None,
-    seed: int = 0,
-    scenarios: tuple[str, ...] = ("corridor", "building"),
-) -> pd.DataFrame:
-    """Recall per true class, one row per scenario and configuration (by default the
-    default, the surroundings option and the lateral option)."""
-    from toolkit.sim import simulate
-
-    rows = []
-    for s in scenarios:
-        sim = simulate(s, seed=seed)  # once per scenario, for every configuration
-        for name, config in (configs or RECALL_ROWS).items():
-            r = score(s, config, seed, sim)
-            rows.append(
-                {"scenario": s, "model": name, **{k: round(v, 3) for k, v in r.recall.items()}}
-            )
-    return pd.DataFrame(rows).astype(object).fillna("")
 
 
 def markdown(table: pd.DataFrame) -> str:
@@ -176,15 +243,34 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def _seeds(text: str) -> tuple[int, ...]:
+    """'100-119' or '0,3,5' or '7'."""
+    if "-" in text:
+        lo, hi = text.split("-")
+        return tuple(range(int(lo), int(hi) + 1))
+    return tuple(int(v) for v in text.split(","))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--seed", type=int, nargs="+", default=[0], help="one or more seeds")
+    parser.add_argument(
+        "--seeds", type=_seeds, default=HELD_OUT_SEEDS, help="e.g. 100-119 (default) or 0-9"
+    )
+    parser.add_argument("--rows", type=_seeds, help="only these ablation rows (0-based)")
+    parser.add_argument(
+        "--scenarios", action="store_true", help="also the corridor and building scenarios (seed 0)"
+    )
     parser.add_argument("--out", type=Path)
-    parser.add_argument("--recall", action="store_true", help="also recall per class")
     args = parser.parse_args()
-    text = markdown(ablation(tuple(args.seed)))
-    if args.recall:
-        text += "\n\n" + markdown(recall_table(seed=args.seed[0]))
+    configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
+    started = time.perf_counter()
+    table, places = protocol(configs, args.seeds)
+    text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)}):\n\n"
+    text += markdown(table) + "\n\nPer place, the default (means over the seeds):\n\n"
+    text += markdown(places)
+    if args.scenarios:
+        text += "\n\nThe fixed scenarios (seed 0):\n\n" + markdown(scenarios_table(configs))
+    text += f"\n\n({time.perf_counter() - started:.0f} s)"
     print(text)
     if args.out:
         args.out.write_text(text + "\n")

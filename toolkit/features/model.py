@@ -1,4 +1,6 @@
-"""The feature model (paper Eq. 8): one Gaussian per beam and feature, learnt from a few scans.
+"""The place model's data and persistence (paper Eq. 8: one Gaussian per beam and feature,
+learnt from a few scans; and the descriptor classifier, `toolkit.features.places`).
+Fitting is in `toolkit.features.fitting`, likelihoods in `toolkit.features.likelihood`.
 
 What the paper leaves open, and is decided here (each switchable, for the ablation):
 
@@ -52,20 +54,25 @@ What the paper leaves open, and is decided here (each switchable, for the ablati
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
-from toolkit.features.regions import Span
+from toolkit.features.places import C_DEFAULT, PlaceClassifier
 
 MODEL_VERSION = 1
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
+
+
+NoneModel = Literal["world", "surroundings"]
+Smoothing = Literal["none", "forward", "forward-backward"]
+Temperature = Literal["loo", "none"]
 
 
 @dataclass(frozen=True)
@@ -80,14 +87,37 @@ class Config:
     none_class: bool = True
     robust: float = 0.9  # per beam, the share of readings the world explains, not the feature
     strict_returns: bool = False  # return / no-return not mixed with the world (see above)
-    none_model: str = "world"  # "surroundings": the features' surroundings (see above)
-    temperature: str = "loo"  # "loo": fitted by leave-one-out; "none": 1 (literal)
-    smoothing: str = "forward-backward"  # Eq. 7 offline; "forward": causal (streaming); "none"
+    none_model: NoneModel = "world"  # "surroundings": the features' surroundings (see above)
+    temperature: Temperature = "loo"  # "loo": fitted by leave-one-out; "none": 1 (literal)
+    smoothing: Smoothing = (
+        "forward-backward"  # Eq. 7 offline; "forward": causal (streaming); "none"
+    )
     place_length: float = 1.0  # m travelled per expected change of place (HMM switching)
     evidence_length: float | None = 0.5  # m: in the HMM, one scan's evidence per this distance
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
+    descriptors: bool = True  # the place classifier on scan descriptors (places.py); False:
+    # the per-beam model alone (the paper's, and the options above)
+    descriptor_c: float = C_DEFAULT  # inverse L2 strength of the descriptors' regression
+    view_ahead: bool = False  # also the descriptors of the view ahead (the next place)
+    priors: bool = False  # the places' shares of the training log in the regression
+    self_training: int = 3  # rounds of self-training on the rest of the training log
+    beam_term: float = 1.0  # weight of the per-beam model's log-posterior added to the
+    # descriptors' (0: not used)
+
+    def __post_init__(self) -> None:
+        """The choices are checked once, here: a Config that exists is a valid one."""
+        for name, kind in (
+            ("none_model", NoneModel),
+            ("smoothing", Smoothing),
+            ("temperature", Temperature),
+        ):
+            value, allowed = getattr(self, name), get_args(kind)
+            if value not in allowed:
+                raise ToolkitError(f"{name} {value!r}: use one of {', '.join(allowed)}")
+        if not 0.0 <= self.robust < 1.0:
+            raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -98,6 +128,7 @@ class Config:
 
 
 PAPER = Config(
+    descriptors=False,
     no_return=False,
     noise_sigma=None,
     shifts=0,
@@ -110,11 +141,15 @@ PAPER = Config(
 )
 # the option that meets the calibration target on the simulator (see the README's ablation)
 SURROUNDINGS = Config(
-    none_model="surroundings", strict_returns=True, evidence_length=0.15, lateral_weight=None
+    descriptors=False,
+    none_model="surroundings",
+    strict_returns=True,
+    evidence_length=0.15,
+    lateral_weight=None,
 )
 LATERAL_CHOICES = (0.0, 1.0, 2.0)
-SMOOTHINGS = ("none", "forward", "forward-backward")
-NONE_MODELS = ("surroundings", "world")
+SMOOTHINGS: tuple[str, ...] = get_args(Smoothing)
+NONE_MODELS: tuple[str, ...] = get_args(NoneModel)
 
 
 @dataclass
@@ -145,6 +180,7 @@ class FeatureModel:
     background: Background | None = None
     spans: list[dict[str, Any]] = field(default_factory=list)
     fit_report: dict[str, Any] = field(default_factory=dict)
+    places: PlaceClassifier | None = None  # the classifier on scan descriptors
 
     @property
     def names(self) -> list[str]:
@@ -186,6 +222,8 @@ class FeatureModel:
                 for k, name in enumerate(self.features)
             ],
         }
+        if self.places is not None:
+            out["places"] = self.places.to_dict()
         if self.background is not None:
             out["background"] = {
                 "p_return": arr(self.background.p_return),
@@ -236,6 +274,7 @@ class FeatureModel:
                 background=background,
                 spans=list(d.get("training_spans", [])),
                 fit_report=dict(d.get("fit_report", {})),
+                places=PlaceClassifier.from_dict(d["places"]) if "places" in d else None,
             )
         except (KeyError, TypeError, ValueError) as e:
             raise FormatError(
@@ -269,275 +308,3 @@ class FeatureModel:
                     f"{np.rad2deg(b):.4f}°: not the same sensor layout",
                     file=where,
                 )
-
-
-# ---------------------------------------------------------------- training
-
-
-def shifted_copies(scans: np.ndarray, shifts: int) -> tuple[np.ndarray, np.ndarray]:
-    """Scans shifted by -shifts..+shifts beams, and the mask of beams that hold data
-    (shifted-in edge beams hold none: missing, which is not a no-return)."""
-    n, b = scans.shape
-    copies = np.full((2 * shifts + 1, n, b), np.nan, dtype=np.float64)
-    valid = np.zeros((2 * shifts + 1, n, b), dtype=bool)
-    for k, s in enumerate(range(-shifts, shifts + 1)):
-        lo, hi = max(0, s), min(b, b + s)
-        copies[k, :, lo:hi] = scans[:, lo - s : hi - s]
-        valid[k, :, lo:hi] = True
-    return copies.reshape(-1, b), valid.reshape(-1, b)
-
-
-def beam_statistics(
-    scans: np.ndarray, laser: LaserGeometry, config: Config
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean, variance and return probability per beam from training scans (n x B)."""
-    scans = np.asarray(scans, dtype=np.float64)
-    if not config.no_return:
-        # the literal model: a no-return is the number the sensor sends, range_max
-        filled = np.where(np.isfinite(scans), scans, laser.range_max)
-        if config.shifts:
-            filled, valid = shifted_copies(filled, config.shifts)
-            w = valid.astype(np.float64)
-            filled = np.where(valid, filled, 0.0)
-        else:
-            w = np.ones_like(filled)
-        count = w.sum(axis=0)
-        mean = (w * filled).sum(axis=0) / count
-        var = (w * (filled - mean) ** 2).sum(axis=0) / count
-        var = _floor(var, mean, config) if config.noise_sigma is not None else var + LITERAL_EPS
-        return mean, var, np.ones_like(mean)
-    if config.shifts:
-        scans, valid = shifted_copies(scans, config.shifts)
-    else:
-        valid = np.ones(scans.shape, dtype=bool)
-    ret = valid & np.isfinite(scans)
-    n_valid = valid.sum(axis=0)
-    n_ret = ret.sum(axis=0)
-    # Jeffreys prior: a beam seen 10 times without a return still might return; with strict
-    # returns over the real scans (each scan counts once, however many shifted copies)
-    copies = 2 * config.shifts + 1 if config.strict_returns else 1
-    p_return = (n_ret / copies + 0.5) / (n_valid / copies + 1.0)
-    r = np.where(ret, scans, 0.0)
-    seen = n_ret > 0
-    mean = np.where(seen, r.sum(axis=0) / np.maximum(n_ret, 1), 0.0)
-    var = np.where(ret, (r - mean) ** 2, 0.0).sum(axis=0) / np.maximum(n_ret, 1)
-    var = _floor(var, mean, config) if config.noise_sigma is not None else var + LITERAL_EPS
-    var = np.where(seen, var, np.inf)
-    return mean, var, p_return
-
-
-def _floor(var: np.ndarray, mean: np.ndarray, config: Config) -> np.ndarray:
-    sigma = config.noise_sigma or 0.0
-    floor = sigma**2 + (config.range_rel_sigma * mean) ** 2
-    return np.asarray(np.maximum(var, floor))
-
-
-def fit_background(ranges: np.ndarray, laser: LaserGeometry, chunk: int = 65536) -> Background:
-    """Per-beam return fraction and log-range histogram of a whole log (the "none" class)."""
-    lo = np.log(max(laser.range_min, 0.05))
-    hi = np.log(laser.range_max * 1.001)
-    edges = np.linspace(lo, hi, BACKGROUND_BINS + 1)
-    s, b = ranges.shape
-    counts = np.zeros((b, BACKGROUND_BINS), dtype=np.float64)
-    returns = np.zeros(b, dtype=np.float64)
-    offsets = np.arange(b) * BACKGROUND_BINS
-    for i in range(0, s, chunk):
-        block = ranges[i : i + chunk]
-        ok = np.isfinite(block)
-        returns += ok.sum(axis=0)
-        idx = background_bins(block, edges)
-        flat = (idx + offsets)[ok]
-        counts += np.bincount(flat, minlength=b * BACKGROUND_BINS).reshape(b, BACKGROUND_BINS)
-    # smooth with a little mass everywhere: the world holds ranges this log did not see
-    n = counts.sum(axis=1, keepdims=True)
-    prob = (counts + 0.5) / (n + 0.5 * BACKGROUND_BINS)
-    width_m = np.diff(np.exp(edges))  # density per metre of range
-    log_density = np.log(prob) - np.log(width_m)[None, :]
-    p_return = (returns + 0.5) / (s + 1.0)
-    return Background(p_return, edges, log_density)
-
-
-BIN_STEP = 0.002  # m: ranges are binned by table on this grid (no logarithm per reading)
-
-
-def bin_table(edges: np.ndarray) -> np.ndarray:
-    """Log-range bin of each 2 mm cell from 0 to the last edge."""
-    k = len(edges) - 1
-    cells = int(np.ceil(np.exp(edges[-1]) / BIN_STEP)) + 1
-    centres = (np.arange(cells) + 0.5) * BIN_STEP
-    pos = (np.log(centres) - edges[0]) * (k / (edges[-1] - edges[0]))
-    return np.asarray(np.clip(pos, 0, k - 1), dtype=np.int32)
-
-
-def background_bins(block: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Bin index of each range (NaN clamped to bin 0: callers mask no-returns)."""
-    table = bin_table(edges)
-    cell = np.nan_to_num(np.asarray(block, dtype=np.float64) / BIN_STEP, nan=0.0)
-    return table[np.clip(cell, 0, len(table) - 1).astype(np.intp)]
-
-
-def fit(
-    ranges: np.ndarray,
-    laser: LaserGeometry,
-    training: dict[str, np.ndarray] | list[tuple[str, np.ndarray]],
-    config: Config | None = None,
-    spans: list[Span] | None = None,
-) -> FeatureModel:
-    """Learn a model: per feature (or per component: pairs of feature name and scan indices),
-    per-beam statistics of its training scans (indices into `ranges`); the background from
-    the whole log; the temperature by leave-one-out; the lateral weight, if the config leaves
-    it open, by leave-one-span-out. With `spans` (those `training` came from), a feature's
-    separate spans become separate components."""
-    from toolkit.features.classify import held_out_terms
-
-    config = config or Config()
-    if not training:
-        raise ToolkitError("no features to learn")
-    if config.none_model not in NONE_MODELS:
-        raise ToolkitError(f"none model {config.none_model!r}: use one of {', '.join(NONE_MODELS)}")
-    if config.smoothing not in SMOOTHINGS:
-        raise ToolkitError(f"smoothing {config.smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
-    if config.temperature not in ("loo", "none"):
-        raise ToolkitError(f"temperature {config.temperature!r}: use loo or none")
-    components = list(training.items()) if isinstance(training, dict) else list(training)
-    if spans and isinstance(training, dict):
-        from toolkit.features.regions import training_components, training_indices
-
-        merged = training_indices(spans)
-        if merged.keys() == training.keys() and all(
-            np.array_equal(merged[f], training[f]) for f in merged
-        ):
-            components = training_components(spans)  # separate spans: separate components
-    background = fit_background(ranges, laser) if config.none_class or config.robust > 0 else None
-    model = _statistics(ranges, laser, components, config, background)
-    # leave-one-out terms: computed once, for the temperature, the surroundings' offsets and
-    # every trial of the lateral weight (they do not depend on it)
-    needed = config.temperature == "loo" or _has_offset(config)
-    held = held_out_terms(model, ranges, components) if needed else {}
-    choice: dict[str, Any] = {}
-    if config.lateral_weight is None:
-        model, choice = choose_lateral(model, ranges, components, held)
-    _calibrate(model, ranges, components, held)
-    model.spans = [s.to_dict() for s in spans or []]
-    model.fit_report.update(choice)
-    return model
-
-
-def _statistics(
-    ranges: np.ndarray,
-    laser: LaserGeometry,
-    components: list[tuple[str, np.ndarray]],
-    config: Config,
-    background: Background | None,
-) -> FeatureModel:
-    """Per component, per-beam statistics of its training scans, on a background fitted."""
-    stats = [beam_statistics(ranges[idx], laser, config) for _, idx in components]
-    return FeatureModel(
-        features=[name for name, _ in components],
-        mean=np.array([s[0] for s in stats]),
-        var=np.array([s[1] for s in stats]),
-        p_return=np.array([s[2] for s in stats]),
-        n_scans=np.array([len(idx) for _, idx in components]),
-        laser=laser,
-        config=config,
-        background=background,
-    )
-
-
-def _has_offset(config: Config) -> bool:
-    return config.none_class and config.none_model == "surroundings" and config.robust > 0
-
-
-def _calibrate(
-    model: FeatureModel,
-    ranges: np.ndarray,
-    components: list[tuple[str, np.ndarray]],
-    held: dict[int, np.ndarray],
-) -> None:
-    """The temperature and the surroundings' offsets, from the leave-one-out terms `held`."""
-    from toolkit.features.classify import fit_none_offset, fit_temperature
-
-    if model.config.temperature == "loo":
-        model.temperature, report = fit_temperature(model, ranges, components, held)
-        model.fit_report.update(report)
-    if _has_offset(model.config):
-        model.none_offset = fit_none_offset(model, ranges, components, held)
-        model.fit_report["none_offset"] = dict(
-            zip(model.features, model.none_offset.round(2).tolist(), strict=True)
-        )
-
-
-def choose_lateral(
-    model: FeatureModel,
-    ranges: np.ndarray,
-    components: list[tuple[str, np.ndarray]],
-    held: dict[int, np.ndarray],
-) -> tuple[FeatureModel, dict[str, Any]]:
-    """The model with the lateral weight among `LATERAL_CHOICES` under which the training
-    spans best predict each other: each span of a feature taught by several is held out, the
-    model is calibrated without its row, and the held-out scans' mean log-probability of
-    their own feature (tempered, per scan) is averaged. Only the training spans are used
-    (`held`: their leave-one-out terms). With no feature taught by two spans or more there is
-    nothing to hold out: 0 (all beams alike)."""
-    from toolkit.features.classify import loglik, per_class, softmax
-
-    names = model.features
-    rows = [k for k, name in enumerate(names) if names.count(name) > 1]
-    if not rows:
-        alike = replace(model, config=replace(model.config, lateral_weight=0.0))
-        return alike, {"lateral_note": "lateral weight 0: no feature has two spans to hold out"}
-    scores = {}
-    for weight in LATERAL_CHOICES:
-        logp = []
-        for k in rows:
-            keep = [j for j in range(len(names)) if j != k]
-            rest = replace(
-                model,
-                features=[names[j] for j in keep],
-                mean=model.mean[keep],
-                var=model.var[keep],
-                p_return=model.p_return[keep],
-                n_scans=model.n_scans[keep],
-                config=replace(model.config, lateral_weight=weight),
-                fit_report={},
-            )
-            kept = [components[j] for j in keep]
-            _calibrate(rest, ranges, kept, {i: held[j] for i, j in enumerate(keep) if j in held})
-            idx = components[k][1]
-            prob = softmax(per_class(rest, loglik(rest, ranges[idx]) * rest.temperature))
-            logp.append(np.log(np.maximum(prob[:, rest.classes.index(names[k])], 1e-12)).mean())
-        scores[weight] = float(np.mean(logp))
-    best = max(scores, key=lambda w: scores[w])  # the first of equals: the smaller weight
-    report = {
-        "lateral_method": "leave-one-span-out: mean log-probability of the held-out span's "
-        "own feature",
-        "lateral_scores": {f"{w:g}": round(v, 4) for w, v in scores.items()},
-        "lateral_weight": best,
-    }
-    return replace(model, config=replace(model.config, lateral_weight=best)), report
-
-
-def commonness(model: FeatureModel) -> np.ndarray:
-    """Per model row and beam (F, B), how ordinary the feature's reading is in the log: the
-    world's probability of the feature's reading (its return / no-return and range bin, over
-    the feature's own distribution) over that of the world's most common reading; 1 where
-    the feature reads what the log mostly reads there, near 0 where it is distinctive."""
-    from scipy.special import ndtr
-
-    bg = model.background
-    if bg is None:
-        raise ValueError("commonness needs the background model")
-    edges_m = np.exp(bg.edges)
-    world_bins = np.exp(bg.log_density) * np.diff(edges_m)[None, :]  # (B, K) given a return
-    q = bg.p_return[:, None]
-    world = np.concatenate([1.0 - q, q * world_bins], axis=1)  # (B, 1 + K): no-return first
-    gauss = np.isfinite(model.var)
-    sd = np.sqrt(np.where(gauss, model.var, 1.0))[:, :, None]
-    cdf = ndtr((edges_m[None, None, :] - model.mean[:, :, None]) / sd)
-    own = np.diff(cdf, axis=2)
-    own /= np.maximum(own.sum(axis=2, keepdims=True), 1e-12)
-    own = np.where(gauss[:, :, None], own, 1.0 / own.shape[2])  # never returned: any range
-    p = model.p_return[:, :, None]
-    feature = np.concatenate([1.0 - p, p * own], axis=2)  # (F, B, 1 + K)
-    expected = (feature * world[None]).sum(axis=2)
-    return np.asarray(np.clip(expected / world.max(axis=1)[None, :], 0.0, 1.0))

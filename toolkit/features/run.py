@@ -24,12 +24,13 @@ from toolkit.atomic import atomic_dir, atomic_file
 from toolkit.dataset import Dataset, PoseStream, load, write_described
 from toolkit.errors import ToolkitError
 from toolkit.features.classify import Labels, classify
+from toolkit.features.fitting import fit
 from toolkit.features.metrics import (
     balanced_accuracy,
     expected_calibration_error,
     per_class_recall,
 )
-from toolkit.features.model import Config, FeatureModel, fit
+from toolkit.features.model import Config, FeatureModel
 from toolkit.features.regions import read_regions, training_components, training_indices
 from toolkit.trajio import read_trajectory
 

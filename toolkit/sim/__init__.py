@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -28,9 +28,11 @@ from toolkit.progress import task
 from toolkit.sim.geometry import World
 from toolkit.sim.laser import LaserModel
 from toolkit.sim.odometry import OdometryModel
-from toolkit.sim.scenarios import SCENARIOS, Scenario, sample_path
+from toolkit.sim.procedural import random_world
+from toolkit.sim.scenarios import SCENARIOS as FIXED_SCENARIOS
+from toolkit.sim.scenarios import Scenario, sample_path
+from toolkit.sim.truth import REGION_PARTS, training_regions
 from toolkit.sim.truth import sections as _sections
-from toolkit.sim.truth import training_regions
 from toolkit.typed import convert, field_types
 
 __all__ = [
@@ -43,6 +45,8 @@ __all__ = [
 ]
 
 PATH_PARAMS: dict[str, type] = {"scans": int, "speed": float, "turn_rate": float, "t0": float}
+# "random": a new world per seed (toolkit/sim/procedural.py), its parameter `route` the path
+SCENARIOS: dict[str, Any] = {**FIXED_SCENARIOS, "random": random_world}
 
 
 @dataclass
@@ -99,13 +103,20 @@ class Simulation:
 Param = bool | int | float | str
 
 
-def parameters(scenario: str, **params: Param) -> tuple[Scenario, LaserModel, OdometryModel]:
+def parameters(
+    scenario: str, seed: int = 0, **params: Param
+) -> tuple[Scenario, LaserModel, OdometryModel]:
     """The scenario and the models with `params` applied. Each parameter is checked against
     the models' dataclass fields and converted to the field's type (text from `-p KEY=VALUE`
-    or JSON values); an unknown name or a wrong type is a one-line error."""
+    or JSON values); an unknown name or a wrong type is a one-line error. The random
+    scenario's world is drawn from `seed`, its path from the parameter `route` (0 or 1)."""
     if scenario not in SCENARIOS:
         raise ToolkitError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
-    scn = SCENARIOS[scenario]()
+    route = params.pop("route", None)
+    if route is not None and scenario != "random":
+        raise ToolkitError("route is a parameter of the random scenario only")
+    way = cast(int, convert(route, int, "route", "the simulator")) if route is not None else 0
+    scn = random_world(seed, way) if scenario == "random" else SCENARIOS[scenario]()
     laser_fields = field_types(LaserModel)
     odo_fields = field_types(OdometryModel)
     kinds = {**PATH_PARAMS, **laser_fields, **odo_fields}
@@ -129,8 +140,9 @@ def parameters(scenario: str, **params: Param) -> tuple[Scenario, LaserModel, Od
 
 
 def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
-    """Simulate `scenario` ("corridor" or "building") with the models' parameters `params`."""
-    scn, laser, odometry = parameters(scenario, **params)
+    """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
+    `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`)."""
+    scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
     t = np.round(scn.t0 + times, 3)  # whole ms: every format (ARIA prints ms) keeps t exactly
@@ -138,9 +150,12 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
         ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
     odo = odometry.integrate(truth, rng)
     labels = scn.labels(laser.origins(truth)[0])  # what the scanner has beside it
-    regions = training_regions(t, labels, along=path_distance(truth[:, :2]))
+    regions = training_regions(
+        t, labels, along=path_distance(truth[:, :2]), parts=scn.region_parts or REGION_PARTS
+    )
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
+        **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
         **laser.to_dict(),
         **odometry.to_dict(),
         "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),

@@ -78,6 +78,7 @@ class Scenario:
     sections: int = 0  # equal parts of the log numbered 0..n-1 (0: none)
     laser: dict[str, float] = field(default_factory=dict)  # LaserModel overrides (mounting)
     t0: float = 1_700_000_000.0  # s, UNIX time of the first scan
+    region_parts: dict[str, int] = field(default_factory=dict)  # spans per taught place
 
     def labels(self, positions: np.ndarray) -> np.ndarray:
         """The true place label at each laser position (S x 2 or more columns)."""

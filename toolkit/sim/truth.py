@@ -36,10 +36,11 @@ def training_regions(
     labels: np.ndarray,
     skip: tuple[str, ...] = ("none",),
     n: int = REGION_SCANS,
-    parts: int = REGION_PARTS,
+    parts: int | dict[str, int] = REGION_PARTS,
     along: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """`n` training scans per label (except `skip`) in `parts` spans: feature, start, end.
+    """`n` training scans per label (except `skip`) in `parts` spans (or per label, a dict;
+    labels it does not name: `REGION_PARTS`): feature, start, end.
     The spans are centred at equal steps of `along` (per scan, e.g. `toolkit.dataset.path_distance`; by
     default the scan index)."""
     along = np.arange(len(t), dtype=np.float64) if along is None else np.asarray(along)
@@ -52,9 +53,10 @@ def training_regions(
         way = along[first : last + 1] - along[first]
         if not way[-1] > 0:  # standing still all along: by scan
             way = np.arange(last - first + 1, dtype=np.float64)
-        sizes = np.full(parts, n // parts) + (np.arange(parts) < n % parts)
+        k_parts = parts.get(label, REGION_PARTS) if isinstance(parts, dict) else parts
+        sizes = np.full(k_parts, n // k_parts) + (np.arange(k_parts) < n % k_parts)
         for k, size in enumerate(sizes):
-            centre = first + int(np.searchsorted(way, (2 * k + 1) * way[-1] / (2 * parts)))
+            centre = first + int(np.searchsorted(way, (2 * k + 1) * way[-1] / (2 * k_parts)))
             start = int(np.clip(centre - size // 2, first, last + 1 - size))
             rows.append((label, float(t[start]), float(t[start + size - 1])))
     return pd.DataFrame(rows, columns=["feature", "start", "end"])

@@ -73,18 +73,30 @@ def label_command(
         ),
     ] = None,
     none_model: Annotated[
-        str,
+        str | None,
         typer.Option(
             "--none-model",
             metavar="MODEL",
-            help="what 'none' is: world (the default: the whole log's per-beam histogram) or "
-            "surroundings (each feature's own model where its reading is common in the log, "
-            "the world where it is distinctive; with strict returns, 0.15 m of evidence "
-            "length and --lateral auto: calibrated on the simulator, see the README)",
+            help="expert: the per-beam model instead of the scan descriptors, with 'none' as "
+            "world (the whole log's per-beam histogram) or surroundings (each feature's own "
+            "model where its reading is common in the log, the world where it is "
+            "distinctive; strict returns, 0.15 m of evidence length, --lateral auto); "
+            "docs/places.md",
         ),
-    ] = "world",
+    ] = None,
+    beam_term: Annotated[
+        float | None,
+        typer.Option(
+            "--beam-term",
+            help="expert: add the per-beam model's log-posterior, times this weight, to the "
+            "descriptor classifier's (default 0; see the ablation in docs/places.md)",
+        ),
+    ] = None,
     paper: Annotated[
-        bool, typer.Option("--paper", help="the paper's literal per-scan model (for comparison)")
+        bool,
+        typer.Option(
+            "--paper", help="the paper's literal per-beam Gaussian model (for comparison)"
+        ),
     ] = False,
     truth: Annotated[
         Path | None,
@@ -95,19 +107,36 @@ def label_command(
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="replace earlier label outputs")] = False,
 ) -> None:
-    """Learn places from a few scans each and find them along the whole log (Eq. 7-9)."""
-    # on use: the features (numba, scipy) load for `label` alone
+    """Learn places from a few scans each and find them along the whole log (Eq. 7-9).
+
+    The default: scan descriptors (docs/places.md) and a regularised logistic regression,
+    self-trained on the log, smoothed along the trajectory by the HMM, with "none"."""
+    # on use: the features (numba, scipy, scikit-learn) load for `label` alone
+
+    from toolkit.errors import ToolkitError
     from toolkit.features.model import NONE_MODELS, PAPER, SMOOTHINGS, SURROUNDINGS, Config
     from toolkit.features.run import label_run
 
-    if none_model not in NONE_MODELS:
+    if none_model is not None and none_model not in NONE_MODELS:
         raise ToolkitError(f"--none-model {none_model!r}: use one of {', '.join(NONE_MODELS)}")
-    base = PAPER if paper else SURROUNDINGS if none_model == "surroundings" else Config()
+    base = (
+        PAPER
+        if paper
+        else SURROUNDINGS
+        if none_model == "surroundings"
+        else Config(descriptors=False)
+        if none_model == "world"
+        else Config()
+    )
+    if beam_term is not None:
+        if beam_term < 0:
+            raise ToolkitError(f"--beam-term {beam_term}: a weight >= 0")
+        base = replace(base, beam_term=beam_term)
     config: Config | None = base
     if smoothing is not None:
         if smoothing not in SMOOTHINGS:
             raise ToolkitError(f"--smoothing {smoothing!r}: use one of {', '.join(SMOOTHINGS)}")
-        config = replace(base, smoothing=smoothing)
+        config = replace(base, smoothing=smoothing)  # type: ignore[arg-type]  # checked above
     if robust is not None:
         if not 0.0 <= robust < 1.0:
             raise ToolkitError(f"--robust {robust}: a weight in [0, 1)")
@@ -120,6 +149,8 @@ def label_command(
         config = replace(config or base, lateral_weight=lateral_exponent(lateral))
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
+    if model is not None and beam_term is not None:
+        raise ToolkitError("--beam-term is a learning setting; a --model keeps its own")
     metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")

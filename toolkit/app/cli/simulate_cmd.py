@@ -43,7 +43,11 @@ def _config(path: Path | None) -> dict[str, Any]:
 def simulate_command(
     scenario: Annotated[
         str,
-        typer.Argument(metavar="SCENARIO", help="corridor (the paper's Fig. 1) or building"),
+        typer.Argument(
+            metavar="SCENARIO",
+            help="corridor (the paper's Fig. 1), building, or random (a new world per --seed; "
+            "-p route=1: the other way through it)",
+        ),
     ],
     out: Annotated[Path, typer.Option("--out", metavar="DIR", help="directory to write")],
     fmt: Annotated[

@@ -1,0 +1,74 @@
+"""The random worlds (`toolkit simulate random`): every world holds every place kind, the path
+stays inside the building, a seed gives one world and each route its own path through it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tests.conftest import Cli
+from toolkit.sim import simulate
+from toolkit.sim.procedural import PLACES, random_world
+from toolkit.sim.truth import runs
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_every_world_holds_every_place_and_regions_as_a_user_picks_them(seed: int) -> None:
+    sim = simulate("random", seed=seed)
+    assert set(sim.labels) == set(PLACES)
+    regions = sim.regions
+    assert set(regions.feature) == set(PLACES)
+    t = sim.dataset.t
+    for place, spans in regions.groupby("feature"):
+        assert 1 <= len(spans) <= 2  # one or two spans, ten scans in all
+        inside = np.zeros(len(t), dtype=bool)
+        for row in spans.itertuples():
+            inside |= (t >= row.start) & (t <= row.end)
+        assert inside.sum() == 10
+        assert set(sim.labels[inside]) == {place}  # every training scan is of its place
+    # the robot stays inside the building: nothing closer than the corridor's clutter allows
+    assert np.nanmin(sim.dataset.ranges) > 0.1
+    # each open door is a short place: the robot passes it in one run of a few scans
+    door_runs = [last - first + 1 for label, first, last in runs(sim.labels) if label == "door"]
+    assert len(door_runs) >= 2 and max(door_runs) < 40
+
+
+def test_seed_draws_the_world_and_route_the_path() -> None:
+    a, again, other = random_world(5), random_world(5), random_world(6)
+    assert np.array_equal(a.world.segments, again.world.segments)
+    assert a.world.segments.shape != other.world.segments.shape or not np.allclose(
+        a.world.segments, other.world.segments
+    )
+    back = random_world(5, route=1)
+    assert np.array_equal(back.world.segments, a.world.segments)  # the same building
+    # the other way round: it starts where the first route ends
+    assert np.hypot(*(back.waypoints[0] - a.waypoints[-1])) < 4.0
+    first, second = simulate("random", seed=5), simulate("random", seed=5, route=1)
+    # the same place kinds on both runs, labelled where the robot is
+    assert set(first.labels) == set(second.labels) == set(PLACES)
+
+
+def test_corridor_widths_vary_between_worlds() -> None:
+    widths = []
+    for seed in range(12):
+        corner = next(z for z in random_world(seed).zones if z.label == "corner")
+        widths.append(corner.x1 - corner.x0 - 0.6)  # the crossing: the corridor's width
+    assert min(widths) >= 1.6 - 1e-9 and max(widths) <= 4.0 + 1e-9
+    assert max(widths) - min(widths) > 1.0
+
+
+def test_cli_simulates_a_random_world_on_another_route(tmp_path: Path, cli: Cli) -> None:
+    out = tmp_path / "random"
+    code, stdout, _ = cli(
+        "simulate", "random", "--seed", "3", "-p", "route=1", "--out", str(out), "-f", "dataset"
+    )
+    assert code == 0, stdout
+    truth = pd.read_parquet(out / "truth.parquet")
+    assert set(truth.label) == set(PLACES)
+    code, _, err = cli(
+        "simulate", "corridor", "-p", "route=1", "--out", str(tmp_path / "c"), "-f", "dataset"
+    )
+    assert code == 1 and "route" in err

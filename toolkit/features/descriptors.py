@@ -1,0 +1,345 @@
+"""Scan descriptors that travel: what a place looks like wherever along it the robot stands.
+
+The per-beam model compares beam k with beam k, so a corridor taught at one spot (a long view
+ahead) does not look like the same corridor ten metres on. These descriptors are the
+geometric features of Mozos, Stachniss and Burgard (ICRA 2005) and range histograms, each a
+number per scan that changes little as the robot moves along a place:
+
+- ranges: return fraction; mean and spread of the ranges and of their logarithms;
+- range differences between neighbouring beams: mean, spread, and the share of jumps over
+  0.5, 1.5 and 3 m (gaps: doorways, columns, the edges of a hall);
+- the scan polygon (the origin and the beams' end points): log area, log perimeter,
+  compactness 4 pi A / P^2; the end points' second moments: log of both axes of their
+  ellipse and its elongation;
+- a range histogram: the share of beams in 10 range bins and of no-returns;
+- 12 sectors of 15 degrees: the mean log range, the no-return share (glass) and the spread of
+  log ranges per sector, each for a sector and its mirror image (left / right) as the
+  smaller and the larger of the two, so that a door on the left taught on the way out is
+  the same door on the right on the way back; and the free width beside the robot (the
+  sides' mean ranges summed).
+
+Lengths beside the robot, the sectors' log ranges, the polygon's area and perimeter are in
+units of the free width beside the laser (the nearest end points left and right within
+`BESIDE` of the scan line, summed), which is a descriptor of its own: a door is a door in a
+corridor of 2 m and of 3.5 m. `PLACE_DESCRIPTORS` leaves out what describes the view ahead
+(the forward sectors, the range statistics and histogram, the polygon): that view is the
+next place, not this one, and changes with every step (measured in the ablation).
+
+No-returns and ranges beyond `CAP` count as `CAP` metres in the geometry. One compiled pass
+per scan, in parallel over scans (`describe`: S x B ranges to S x D descriptors).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from toolkit.dataset import LaserGeometry
+
+CAP = 20.0  # m: farther ranges (and no-returns) count as this in the geometry
+HIST_EDGES = np.array([0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0])  # m, 10 bins
+SECTORS = 12  # 15 degrees each over -90..90
+GAPS = np.array([0.5, 1.5, 3.0])  # m: jumps between neighbouring beams
+BESIDE = 1.0  # m: end points within this distance ahead or behind the laser are beside it
+CELL = 0.001  # m: the log and the histogram bin of a range are looked up on this grid
+_SUMS = 14 + len(GAPS) + len(HIST_EDGES) + 2  # per-scan accumulators (see _accumulate)
+
+
+def names() -> list[str]:
+    """The descriptors' names, in column order."""
+    out = [
+        "return_fraction",
+        "range_mean",
+        "range_std",
+        "log_range_mean",
+        "log_range_std",
+        "diff_mean",
+        "diff_std",
+        *(f"gaps_over_{g:g}m" for g in GAPS),
+        "log_area",
+        "log_perimeter",
+        "compactness",
+        "log_major_axis",
+        "log_minor_axis",
+        "elongation",
+        *(
+            f"hist_{lo:g}_{hi:g}m"
+            for lo, hi in zip([0.0, *HIST_EDGES], [*HIST_EDGES, CAP], strict=True)
+        ),
+        "hist_no_return",
+        "log_side_width",
+    ]
+    for what in ("beside_near", "beside_far", "beside_depth", "beside_count"):
+        out += [f"{what}_min", f"{what}_max"]
+    out.append("log_width_beside")
+    for what in ("log_range", "no_return", "log_spread"):
+        for k in range(SECTORS // 2):
+            a = 90 - 15 * k
+            out += [f"{what}_{a - 15}_{a}deg_min", f"{what}_{a - 15}_{a}deg_max"]
+    return out
+
+
+def place_columns() -> np.ndarray:
+    """Indices of the descriptors the place classifier uses (all but the view ahead)."""
+    ahead = ("0_15deg", "15_30deg", "range_mean", "range_std", "major", "area", "perimeter")
+    return np.array(
+        [
+            i
+            for i, n in enumerate(names())
+            if not any(a in n for a in ahead) and not n.startswith("hist_")
+        ]
+    )
+
+
+def describe(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Descriptors (S x D float64) of scans (S x B, NaN = no return)."""
+    bearing = laser.angles + laser.yaw
+    # sectors mirror each other exactly: (0, 15°] left is [-15°, 0) right (the beam straight
+    # ahead counts on the left)
+    ring = np.clip(np.ceil(np.abs(bearing) / (np.pi / SECTORS) - 1e-9) - 1, 0, SECTORS // 2 - 1)
+    half = SECTORS // 2
+    sector = np.where(bearing < 0, half - 1 - ring, half + ring).astype(np.int64)
+    cells = np.arange(int(CAP / CELL) + 2) * CELL + CELL / 2
+    log_of = np.log(np.maximum(cells, 0.01))
+    bin_of = np.searchsorted(HIST_EDGES, cells, side="right").astype(np.int64)
+    sums = np.empty((len(ranges), _SUMS))
+    per_sector = np.empty((len(ranges), 4, SECTORS))
+    beside = np.empty((len(ranges), 2, 3))
+    _accumulate(
+        np.ascontiguousarray(ranges, dtype=np.float32),
+        np.cos(bearing),
+        np.sin(bearing),
+        sector,
+        log_of,
+        bin_of,
+        GAPS,
+        CAP,
+        BESIDE,
+        sums,
+        per_sector,
+        beside,
+    )
+    out = np.empty((len(ranges), len(names())))
+    _finish_compiled(sums, per_sector, beside, ranges.shape[1], out)
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _accumulate(  # pragma: no cover - numba
+    ranges: np.ndarray,
+    cos: np.ndarray,
+    sin: np.ndarray,
+    sector: np.ndarray,
+    log_of: np.ndarray,
+    bin_of: np.ndarray,
+    gaps: np.ndarray,
+    cap: float,
+    near: float,
+    sums: np.ndarray,
+    per_sector: np.ndarray,
+    beside: np.ndarray,
+) -> None:
+    """Per scan, the sums the descriptors are made of, in one pass over its beams."""
+    s_count, nb = ranges.shape
+    n_gaps, n_bins = len(gaps), int(bin_of.max()) + 1
+    inv_cell = 1.0 / CELL
+    last = len(log_of) - 1
+    for s in numba.prange(s_count):
+        acc = np.zeros(_SUMS)
+        sec = np.zeros((4, SECTORS))  # count, sum log, sum log^2, no-returns
+        side = np.zeros((2, 3))  # per side (right, left): nearest, farthest |y|, count
+        side[:, 0] = cap
+        px, py, prev = 0.0, 0.0, 0.0
+        for b in range(nb):
+            r = ranges[s, b]
+            ok = np.isfinite(r) and r < cap
+            rc = r if ok else cap
+            cell = min(int(rc * inv_cell), last)
+            lr = log_of[cell]
+            acc[0] += ok
+            acc[1] += rc
+            acc[2] += rc * rc
+            acc[3] += lr
+            acc[4] += lr * lr
+            x, y = rc * cos[b], rc * sin[b]
+            acc[9] += x
+            acc[10] += y
+            acc[11] += x * x
+            acc[12] += y * y
+            acc[13] += x * y
+            if b > 0:
+                d = abs(rc - prev)
+                acc[5] += d
+                acc[6] += d * d
+                acc[7] += 0.5 * (px * y - x * py)  # area: fan of triangles from the origin
+                acc[8] += np.sqrt((x - px) ** 2 + (y - py) ** 2)  # perimeter
+                for g in range(n_gaps):
+                    if d > gaps[g]:
+                        acc[14 + g] += 1.0
+            else:
+                acc[8] += rc  # from the origin to the first end point
+            if ok:
+                acc[14 + n_gaps + bin_of[cell]] += 1.0
+            else:
+                acc[14 + n_gaps + n_bins] += 1.0
+            if abs(x) < near:  # beside the laser: how far the space reaches sideways
+                k = 1 if y > 0 else 0
+                ay = abs(y)
+                side[k, 0] = min(side[k, 0], ay)
+                side[k, 1] = max(side[k, 1], ay)
+                side[k, 2] += 1.0
+            j = sector[b]
+            sec[0, j] += 1.0
+            sec[1, j] += lr
+            sec[2, j] += lr * lr
+            sec[3, j] += not ok
+            px, py, prev = x, y, rc
+        acc[8] += prev  # back to the origin
+        for i in range(_SUMS):
+            sums[s, i] = acc[i]
+        for i in range(4):
+            for j in range(SECTORS):
+                per_sector[s, i, j] = sec[i, j]
+        for i in range(2):
+            for j in range(3):
+                beside[s, i, j] = side[i, j]
+
+
+def _finish(sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams: int) -> np.ndarray:
+    """The descriptors from the accumulated sums, in numpy: the reference `describe`'s
+    compiled finish (`_finish_compiled`) is tested equal to."""
+    n = float(beams)
+    ng, ne = len(GAPS), len(HIST_EDGES)
+
+    def spread(total: np.ndarray, squares: np.ndarray, count: np.ndarray | float) -> np.ndarray:
+        mean = total / np.maximum(count, 1.0)
+        return np.sqrt(np.maximum(squares / np.maximum(count, 1.0) - mean * mean, 0.0))
+
+    area = np.maximum(np.abs(sums[:, 7]), 1e-3)
+    perimeter = np.maximum(sums[:, 8], 1e-3)
+    mx, my = sums[:, 9] / n, sums[:, 10] / n
+    cxx, cyy = sums[:, 11] / n - mx * mx, sums[:, 12] / n - my * my
+    cxy = sums[:, 13] / n - mx * my
+    half_trace, det = 0.5 * (cxx + cyy), cxx * cyy - cxy * cxy
+    root = np.sqrt(np.maximum(half_trace**2 - det, 0.0))
+    major, minor = np.maximum(half_trace + root, 1e-4), np.maximum(half_trace - root, 1e-4)
+    near = np.log(np.maximum(beside[:, :, 0], 0.05))
+    far = np.log(np.maximum(beside[:, :, 1], 0.05))
+    width = np.log(np.exp(near).sum(axis=1))  # the free width beside the laser
+    count, log_sum, log_sq, missing = (per_sector[:, i] for i in range(4))
+    mean_log = log_sum / np.maximum(count, 1.0)
+    cols = [
+        sums[:, 0] / n,
+        sums[:, 1] / n,
+        spread(sums[:, 1], sums[:, 2], n),
+        sums[:, 3] / n,
+        spread(sums[:, 3], sums[:, 4], n),
+        sums[:, 5] / (n - 1),
+        spread(sums[:, 5], sums[:, 6], n - 1),
+        *(sums[:, 14 + g] / (n - 1) for g in range(ng)),
+        np.log(area),
+        np.log(perimeter),
+        4 * np.pi * area / perimeter**2,
+        0.5 * np.log(major),
+        0.5 * np.log(minor),
+        np.sqrt(minor / major),
+        *(sums[:, 14 + ng + k] / n for k in range(ne + 2)),
+        np.log(np.exp(mean_log[:, 0]) + np.exp(mean_log[:, -1])),
+    ]
+    cols[names().index("log_area")] -= 2 * width  # in units of the width: scale-free
+    cols[names().index("log_perimeter")] -= width
+    near, far = near - width[:, None], far - width[:, None]
+    for values in (near, far, far - near, np.log1p(beside[:, :, 2])):
+        cols += [values.min(axis=1), values.max(axis=1)]
+    cols.append(width)
+    per = [
+        mean_log - width[:, None],
+        missing / np.maximum(count, 1.0),
+        spread(log_sum, log_sq, count),
+    ]
+    for values in per:
+        for k in range(SECTORS // 2):
+            a, b = values[:, SECTORS - 1 - k], values[:, k]  # left and its mirror, right
+            cols += [np.minimum(a, b), np.maximum(a, b)]
+    return np.column_stack(cols)
+
+
+@numba.njit(parallel=True, cache=True)
+def _finish_compiled(  # pragma: no cover - numba
+    sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams: int, out: np.ndarray
+) -> None:
+    """`_finish` compiled, one scan per iteration in parallel (the same columns)."""
+    n = float(beams)
+    ng, nh = len(GAPS), len(HIST_EDGES) + 2
+    half = SECTORS // 2
+    for s in numba.prange(sums.shape[0]):
+        a = sums[s]
+        c = 0
+        out[s, c] = a[0] / n
+        mean = a[1] / n
+        out[s, c + 1] = mean
+        out[s, c + 2] = np.sqrt(max(a[2] / n - mean * mean, 0.0))
+        mean = a[3] / n
+        out[s, c + 3] = mean
+        out[s, c + 4] = np.sqrt(max(a[4] / n - mean * mean, 0.0))
+        mean = a[5] / (n - 1)
+        out[s, c + 5] = mean
+        out[s, c + 6] = np.sqrt(max(a[6] / (n - 1) - mean * mean, 0.0))
+        c = 7
+        for g in range(ng):
+            out[s, c + g] = a[14 + g] / (n - 1)
+        c += ng
+        near0 = np.log(max(beside[s, 0, 0], 0.05))
+        near1 = np.log(max(beside[s, 1, 0], 0.05))
+        far0 = np.log(max(beside[s, 0, 1], 0.05))
+        far1 = np.log(max(beside[s, 1, 1], 0.05))
+        width = np.log(np.exp(near0) + np.exp(near1))
+        area = max(abs(a[7]), 1e-3)
+        perimeter = max(a[8], 1e-3)
+        mx, my = a[9] / n, a[10] / n
+        cxx, cyy, cxy = a[11] / n - mx * mx, a[12] / n - my * my, a[13] / n - mx * my
+        half_trace, det = 0.5 * (cxx + cyy), cxx * cyy - cxy * cxy
+        root = np.sqrt(max(half_trace * half_trace - det, 0.0))
+        major, minor = max(half_trace + root, 1e-4), max(half_trace - root, 1e-4)
+        out[s, c] = np.log(area) - 2 * width
+        out[s, c + 1] = np.log(perimeter) - width
+        out[s, c + 2] = 4 * np.pi * area / (perimeter * perimeter)
+        out[s, c + 3] = 0.5 * np.log(major)
+        out[s, c + 4] = 0.5 * np.log(minor)
+        out[s, c + 5] = np.sqrt(minor / major)
+        c += 6
+        for k in range(nh):
+            out[s, c + k] = a[14 + ng + k] / n
+        c += nh
+        first = per_sector[s, 1, 0] / max(per_sector[s, 0, 0], 1.0)
+        last = per_sector[s, 1, SECTORS - 1] / max(per_sector[s, 0, SECTORS - 1], 1.0)
+        out[s, c] = np.log(np.exp(first) + np.exp(last))
+        c += 1
+        near0, near1, far0, far1 = near0 - width, near1 - width, far0 - width, far1 - width
+        pairs = (
+            (near0, near1),
+            (far0, far1),
+            (far0 - near0, far1 - near1),
+            (np.log1p(beside[s, 0, 2]), np.log1p(beside[s, 1, 2])),
+        )
+        for u, v in pairs:
+            out[s, c] = min(u, v)
+            out[s, c + 1] = max(u, v)
+            c += 2
+        out[s, c] = width
+        c += 1
+        for what in range(3):
+            for k in range(half):
+                vals = np.empty(2)
+                for m, j in enumerate((SECTORS - 1 - k, k)):
+                    count = max(per_sector[s, 0, j], 1.0)
+                    mean_log = per_sector[s, 1, j] / count
+                    if what == 0:
+                        vals[m] = mean_log - width
+                    elif what == 1:
+                        vals[m] = per_sector[s, 3, j] / count
+                    else:
+                        vals[m] = np.sqrt(max(per_sector[s, 2, j] / count - mean_log**2, 0.0))
+                out[s, c] = min(vals[0], vals[1])
+                out[s, c + 1] = max(vals[0], vals[1])
+                c += 2
