@@ -88,6 +88,7 @@ def label_command(
         float | None,
         typer.Option(
             "--beam-term",
+            metavar="W",
             help="expert: add the per-beam model's log-posterior, times this weight, to the "
             "descriptor classifier's (default 0; see the ablation in docs/places.md)",
         ),
