@@ -90,7 +90,8 @@ def label_command(
             "--beam-term",
             metavar="W",
             help="expert: add the per-beam model's log-posterior, times this weight, to the "
-            "descriptor classifier's (default 0; see the ablation in docs/places.md)",
+            "descriptor classifier's (default 1; 0 leaves it out; see the ablation in "
+            "docs/places.md)",
         ),
     ] = None,
     paper: Annotated[
