@@ -137,7 +137,7 @@ def save_table(
     folder = out / TABLES
     folder.mkdir(parents=True, exist_ok=True)
     formats = dict(formats or {})
-    frame.to_csv(folder / f"{name}.csv", index=False)
+    csv_safe(frame).to_csv(folder / f"{name}.csv", index=False)
     (folder / f"{name}.md").write_text(to_markdown(frame, formats, title))
     (folder / f"{name}.tex").write_text(to_latex(frame, formats, caption))
     files = [f"{TABLES}/{name}.{ext}" for ext in ("csv", "md", "tex")]
@@ -185,14 +185,42 @@ def _numeric(frame: pd.DataFrame) -> list[bool]:
     ]
 
 
+_MARKDOWN_SPECIAL = str.maketrans(
+    {"&": "&amp;", "<": "&lt;", ">": "&gt;", "|": "\\|", "\n": " ", "\r": " "}
+)
+
+
+def markdown_escape(text: str) -> str:
+    """Text safe in a Markdown table cell: HTML's &, <, > as entities (a name like
+    `<script>` shows as text, not markup), | escaped (no extra column), newlines as spaces."""
+    return text.translate(_MARKDOWN_SPECIAL)
+
+
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # what a spreadsheet may read as a formula
+
+
+def csv_cell(value: Any) -> Any:
+    """A text cell a spreadsheet will not evaluate: one that starts like a formula gets a
+    leading ' (OWASP's CSV injection advice); numbers and other text are kept as they are."""
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
+
+
+def csv_safe(frame: pd.DataFrame) -> pd.DataFrame:
+    """`frame` with every text cell and column name through `csv_cell` (numbers untouched)."""
+    out = frame.rename(columns=lambda c: csv_cell(c) if isinstance(c, str) else c)
+    for column in out.columns:
+        if not pd.api.types.is_numeric_dtype(out[column]):
+            out[column] = out[column].map(csv_cell)
+    return out
+
+
 def to_markdown(
     frame: pd.DataFrame, formats: Mapping[str, str] | None = None, title: str = ""
 ) -> str:
-    """A GitHub-flavoured Markdown table (numbers right-aligned)."""
-
-    def esc(s: str) -> str:
-        return s.replace("|", "\\|").replace("\n", " ")
-
+    """A GitHub-flavoured Markdown table (numbers right-aligned), every cell escaped."""
+    esc = markdown_escape
     columns = [esc(str(c)) for c in frame.columns]
     lines = [f"**{esc(title)}**", ""] if title else []
     lines.append("| " + " | ".join(columns) + " |")
