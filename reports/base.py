@@ -2,18 +2,16 @@
 
 A generator returns a `Section`: its figures (PNG + SVG), its tables (CSV, Markdown, LaTeX),
 the data behind each of them (so tests check content, not pixels), and what it could not
-show and why. A section that lacks a piece of the toolkit or a log says "not available";
-it never shows a stand-in.
+show and why. A section that lacks a log (or a piece of one: ground truth, odometry, training
+regions) says "not available"; it never shows a stand-in.
 """
 
 from __future__ import annotations
 
-import importlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,24 +26,6 @@ TABLES = "tables"
 
 class NotAvailable(Exception):
     """A piece a section needs (a toolkit module, a log) is missing: the report says so."""
-
-
-def require(module: str, *names: str) -> ModuleType:
-    """Import `module` and check that it offers `names`; NotAvailable if it does not.
-
-    Only the absence of the module itself (or of a name) counts as "not available": an
-    error inside a module that exists is a bug, and is raised as such.
-    """
-    try:
-        mod = importlib.import_module(module)
-    except ModuleNotFoundError as e:
-        if e.name is not None and (module == e.name or module.startswith(e.name + ".")):
-            raise NotAvailable(f"{module} is not in the toolkit yet") from None
-        raise
-    missing = [n for n in names if not hasattr(mod, n)]
-    if missing:
-        raise NotAvailable(f"{module} lacks {', '.join(missing)}")
-    return mod
 
 
 # ---------------------------------------------------------------- artifacts

@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ import pandas as pd
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import Dataset, LaserGeometry, load
+from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 
@@ -216,19 +218,48 @@ def _meta_digest(ds: Dataset) -> str | None:
     return sha256(meta) if meta is not None and meta.is_file() else None
 
 
-def write_run(
-    ds: Dataset,
+#: Every file of a run directory; `map_run(outputs=...)` writes a subset (the report, which
+#: draws its own maps, leaves out cloud.ply and map.png).
+OUTPUTS = (
+    "config.json",
+    "trajectory.parquet",
+    "trajectory.tum",
+    "groundtruth.tum",
+    "cloud.ply",
+    "map.png",
+    "metrics.json",
+)
+
+
+@dataclass
+class MapRun:
+    """A run directory and what was computed for it (the trajectory, timed, and metrics.json)."""
+
+    path: Path
+    result: TrajectoryResult
+    metrics: dict[str, Any]
+
+
+def map_run(
+    dataset: Dataset | str | Path,
     out: str | Path,
     method: str = "gaussian",
     voxel: float = 0.0,
     config: sc.MatchConfig | None = None,
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,
-) -> Path:
-    """Align `ds` by `method` and write the run directory `out`, atomically (`matcher`: see
-    `trajectory.build`)."""
+    outputs: Collection[str] = OUTPUTS,
+) -> MapRun:
+    """`toolkit map`: align `dataset` (loaded if a path) by `method` and write the run
+    directory `out` atomically: `outputs` of OUTPUTS (groundtruth.tum only when the dataset
+    has ground truth). `matcher`: see `toolkit.poses.build`. The CLI, the fleet, the bench
+    and the report all map through here."""
     out = Path(out)
     check_output(out, force)
+    unknown = set(outputs) - set(OUTPUTS)
+    if unknown:
+        raise ToolkitError(f"unknown run outputs {sorted(unknown)}; known: {', '.join(OUTPUTS)}")
+    ds = dataset if isinstance(dataset, Dataset) else load(dataset)
     config = config or sc.MatchConfig()
     from toolkit.progress import task
 
@@ -247,34 +278,27 @@ def write_run(
                 "laser": ds.laser.to_dict(),
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }
-            (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
-            result.frame.to_parquet(tmp / "trajectory.parquet", index=False)
-            write_tum(tmp / "trajectory.tum", ds.t, robot)
-            if truth is not None:
+            if "config.json" in outputs:
+                (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
+            if "trajectory.parquet" in outputs:
+                result.frame.to_parquet(tmp / "trajectory.parquet", index=False)
+            if "trajectory.tum" in outputs:
+                write_tum(tmp / "trajectory.tum", ds.t, robot)
+            if truth is not None and "groundtruth.tum" in outputs:
                 write_tum(tmp / "groundtruth.tum", ds.t, truth)
-            write_cloud(tmp / "cloud.ply", ds, robot, voxel)
+            if "cloud.ply" in outputs:
+                write_cloud(tmp / "cloud.ply", ds, robot, voxel)
             progress.advance(bar)
-            name = ds.path.name if ds.path else "dataset"
-            write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
+            if "map.png" in outputs:
+                name = ds.path.name if ds.path else "dataset"
+                write_map_png(tmp / "map.png", ds, robot, truth, f"{name}: {method}")
             progress.advance(bar)
             metrics = run_metrics(ds, result)
-            text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
-            (tmp / "metrics.json").write_text(text)
+            if "metrics.json" in outputs:
+                text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
+                (tmp / "metrics.json").write_text(text)
             progress.advance(bar)
-    return out
-
-
-def map_dataset(
-    dataset: str | Path,
-    out: str | Path,
-    method: str = "gaussian",
-    voxel: float = 0.0,
-    force: bool = False,
-    matcher: Callable[..., sc.PairMatches] | None = None,
-) -> Path:
-    """`toolkit map`: load a dataset directory and write its run directory."""
-    check_output(Path(out), force)
-    return write_run(load(dataset), out, method, voxel, force=force, matcher=matcher)
+    return MapRun(out, result, metrics)
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numba as nb
@@ -25,6 +25,7 @@ import pandas as pd
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
+from toolkit.sim.odometry import OdometryModel
 
 Method = Literal["gaussian", "icp", "icp-point", "odometry"]
 METHODS: tuple[str, ...] = ("gaussian", "icp", "icp-point", "odometry")
@@ -173,7 +174,8 @@ def _frame(t: np.ndarray, poses: np.ndarray) -> pd.DataFrame:
     return pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
 
 
-#: Wheel-odometry errors added to real logs whose poses are corrected (no raw odometry):
+#: The one default drift (`with_drift`), used by the tests, the bench and the report alike:
+#: wheel-odometry errors added to real logs whose poses are corrected (no raw odometry):
 #: 2% scale error, 0.5% wheel-diameter difference (a heading drift of ~0.9°/m on a Pioneer),
 #: 0.005 m/sqrt(m) encoder noise per wheel and a slip in one step of 200 (toolkit.sim.odometry).
 REAL_LOG_DRIFT: dict[str, float] = {
@@ -188,13 +190,10 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
     """A copy of `ds` whose odometry is its ground truth at the scan times run through the
     simulator's differential-drive odometry model (REAL_LOG_DRIFT, overridden by `params`),
     seeded: for real logs whose only poses are SLAM-corrected ones."""
-    from dataclasses import replace
-
-    from toolkit.sim.odometry import OdometryModel
-
     truth = truth_poses(ds)
     if truth is None:
         raise ToolkitError("adding drift needs ground truth; the dataset has none", file=ds.path)
     model = OdometryModel(**{**REAL_LOG_DRIFT, **params})
     odo = model.integrate(truth, np.random.default_rng(seed))
-    return replace(ds, odometry=_frame(ds.t, odo), groundtruth=_frame(ds.t, truth))
+    meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
+    return replace(ds, odometry=_frame(ds.t, odo), groundtruth=_frame(ds.t, truth), meta=meta)

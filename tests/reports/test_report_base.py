@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from reports.base import NotAvailable, cell, require, save_figure, save_table, to_latex, to_markdown
+from reports.base import cell, save_figure, save_table, to_latex, to_markdown
 
 
 def frame() -> pd.DataFrame:
@@ -55,28 +55,6 @@ def test_save_table_and_figure_write_every_format(tmp_path: Path) -> None:
     assert figure.files == ["figures/f1.png", "figures/f1.svg"]
     assert (tmp_path / "figures/f1.png").read_bytes()[:4] == b"\x89PNG"
     assert "<svg" in (tmp_path / "figures/f1.svg").read_text()
-
-
-def test_require_tells_missing_module_from_missing_name() -> None:
-    with pytest.raises(NotAvailable, match="not in the toolkit"):
-        require("toolkit.no_such_piece")
-    with pytest.raises(NotAvailable, match="lacks no_such_name"):
-        require("toolkit.dataset", "no_such_name")
-    assert require("toolkit.dataset", "load").load is not None
-
-
-def test_truth_labels_are_matched_by_time(tmp_path: Path) -> None:
-    """A capture that lost frames keeps the true labels of the frames it has."""
-    from reports.runs import truth_labels
-
-    t = 100.0 + 0.2 * np.arange(10)
-    labels = np.array(list("aaabbbccca"))
-    pd.DataFrame({"t": t, "label": labels}).to_parquet(tmp_path / "truth.parquet")
-    kept = np.array([0, 1, 4, 5, 9])
-    assert list(truth_labels(tmp_path, t[kept] + 1e-5)) == list(labels[kept])
-    assert truth_labels(tmp_path, np.array([100.1])) is None  # no frame at that time
-    assert list(truth_labels(tmp_path / "dataset", t)) == list(labels)  # beside the dataset
-    assert truth_labels(None, t) is None
 
 
 def test_markdown_table_escapes_html_pipes_and_newlines(tmp_path: Path) -> None:

@@ -109,7 +109,7 @@ def label_command(
         config = replace(config or base, lateral_weight=lateral_exponent(lateral))
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
-    metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
+    metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth).metrics
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")
     if "truth" in metrics:

@@ -3,7 +3,6 @@ or `toolkit map DATASET... --out DIR` (several datasets, a fleet's tree, a quote
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -63,7 +62,7 @@ def map_command(
     from toolkit.app.fleet import client_for, matcher_for, on_shared_storage
     from toolkit.dataset import SCANS
     from toolkit.errors import ToolkitError
-    from toolkit.mapping import map_dataset
+    from toolkit.mapping import map_run
     from toolkit.poses import METHODS
 
     if method not in METHODS:
@@ -79,11 +78,11 @@ def map_command(
     with client_for(scheduler) as client:
         scans = dataset / SCANS if on_shared_storage(scheduler) else None
         matcher = matcher_for(client, scans=scans) if client is not None else None
-        run = map_dataset(dataset, out, method, voxel, force, matcher=matcher)
+        run = map_run(dataset, out, method, voxel, force=force, matcher=matcher)
     if quiet:
         return
-    metrics = json.loads((run / "metrics.json").read_text())
-    line = f"{run}: {metrics['scans']} scans by {method}"
+    metrics = run.metrics
+    line = f"{run.path}: {metrics['scans']} scans by {method}"
     if metrics.get("pairs_per_second"):
         line += f", {metrics['pairs_per_second']:.0f} pairs/s"
     if metrics.get("groundtruth"):
@@ -99,7 +98,7 @@ def _many(datasets: list[Path]) -> bool:
     """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
     import glob
 
-    from toolkit.app.fleet import is_dataset_dir
+    from toolkit.dataset import is_dataset_dir
 
     if len(datasets) != 1:
         return True
