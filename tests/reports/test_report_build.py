@@ -274,6 +274,9 @@ def test_accuracy_every_method_and_log(report: Report) -> None:
         )
         tum = np.loadtxt(folder / "trajectory.tum")
         assert tum.shape == (row["scans"], 8)
+        if log != "dpslam_loop5":  # what evo needs side by side: `evo_ape tum groundtruth.tum
+            truth = np.loadtxt(folder / "groundtruth.tum")  # trajectory.tum -a` in the folder
+            assert truth.shape == tum.shape and np.array_equal(truth[:, 0], tum[:, 0])
     maps = report.section("maps").data["corridor"]["ate"]
     corridor = table[table["log"] == "corridor"].set_index("method")["ATE (m)"]
     assert corridor.to_dict() == pytest.approx(maps)  # one run per log and method, shared
