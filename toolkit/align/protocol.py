@@ -9,7 +9,10 @@ Two protocols, both used by `make bench` and by the report, so both measure the 
   axis, 1 cm noise. Dense and noisy, where ICP's nearest neighbours are often wrong and slow.
 
 The Gaussian alignment knows the correspondence by index, ICP (Open3D point-to-point) finds
-it by nearest neighbours within twice the largest shift. The methods are timed interleaved
+it by nearest neighbours within twice the largest shift. Both run on one thread (Open3D's
+OpenMP is limited to one, as the Gaussian alignment uses one: a per-core comparison, and one
+that busy cores do not distort: with its two threads on two loaded cores Open3D spins, 600 ms
+per 10,000-point alignment instead of tens). The methods are timed interleaved
 in one process: each gets the same untimed warm-up call per size, then trial by trial they
 alternate (the order reversed every other trial), each timed the same number of calls on
 the same clouds; a trial's time is the median of its calls, a size's the median of its
@@ -26,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from toolkit.align.gaussian import gaussian
-from toolkit.align.icp import icp
+from toolkit.align.icp import icp, one_openmp_thread
 
 SIZES = (100, 500, 1000, 5000, 10_000)  # the paper's
 TRIALS = 10
@@ -77,9 +80,21 @@ def random_cloud_trials(
 ) -> pd.DataFrame:
     """One row per method, size and trial: the time (median of `repeats` calls, the methods
     interleaved, see the module docstring) and the translation error of the estimate."""
+    with one_openmp_thread():  # both methods on one thread
+        return pd.DataFrame(_trials(sizes, trials, methods, seed, repeats, protocol))
+
+
+def _trials(
+    sizes: Sequence[int],
+    trials: int,
+    methods: Sequence[str],
+    seed: int,
+    repeats: int,
+    protocol: Protocol,
+) -> list[dict[str, object]]:
     rng = np.random.default_rng(seed)
     aligners = {m: _aligner(m, protocol) for m in methods}
-    rows = []
+    rows: list[dict[str, object]] = []
     for n in sizes:
         clouds = []
         for _ in range(trials):
@@ -108,7 +123,7 @@ def random_cloud_trials(
                         "error_m": float(np.linalg.norm(shift - truth)),
                     }
                 )
-    return pd.DataFrame(rows)
+    return rows
 
 
 def summarize(trials: pd.DataFrame) -> pd.DataFrame:

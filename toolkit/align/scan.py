@@ -37,7 +37,6 @@ from typing import Any, Literal, ParamSpec, TypeVar
 
 import numba as nb
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from toolkit.dataset import LaserGeometry
 
@@ -852,7 +851,9 @@ def _one_openmp_thread(fn: Callable[P, R]) -> Callable[P, R]:
 
     @functools.wraps(fn)
     def one_thread(*args: P.args, **kwargs: P.kwargs) -> R:
-        with threadpool_limits(1, user_api="openmp"):
+        from toolkit.align.icp import one_openmp_thread
+
+        with one_openmp_thread():
             return fn(*args, **kwargs)
 
     return one_thread
