@@ -239,10 +239,10 @@ def child_make_log(scans: int, out: str) -> dict[str, Any]:
 
 
 def child_map(dataset: str, out: str, voxel: float) -> dict[str, Any]:
-    from toolkit.mapping import map_dataset
+    from toolkit.mapping import map_run
 
     t0 = time.perf_counter()
-    run = map_dataset(dataset, out, "gaussian", voxel)
+    run = map_run(dataset, out, "gaussian", voxel).path
     seconds = time.perf_counter() - t0
     metrics = json.loads((run / "metrics.json").read_text())
     return {

@@ -11,18 +11,26 @@ and marks what it cannot show as not available. `GENERATORS` is the order of the
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+from reports import (
+    accuracy,
+    fig3_pairs,
+    fig6_maps,
+    fig8_features,
+    machine,
+    table1_sections,
+    table2_clouds,
+)
 from reports.base import NotAvailable, Section
 from reports.context import (
     QUICK_BUNDLED_SCANS,
@@ -32,16 +40,17 @@ from reports.context import (
     catalog_sources,
     default_real,
 )
+from toolkit.dataset import check_dataset_dir
 from toolkit.errors import ToolkitError
 
-GENERATORS = (
-    "table1_sections",
-    "table2_clouds",
-    "fig3_pairs",
-    "fig6_maps",
-    "fig8_features",
-    "accuracy",
-    "machine",
+GENERATORS: tuple[ModuleType, ...] = (
+    table1_sections,
+    table2_clouds,
+    fig3_pairs,
+    fig6_maps,
+    fig8_features,
+    accuracy,
+    machine,
 )
 
 __all__ = ["GENERATORS", "Report", "build", "generators", "sources_from_paths"]
@@ -49,8 +58,7 @@ __all__ = ["GENERATORS", "Report", "build", "generators", "sources_from_paths"]
 
 def generators(only: Sequence[str] = ()) -> list[ModuleType]:
     """The generator modules, in report order (those whose key is in `only`, if given)."""
-    mods = [importlib.import_module(f"reports.{name}") for name in GENERATORS]
-    return [m for m in mods if not only or m.KEY in only]
+    return [m for m in GENERATORS if not only or m.KEY in only]
 
 
 @dataclass
@@ -81,11 +89,7 @@ def sources_from_paths(paths: Sequence[Path], regions: Path | None = None) -> di
         raise ToolkitError("no such regions file", file=regions)
     sources: dict[str, Source] = {}
     for path in paths:
-        if not path.is_dir():
-            raise ToolkitError("not a dataset directory", file=path)
-        missing = [f for f in ("meta.json", "scans.parquet") if not (path / f).is_file()]
-        if missing:
-            raise ToolkitError(f"not a dataset: {', '.join(missing)} missing", file=path)
+        check_dataset_dir(path)
         name = path.resolve().name
         k = 2
         while name in sources or name in RESERVED:
@@ -106,12 +110,14 @@ def build(
     only: Sequence[str] = (),
     command: str | None = None,
     bundled: bool = True,
+    on_section: Callable[[Section], None] | None = None,
 ) -> Report:
     """Run what the report needs and write it to `out` atomically (index.html, figures, tables).
 
     `real`: True looks for the real logs in the default place, a path names the folder,
     False/None leaves them out. Without `datasets`, the bundled logs of datasets/catalog.json
     are used (unless `bundled` is False). `quick` uses fewer trials and sizes (tests, CI).
+    `on_section` is called with each section as soon as it is done (the CLI prints a line).
     """
     from rich.progress import TaskID
 
@@ -144,6 +150,8 @@ def build(
                 step("start")
                 sections.append(_generate(mod, ctx))
                 bar.advance(task_id)
+                if on_section is not None:
+                    on_section(sections[-1])
             seconds = time.perf_counter() - start
             header: dict[str, object] = {
                 "title": "Learning probabilistic features with laser sensors: results",

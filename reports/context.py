@@ -19,13 +19,16 @@ from typing import TYPE_CHECKING, Any, TypeVar, cast
 import numpy as np
 import pandas as pd
 
-from reports.base import NotAvailable, require
-from toolkit.dataset import Dataset
+import importers
+from reports.base import NotAvailable
+from reports.runs import Labelled, Run, label_log, map_log, slice_scans
+from toolkit.dataset import Dataset, load
 from toolkit.errors import ToolkitError
+from toolkit.poses import with_drift
+from toolkit.sim import Simulation, simulate
 
 if TYPE_CHECKING:
     from reports.base import Section
-    from reports.runs import LabelRun
     from toolkit.sim import Simulation
 
 T = TypeVar("T")
@@ -116,18 +119,6 @@ def catalog_sources(catalog: Path = CATALOG, max_scans: int | None = None) -> di
 
 
 @dataclass
-class Run:
-    """A trajectory of one log by one method, timed in this run, with its accuracy."""
-
-    dataset: str
-    method: str
-    trajectory: pd.DataFrame
-    seconds: float
-    metrics: dict[str, Any] = field(default_factory=dict)
-    files: list[str] = field(default_factory=list)  # relative to the report
-
-
-@dataclass
 class Context:
     """Shared state of one report run (see the module docstring)."""
 
@@ -171,10 +162,9 @@ class Context:
         """The simulator's corridor (8 sections x 250 scans), with ground truth and labels."""
 
         def make() -> Simulation:
-            sim_mod = require("toolkit.sim", "simulate")
             self.step("simulate the corridor")
             extra = {"scans": QUICK_CORRIDOR_SCANS} if self.quick else {}
-            sim = sim_mod.simulate(CORRIDOR, seed=self.seed, **extra)
+            sim = simulate(CORRIDOR, seed=self.seed, **extra)
             self._datasets[CORRIDOR] = sim.dataset
             self.sources.setdefault(
                 CORRIDOR, Source(CORRIDOR, None, "simulated", note="the paper's corridor")
@@ -202,8 +192,6 @@ class Context:
                 self._import_native(source)
             if source is None or source.path is None:
                 raise NotAvailable(f"no log named {name!r}")
-            from toolkit.dataset import load
-
             ds = with_truth_poses(load(source.path), source)
             if name in QUICK_CUT:
                 ds, note = self._quick_cut(ds)
@@ -215,8 +203,6 @@ class Context:
         """Quick mode maps only the first scans of the real logs it maps by every method."""
         if not self.quick or ds.n_scans <= QUICK_REAL_SCANS:
             return ds, ""
-        from reports.runs import slice_scans
-
         cut = slice_scans(ds, np.arange(QUICK_REAL_SCANS))
         return cut, f", first {QUICK_REAL_SCANS} scans (quick mode)"
 
@@ -226,7 +212,6 @@ class Context:
         def make() -> Path:
             assert source.native is not None
             fmt, paths = source.native
-            importers = require("importers", "import_log", "ImportOptions")
             self.step(f"import {source.name}")
             target = self.work / "datasets" / source.name
             try:
@@ -246,11 +231,6 @@ class Context:
             source = self.real_dir / relpath
             if not source.exists():
                 raise NotAvailable(f"{source} is missing")
-            importers = require("importers", "import_log", "ImportOptions")
-            try:
-                importers.get(fmt) if fmt != "auto" else None
-            except Exception as e:  # the format's importer is not merged yet
-                raise NotAvailable(f"the {fmt} importer: {e}") from None
             self.step(f"import {relpath}")
             target = self.work / "datasets" / name
             importers.import_log(
@@ -266,12 +246,13 @@ class Context:
 
     def drifted(self, name: str, base: str) -> str:
         """Log `base` with its odometry replaced by drifting wheel odometry simulated along its
-        ground truth (the simulator's odometry model), registered as `name`."""
+        ground truth (`toolkit.poses.with_drift`: the same default drift as the tests and the
+        bench), registered as `name`."""
 
         def make() -> str:
-            from reports.runs import with_drift
-
             ds, note = self._quick_cut(self.dataset(base))
+            if ds.groundtruth is None:
+                raise NotAvailable(f"{base} has no ground truth to add drift to")
             self._datasets[name] = with_drift(ds, self.seed)
             origin = self.sources[base]
             self.sources[name] = Source(
@@ -288,20 +269,23 @@ class Context:
         return self.cached(("run", name, method), lambda: self._run(name, method))
 
     def _run(self, name: str, method: str) -> Run:
-        from reports import runs
-
         ds = self.dataset(name)
         self.step(f"map {name} ({method})")
-        return runs.map_run(self, name, ds, method)
+        return map_log(self.out, name, ds, method)
 
-    def labels(self, name: str) -> LabelRun:
+    def labels(self, name: str) -> Labelled:
         """Labels of log `name` from its training regions, computed once."""
-        from reports import runs
 
-        def make() -> LabelRun:
+        def make() -> Labelled:
             ds = self.dataset(name)
             self.step(f"label {name}")
-            return runs.label_run(self, name, ds)
+            if name == CORRIDOR:
+                sim = self.corridor()
+                return label_log(self.out, name, ds, sim.regions, sim.truth())
+            source = self.sources[name]
+            if source.regions is None:
+                raise NotAvailable(f"{name} has no training regions (regions.csv)")
+            return label_log(self.out, name, ds, source.regions, source.truth)
 
         return self.cached(("labels", name), make)
 

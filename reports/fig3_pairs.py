@@ -8,14 +8,19 @@ estimate; the error is the estimate's distance from the true motion.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from reports.base import NotAvailable, Section, new_figure, require, save_figure
+from reports.base import NotAvailable, Section, new_figure, save_figure
 from reports.context import CORRIDOR, Context
 from reports.runs import safe_name
+from reports.table1_sections import sections_of
+from toolkit import se2
+from toolkit.align import scan as sc
+from toolkit.align.baselines import match_pairs_icp
 from toolkit.dataset import Dataset
+from toolkit.poses import odometry_poses, truth_poses
 
 VIEW = 6.0  # m: the panels show the returns within this range of the laser
 
@@ -42,12 +47,10 @@ def pick_pairs(ranges: np.ndarray, sections: np.ndarray) -> dict[str, int]:
 
 def align_pair(ds: Dataset, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
     """Relative laser pose (x, y, theta) of scan k in scan k-1's frame by each method."""
-    sc = require("toolkit.align.scan", "match_pairs")
-    icp = require("toolkit.align.baselines", "match_pairs_icp")
-    se2 = require("toolkit.se2", "between", "laser_motion", "wrap")
-    traj = require("toolkit.poses", "odometry_poses", "truth_poses")
-    odo = traj.odometry_poses(ds)[k - 1 : k + 1]
-    gt = traj.truth_poses(ds)[k - 1 : k + 1]
+    odo_all, gt_all = odometry_poses(ds), truth_poses(ds)
+    if odo_all is None or gt_all is None:
+        raise NotAvailable("a scan pair needs odometry (the seed) and ground truth (the error)")
+    odo, gt = odo_all[k - 1 : k + 1], gt_all[k - 1 : k + 1]
     seed = se2.laser_motion(se2.between(odo[:1], odo[1:]), ds.laser)
     truth = se2.laser_motion(se2.between(gt[:1], gt[1:]), ds.laser)[0]
     ranges = ds.ranges[k - 1 : k + 1]
@@ -56,8 +59,10 @@ def align_pair(ds: Dataset, k: int, methods: tuple[str, ...]) -> dict[str, Any]:
         if method == "gaussian":
             est[method] = sc.match_pairs(ranges, seed, ds.laser).pose[0]
         else:
-            kind = "point_to_line" if method == "icp" else "point_to_point"
-            est[method] = icp.match_pairs_icp(ranges, seed, ds.laser, kind).pose[0]
+            kind: Literal["point_to_line", "point_to_point"] = (
+                "point_to_line" if method == "icp" else "point_to_point"
+            )
+            est[method] = match_pairs_icp(ranges, seed, ds.laser, kind).pose[0]
     error_cm = {m: 100 * float(np.hypot(*(p[:2] - truth[:2]))) for m, p in est.items()}
     error_deg = {m: float(np.rad2deg(abs(se2.wrap(p[2] - truth[2])))) for m, p in est.items()}
     return {"k": k, "truth": truth, "estimate": est, "error_cm": error_cm, "error_deg": error_deg}
@@ -74,8 +79,6 @@ def _moved(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
 
 
 def generate(ctx: Context, section: Section) -> None:
-    from reports.table1_sections import sections_of
-
     for name in ctx.sectioned_logs():
         with ctx.part(section, f"scan pairs of {name}"):
             ds = ctx.dataset(name)
@@ -88,7 +91,6 @@ def generate(ctx: Context, section: Section) -> None:
 def _pairs(
     ctx: Context, section: Section, name: str, ds: Dataset, pairs: dict[str, int]
 ) -> dict[str, Any]:
-    sc = require("toolkit.align.scan", "scan_points")
     methods = ("odometry", *ctx.matchers, "truth")
     fig = new_figure(3.6 * len(methods), 3.6 * len(pairs))
     axes = fig.subplots(len(pairs), len(methods), squeeze=False)

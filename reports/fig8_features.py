@@ -16,8 +16,10 @@ import pandas as pd
 
 from reports.base import Figure, NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import Context
-from reports.runs import LabelRun, poses_at, safe_name, world_points
+from reports.runs import poses_at, safe_name, world_points
 from toolkit.dataset import Dataset, path_distance
+from toolkit.features import balanced_accuracy
+from toolkit.features.run import LabelRun
 
 KEY = "features"
 TITLE = "Fig. 8-10: learnt features"
@@ -47,11 +49,11 @@ def map_poses(ctx: Context, name: str) -> tuple[np.ndarray, str]:
 def generate(ctx: Context, section: Section) -> None:
     for name in ctx.labelled_logs():
         with ctx.part(section, f"features of {name}"):
-            run = ctx.labels(name)
+            labelled = ctx.labels(name)
             ds = ctx.dataset(name)
             poses, how = map_poses(ctx, name)
-            section.data[name] = _features(ctx, section, name, run, ds, poses, how)
-            section.links += [(f"{name} {Path(f).name}", f) for f in run.files]
+            section.data[name] = _features(ctx, section, name, labelled.run, ds, poses, how)
+            section.links += [(f"{name} {Path(f).name}", f) for f in labelled.files]
 
 
 def _features(
@@ -89,8 +91,6 @@ def _features(
     table = pd.DataFrame(rows)
     data["table"] = table
     if run.truth is not None:
-        from toolkit.features import balanced_accuracy
-
         data["balanced_accuracy"] = float(balanced_accuracy(run.truth, label))
         section.notes.append(
             f"{name}: balanced accuracy of the labels against the simulator's truth "

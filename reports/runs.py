@@ -1,118 +1,102 @@
-"""The runs a report needs, made with the toolkit's own functions: trajectories by each method
-(timed here) and the labels learnt from a log's training regions."""
+"""The runs a report needs, made by the toolkit's own run functions (`toolkit.mapping.map_run`,
+`toolkit.features.run.label_run`, the ones `toolkit map` and `toolkit label` call) into the
+report's runs/ folder, and the helpers the generators share to draw them.
+
+This module knows nothing of the report's context: the context (reports.context) calls it.
+"""
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from reports.base import NotAvailable, require
-from toolkit.dataset import Dataset, pose_frame, write_described
+from reports.base import NotAvailable
+from toolkit.dataset import Dataset
+from toolkit.errors import ToolkitError
+from toolkit.features.run import LabelRun, label_run
+from toolkit.mapping import map_run
+from toolkit.poses import build
+from toolkit.poses import poses_at as _poses_at
+from toolkit.raster import world_points as _world_points
 
 RUNS = "runs"  # the report's folder of run outputs (trajectories, metrics, labels)
-
-if TYPE_CHECKING:
-    from reports.context import Context, Run
+#: What a report's run folder holds: what evo needs side by side (trajectory.tum and
+#: groundtruth.tum: `evo_ape tum groundtruth.tum trajectory.tum -a` works inside it), the
+#: trajectory as Parquet, config.json and metrics.json; no cloud.ply nor map.png (the
+#: report draws its own maps).
+RUN_OUTPUTS = (
+    "config.json",
+    "trajectory.parquet",
+    "trajectory.tum",
+    "groundtruth.tum",
+    "metrics.json",
+)
 
 
 @dataclass
-class LabelRun:
-    """A feature model learnt from a log's training spans and the labels it gives every scan."""
+class Run:
+    """A trajectory of one log by one method, timed in this run, with its accuracy."""
 
     dataset: str
-    spans: list[Any]  # toolkit.features.Span
-    training: dict[str, np.ndarray]  # feature -> scan indices
-    model: Any  # toolkit.features.FeatureModel
-    labels: Any  # toolkit.features.Labels: .classes, .prob (S x K), .label
+    method: str
+    trajectory: pd.DataFrame
     seconds: float
-    truth: np.ndarray | None = None  # true label per scan, when known (simulated logs)
-    files: list[str] = field(default_factory=list)  # model.json, labels.parquet (report-relative)
-
-    def probability(self, feature: str) -> np.ndarray:
-        return np.asarray(self.labels.prob[:, self.labels.classes.index(feature)])
+    metrics: dict[str, Any] = field(default_factory=dict)
+    files: list[str] = field(default_factory=list)  # relative to the report
 
 
-def label_run(ctx: Context, name: str, ds: Dataset) -> LabelRun:
-    """Learn the features of log `name` from its training regions and label every scan."""
-    features = require("toolkit.features", "fit", "classify", "read_regions", "training_indices")
-    truth = None
-    if name == "corridor":
-        sim = ctx.corridor()
-        spans = features.spans_from_frame(sim.regions, ds.t)
-        truth = np.asarray(sim.labels).astype(str)
-    else:
-        source = ctx.sources[name]
-        if source.regions is None:
-            raise NotAvailable(f"{name} has no training regions (regions.csv)")
-        spans = features.read_regions(source.regions, ds.t)
-        truth = truth_labels(source.truth or source.path, ds.t)
-    training = features.training_indices(spans)
-    poses = require("toolkit.poses", "odometry_poses").odometry_poses(ds)  # at the scan times
-    t0 = time.perf_counter()
-    model = features.fit(ds.ranges, ds.laser, training, features.Config(), spans)
-    labels = features.classify(model, ds.ranges, poses)
-    seconds = time.perf_counter() - t0
-    # what `toolkit label` keeps: the model and the labels of every scan
-    folder = Path(RUNS) / safe_name(name) / "labels"
-    (ctx.out / folder).mkdir(parents=True, exist_ok=True)
-    model.save(ctx.out / folder / "model.json")
-    write_described(ctx.out / folder / "labels.parquet", labels.frame(ds.t), "labels")
-    files = [str(folder / "model.json"), str(folder / "labels.parquet")]
-    return LabelRun(name, spans, training, model, labels, seconds, truth, files)
+@dataclass
+class Labelled:
+    """A log labelled by `toolkit.features.run.label_run`, with its files in the report."""
+
+    dataset: str
+    run: LabelRun
+    files: list[str] = field(default_factory=list)  # relative to the report
 
 
-def truth_labels(path: Path | None, t: np.ndarray) -> np.ndarray | None:
-    """True labels of the scans at times `t` from a simulated log's truth.parquet (given, or
-    inside or beside its folder), matched by time: a capture that lost frames keeps the rest."""
-    if path is None:
-        return None
-    candidates = [path] if path.suffix == ".parquet" else [path / "truth.parquet"]
-    for candidate in [*candidates, path.parent / "truth.parquet"]:
-        if not candidate.is_file():
-            continue
-        frame = pd.read_parquet(candidate)
-        if "label" not in frame:
-            continue
-        labels = frame["label"].astype(str).to_numpy()
-        if "t" not in frame or len(frame) < 2:
-            return labels if len(labels) == len(t) else None
-        ft = frame["t"].to_numpy(np.float64)
-        k = np.clip(np.searchsorted(ft, t), 1, max(len(ft) - 1, 1))
-        nearest = np.where(np.abs(ft[k - 1] - t) <= np.abs(ft[k] - t), k - 1, k)
-        if len(ft) and np.all(np.abs(ft[nearest] - t) <= 1e-3):
-            return labels[nearest]
-    return None
-
-
-def map_run(ctx: Context, name: str, ds: Dataset, method: str) -> Run:
-    """The trajectory of `ds` by `method`, timed, with ATE/RPE against ground truth if any."""
-    from reports.context import Run
-
-    traj = require("toolkit.poses", "build", "truth_poses")
-    mapping = require("toolkit.mapping", "run_metrics", "write_tum")
+def map_log(out: Path, name: str, ds: Dataset, method: str) -> Run:
+    """Map log `name` by `method` into OUT/runs/NAME/METHOD/ (after a warm-up, so that the
+    time excludes compiling kernels), with ATE/RPE against ground truth if any."""
     if method == "odometry" and ds.odometry is None:
         raise NotAvailable(f"{name} has no odometry")
     warm_up(ds, method)
-    result = traj.build(ds, method)
-    scores: dict[str, Any] = mapping.run_metrics(ds, result)  # what `toolkit map` writes
-    # the run's trajectory (TUM, for evo) and metrics.json go into the report
     folder = Path(RUNS) / safe_name(name) / method
-    (ctx.out / folder).mkdir(parents=True, exist_ok=True)
-    mapping.write_tum(ctx.out / folder / "trajectory.tum", ds.t, result.poses)
-    (ctx.out / folder / "metrics.json").write_text(json.dumps(scores, indent=2) + "\n")
-    files = [str(folder / "trajectory.tum"), str(folder / "metrics.json")]
-    truth_file = folder.parent / "groundtruth.tum"
-    truth = None if (ctx.out / truth_file).exists() else traj.truth_poses(ds)
-    if truth is not None:
-        mapping.write_tum(ctx.out / truth_file, ds.t, truth)
-        files.append(str(truth_file))
-    return Run(name, method, result.frame, result.seconds, scores, files)
+    (out / folder).parent.mkdir(parents=True, exist_ok=True)
+    run = map_run(ds, out / folder, method, outputs=RUN_OUTPUTS, force=True)
+    files = [str(folder / f) for f in RUN_OUTPUTS if (out / folder / f).is_file()]
+    return Run(name, method, run.result.frame, run.result.seconds, run.metrics, files)
+
+
+def label_log(
+    out: Path,
+    name: str,
+    ds: Dataset,
+    regions: Path | pd.DataFrame,
+    truth: Path | pd.DataFrame | None = None,
+) -> Labelled:
+    """Learn the features of log `name` from its training `regions` and label every scan along
+    its odometry (what a robot has as it goes), into OUT/runs/NAME/labels/ (the model, the
+    labels and labels-metrics.json; the report draws the figures)."""
+    folder = Path(RUNS) / safe_name(name) / "labels"
+    (out / folder).mkdir(parents=True, exist_ok=True)
+    try:
+        run = label_run(
+            ds,
+            out / folder,
+            regions,
+            trajectory=ds.odometry,
+            force=True,
+            truth=truth,
+            figures=False,
+        )
+    except ToolkitError as e:  # its regions or truth do not fit the log: say so, go on
+        raise NotAvailable(f"labelling {name}: {e.line()}") from None
+    files = sorted(str(folder / p.name) for p in (out / folder).iterdir())
+    return Labelled(name, run, files)
 
 
 _warm: set[tuple[str, int]] = set()
@@ -126,8 +110,6 @@ def warm_up(ds: Dataset, method: str) -> None:
     start-up (measured: the first full section by Open3D ICP took 4-5x the next ones)."""
     if method == "odometry" or (method, ds.n_beams) in _warm or ds.n_scans < 3:
         return
-    from toolkit.poses import build
-
     build(slice_scans(ds, np.arange(min(WARM_UP_SCANS, ds.n_scans))), method)
     _warm.add((method, ds.n_beams))
 
@@ -155,34 +137,11 @@ def slice_scans(ds: Dataset, index: np.ndarray) -> Dataset:
     )
 
 
-def with_drift(ds: Dataset, seed: int = 0) -> Dataset:
-    """`ds` with odometry made by the simulator's wheel-odometry model (default parameters:
-    unequal wheels, scale error, noise, slips) along its ground truth at the scan times."""
-    sim = require("toolkit.sim", "OdometryModel")
-    traj = require("toolkit.poses", "truth_poses")
-    truth = traj.truth_poses(ds)
-    if truth is None:
-        raise NotAvailable("no ground truth to add drift to")
-    odo = sim.OdometryModel().integrate(truth, np.random.default_rng(seed))
-    frame = pose_frame(ds.t, odo)
-    meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
-    return Dataset(
-        t=ds.t,
-        ranges=ds.ranges,
-        laser=ds.laser,
-        odometry=frame,
-        groundtruth=ds.groundtruth,
-        meta=meta,
-        path=ds.path,
-    )
-
-
 def world_points(ds: Dataset, poses: np.ndarray, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Every return of every `every`-th scan at its world position and the laser's height
     (N x 3), and the index of its scan, through the map builder (toolkit.mapping)."""
-    mapping = require("toolkit.mapping", "world_points")
     idx = np.arange(0, ds.n_scans, max(every, 1))
-    xy, scan = mapping.world_points(ds.ranges[idx], np.asarray(poses)[idx], ds.laser)
+    xy, scan = _world_points(ds.ranges[idx], np.asarray(poses)[idx], ds.laser)
     z = np.full((len(xy), 1), float(ds.laser.z))
     return np.hstack([np.asarray(xy), z]), idx[np.asarray(scan)]
 
@@ -194,4 +153,4 @@ def safe_name(name: str) -> str:
 
 def poses_at(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
     """Poses (S x 3) of a pose table at times `t` (the trajectory module's interpolation)."""
-    return np.asarray(require("toolkit.poses", "poses_at").poses_at(frame, t))
+    return np.asarray(_poses_at(frame, t))

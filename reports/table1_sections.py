@@ -15,9 +15,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from reports.base import Figure, NotAvailable, Section, new_figure, require, save_figure, save_table
+from reports.base import Figure, NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import CORRIDOR, Context
 from reports.runs import safe_name, slice_scans, warm_up
+from toolkit.metrics import RPE
+from toolkit.poses import build, truth_poses
 
 SECTIONS = 8  # the paper's
 
@@ -42,8 +44,6 @@ def sections_of(ctx: Context, name: str) -> np.ndarray:
 
 def section_rows(ctx: Context, name: str = CORRIDOR) -> pd.DataFrame:
     """Long table: section, method, pairs, error mean/std (m), rotation error, seconds."""
-    traj = require("toolkit.poses", "build", "truth_poses")
-    metrics = require("toolkit.metrics", "RPE")
     ds = ctx.dataset(name)
     if ds.groundtruth is None:
         raise NotAvailable(f"{name} has no ground truth")
@@ -54,13 +54,14 @@ def section_rows(ctx: Context, name: str = CORRIDOR) -> pd.DataFrame:
     for k in sorted(set(sections[sections >= 0].tolist())):
         index = np.flatnonzero(sections == k)
         part = slice_scans(ds, index)
-        truth = traj.truth_poses(part)
+        truth = truth_poses(part)
+        assert truth is not None  # the log has ground truth (checked above)
         for method in ("odometry", *ctx.matchers):
             ctx.step(f"{name} section {k + 1}, {method}")
             t0 = time.perf_counter()
-            result = traj.build(part, method)
+            result = build(part, method)
             wall = time.perf_counter() - t0
-            err_t, err_r = metrics.RPE.step_errors(result.poses, truth)
+            err_t, err_r = RPE.step_errors(result.poses, truth)
             rows.append(
                 {
                     "section": k + 1,

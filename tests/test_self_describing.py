@@ -97,13 +97,13 @@ def test_scans_writer_stores_a_geometry_known_only_at_the_end(tmp_path: Path) ->
 def sim_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """A short simulated corridor (`toolkit simulate --format dataset`) and its odometry map run."""
     from toolkit.app.simulation import write_simulation
-    from toolkit.mapping import map_dataset
+    from toolkit.mapping import map_run
     from toolkit.sim import simulate
 
     root = tmp_path_factory.mktemp("sim")
     data = root / "corridor"
     write_simulation(simulate("corridor", seed=3, scans=400), data, "dataset")
-    run = map_dataset(data, root / "run", method="odometry")
+    run = map_run(data, root / "run", method="odometry").path
     return data, run
 
 

@@ -675,6 +675,35 @@ def save(ds: Dataset, out: str | Path, force: bool = False) -> Path:
     return out
 
 
+def is_unfinished(path: Path) -> bool:
+    """A folder an atomic write is still filling (or left by a killed one): `.NAME.XXXX.tmp`
+    (toolkit.atomic); it is never a dataset, whatever it holds."""
+    return path.name.startswith(".") and path.name.endswith(".tmp")
+
+
+def is_dataset_dir(path: str | Path) -> bool:
+    """Whether `path` is a dataset directory: a folder holding meta.json or scans.parquet (a
+    damaged one too: loading it then says what is missing), not an unfinished write. The one
+    rule that the fleet's search, `toolkit map`, the report and `load` go by."""
+    path = Path(path)
+    return (
+        path.is_dir()
+        and not is_unfinished(path)
+        and ((path / META).exists() or (path / SCANS).exists())
+    )
+
+
+def check_dataset_dir(path: Path) -> Path:
+    """`path` if it is a dataset directory with both meta.json and scans.parquet; else a
+    ToolkitError that says what is missing (before any work is done)."""
+    if not path.is_dir() or is_unfinished(path):
+        raise ToolkitError("not a dataset directory", file=path)
+    missing = [f for f in (META, SCANS) if not (path / f).is_file()]
+    if missing:
+        raise ToolkitError(f"not a dataset: {', '.join(missing)} missing", file=path)
+    return path
+
+
 @contextmanager
 def reading(file: Path) -> Iterator[None]:
     """A damaged dataset file (truncated Parquet, wrong columns, a meta.json that is no
@@ -690,11 +719,8 @@ def reading(file: Path) -> Iterator[None]:
 
 def read_meta(path: Path) -> dict[str, Any]:
     """The meta.json of the dataset directory `path`; ToolkitError unless it is one."""
-    if not path.is_dir():
-        raise ToolkitError("not a dataset directory", file=path)
+    check_dataset_dir(path)
     meta_path = path / META
-    if not meta_path.exists() or not (path / SCANS).exists():
-        raise ToolkitError(f"not a dataset: needs {META} and {SCANS}", file=path)
     try:
         meta: dict[str, Any] = json.loads(meta_path.read_text())
     except json.JSONDecodeError as e:

@@ -24,8 +24,9 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ from toolkit import trajio
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import META, Dataset, load, sha256, write_described
+from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.progress import task
@@ -187,8 +189,31 @@ def _meta_digest(ds: Dataset) -> str | None:
     return sha256(meta) if meta is not None and meta.is_file() else None
 
 
-def write_run(
-    ds: Dataset,
+#: Every file of a run directory; `map_run(outputs=...)` writes a subset (the report, which
+#: draws its own maps, leaves out the clouds and the maps). graph.g2o and loops.csv come with
+#: loop closure, groundtruth.tum with ground truth.
+OUTPUTS = (
+    "config.json",
+    "trajectory.parquet",
+    "trajectory.tum",
+    "groundtruth.tum",
+    "cloud.ply",
+    "map.png",
+    "metrics.json",
+)
+
+
+@dataclass
+class MapRun:
+    """A run directory and what was computed for it (the trajectory, timed, and metrics.json)."""
+
+    path: Path
+    result: TrajectoryResult
+    metrics: dict[str, Any]
+
+
+def map_run(
+    dataset: Dataset | str | Path,
     out: str | Path,
     method: Method | str = Method.GAUSSIAN,
     voxel: float = 0.0,
@@ -196,21 +221,28 @@ def write_run(
     force: bool = False,
     matcher: Callable[..., sc.PairMatches] | None = None,
     loops: bool = True,
-    seconds: dict[str, float] | None = None,
-) -> Path:
-    """Align `ds` by `method` and write the run directory `out`, atomically (`matcher`: see
-    `trajectory.build`); with `loops`, the mapper's loop closure and pose graph
-    (`toolkit.slam.run`). metrics.json's `seconds` holds the time of every stage: `seconds`
-    given (the caller's, e.g. reading the dataset), then the trajectory's (prepare, compile,
-    match, compose, and the loops') and each output's by file name."""
+    outputs: Collection[str] = OUTPUTS,
+) -> MapRun:
+    """`toolkit map`: align `dataset` (loaded if a path) by `method` and write the run
+    directory `out` atomically: `outputs` of OUTPUTS ("cloud.ply" brings cloud.pcd, "map.png"
+    the occupancy grid map.pgm + map.yaml). With `loops`, the mapper's loop closure and pose
+    graph (`toolkit.slam.run`: graph.g2o, loops.csv). `matcher`: see `toolkit.poses.build`.
+    metrics.json's `seconds` holds the time of every stage: read, the trajectory's (prepare,
+    compile, match, compose, and the loops'), and each output's by file name. The CLI, the
+    fleet, the bench and the report all map through here."""
     out = Path(out)
     check_output(out, force)
+    unknown = set(outputs) - set(OUTPUTS)
+    if unknown:
+        raise ToolkitError(f"unknown run outputs {sorted(unknown)}; known: {', '.join(OUTPUTS)}")
+    t0 = time.perf_counter()
+    ds = dataset if isinstance(dataset, Dataset) else load(dataset)
+    timed = {"read": time.perf_counter() - t0} if not isinstance(dataset, Dataset) else {}
     config = config or sc.MatchConfig()
     method = Method.parse(method)
-    timed = dict(seconds or {})
     with task(f"map ({method})", 4) as (progress, bar):
         slam = None
-        if loops and method != "odometry":
+        if loops and method != Method.ODOMETRY:
             result, slam = slam_trajectory(ds, method, config, matcher)
         else:
             result = build(ds, method, config, matcher)
@@ -235,24 +267,29 @@ def write_run(
                 "laser": ds.laser.to_dict(),
                 "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             }
-            (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
-            timing(
-                "trajectory.parquet",
-                lambda p: write_described(p, result.frame, "trajectory", method=method),
-            )
-            timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))
-            if truth is not None:
+            if "config.json" in outputs:
+                (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
+            if "trajectory.parquet" in outputs:
+                timing(
+                    "trajectory.parquet",
+                    lambda p: write_described(p, result.frame, "trajectory", method=method),
+                )
+            if "trajectory.tum" in outputs:
+                timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))
+            if truth is not None and "groundtruth.tum" in outputs:
                 timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
-            clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
-            timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
+            if "cloud.ply" in outputs:
+                clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
+                timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
             progress.advance(bar)
             name = ds.path.name if ds.path else "dataset"
-            if slam is None:
+            if slam is not None:  # the graph and the loops always; the maps if asked
+                maps = "map.png" in outputs
+                title = f"{name}: {method} with loops"
+                timing("map.png+pgm+yaml", lambda _: slam.write(tmp, ds, robot, title, maps))
+            elif "map.png" in outputs:
                 timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))
                 timing("map.pgm+yaml", lambda _: write_occupancy(tmp, ds, robot))
-            else:
-                title = f"{name}: {method} with loops"
-                timing("map.png+pgm+yaml", lambda _: slam.write(tmp, ds, robot, title))
             progress.advance(bar)
             t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
@@ -261,29 +298,11 @@ def write_run(
             timed["metrics"] = time.perf_counter() - t0
             timed |= metrics.get("seconds", {})  # the loop closure's stages
             metrics["seconds"] = {k: round(v, 4) for k, v in timed.items()}
-            text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
-            (tmp / "metrics.json").write_text(text)
+            if "metrics.json" in outputs:
+                text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
+                (tmp / "metrics.json").write_text(text)
             progress.advance(bar)
-    return out
-
-
-def map_dataset(
-    dataset: str | Path,
-    out: str | Path,
-    method: Method | str = Method.GAUSSIAN,
-    voxel: float = 0.0,
-    force: bool = False,
-    matcher: Callable[..., sc.PairMatches] | None = None,
-    loops: bool = True,
-) -> Path:
-    """`toolkit map`: load a dataset directory and write its run directory."""
-    check_output(Path(out), force)
-    t0 = time.perf_counter()
-    ds = load(dataset)
-    read = {"read": time.perf_counter() - t0}
-    return write_run(
-        ds, out, method, voxel, force=force, matcher=matcher, loops=loops, seconds=read
-    )
+    return MapRun(out, result, metrics)
 
 
 def read_trajectory(path: str | Path) -> pd.DataFrame:

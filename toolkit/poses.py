@@ -186,7 +186,8 @@ def trajectory(
     return build(ds, method, config).frame
 
 
-#: Wheel-odometry errors added to real logs whose poses are corrected (no raw odometry):
+#: The one default drift (`with_drift`), used by the tests, the bench and the report alike:
+#: wheel-odometry errors added to real logs whose poses are corrected (no raw odometry):
 #: 2% scale error, 0.5% wheel-diameter difference (a heading drift of ~0.9°/m on a Pioneer),
 #: 0.005 m/sqrt(m) encoder noise per wheel and a slip in one step of 200 (toolkit.sim.odometry).
 REAL_LOG_DRIFT: dict[str, float] = {
@@ -206,4 +207,7 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
         raise ToolkitError("adding drift needs ground truth; the dataset has none", file=ds.path)
     model = OdometryModel(**{**REAL_LOG_DRIFT, **params})
     odo = model.integrate(truth, np.random.default_rng(seed))
-    return replace(ds, odometry=pose_frame(ds.t, odo), groundtruth=pose_frame(ds.t, truth))
+    meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
+    return replace(
+        ds, odometry=pose_frame(ds.t, odo), groundtruth=pose_frame(ds.t, truth), meta=meta
+    )

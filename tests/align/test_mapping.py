@@ -90,7 +90,7 @@ def test_map_writes_every_output(dataset: Path, tmp_path: Path) -> None:
 
 def test_voxel_and_odometry_method(dataset: Path, tmp_path: Path) -> None:
     ds = toolkit.load(dataset)
-    out = mapping.write_run(ds, tmp_path / "odo", method="odometry", voxel=0.2)
+    out = mapping.map_run(ds, tmp_path / "odo", method="odometry", voxel=0.2).path
     import open3d as o3d
 
     pts = np.asarray(o3d.io.read_point_cloud(str(out / "cloud.ply")).points)
@@ -127,14 +127,14 @@ def test_an_interrupted_map_writes_nothing(
 
     monkeypatch.setattr(mapping, "write_clouds", broken)
     with pytest.raises(KeyboardInterrupt):
-        mapping.map_dataset(dataset, tmp_path / "run")
+        mapping.map_run(dataset, tmp_path / "run")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_a_log_without_ground_truth_or_odometry_still_maps(dataset: Path, tmp_path: Path) -> None:
     full = toolkit.load(dataset)
     bare = toolkit.Dataset(t=full.t, ranges=full.ranges, laser=full.laser)
-    out = mapping.write_run(bare, tmp_path / "bare")
+    out = mapping.map_run(bare, tmp_path / "bare").path
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["groundtruth"] is False and "ate" not in metrics
     assert metrics["pairs"] == full.n_scans - 1

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from reports.base import NotAvailable, cell, require, save_figure, save_table, to_latex, to_markdown
+from reports.base import cell, save_figure, save_table, to_latex, to_markdown
 
 
 def frame() -> pd.DataFrame:
@@ -57,23 +57,29 @@ def test_save_table_and_figure_write_every_format(tmp_path: Path) -> None:
     assert "<svg" in (tmp_path / "figures/f1.svg").read_text()
 
 
-def test_require_tells_missing_module_from_missing_name() -> None:
-    with pytest.raises(NotAvailable, match="not in the toolkit"):
-        require("toolkit.no_such_piece")
-    with pytest.raises(NotAvailable, match="lacks no_such_name"):
-        require("toolkit.dataset", "no_such_name")
-    assert require("toolkit.dataset", "load").load is not None
+def test_markdown_table_escapes_html_pipes_and_newlines(tmp_path: Path) -> None:
+    """A feature name is user text (the regions CSV): it must not become markup or columns."""
+    hostile = pd.DataFrame(
+        {"feature": ["<script>alert('x')</script>", "a|b & c\nd"], "scans": [1, 2]}
+    )
+    save_table(hostile, tmp_path, "f", "T <b>", "caption")
+    text = (tmp_path / "tables/f.md").read_text()
+    assert "<script>" not in text and "<b>" not in text
+    assert "&lt;script&gt;alert('x')&lt;/script&gt;" in text
+    lines = text.splitlines()
+    assert lines[0] == "**T &lt;b&gt;**"
+    assert lines[-1] == "| a\\|b &amp; c d | 2 |"
+    assert all(line.count(" | ") == 1 for line in lines[2:])  # two columns, no more
 
 
-def test_truth_labels_are_matched_by_time(tmp_path: Path) -> None:
-    """A capture that lost frames keeps the true labels of the frames it has."""
-    from reports.runs import truth_labels
-
-    t = 100.0 + 0.2 * np.arange(10)
-    labels = np.array(list("aaabbbccca"))
-    pd.DataFrame({"t": t, "label": labels}).to_parquet(tmp_path / "truth.parquet")
-    kept = np.array([0, 1, 4, 5, 9])
-    assert list(truth_labels(tmp_path, t[kept] + 1e-5)) == list(labels[kept])
-    assert truth_labels(tmp_path, np.array([100.1])) is None  # no frame at that time
-    assert list(truth_labels(tmp_path / "dataset", t)) == list(labels)  # beside the dataset
-    assert truth_labels(None, t) is None
+def test_csv_cells_that_look_like_formulas_are_quoted(tmp_path: Path) -> None:
+    """OWASP CSV injection: a text cell starting with = + - @ is prefixed with ' so that a
+    spreadsheet shows it as text; numbers, negative ones too, stay numbers."""
+    cells = ['=HYPERLINK("http://x","y")', "+1", "-2+3", "@SUM(A1)", "corridor"]
+    frame = pd.DataFrame({"feature": cells, "error": [-1.5, 0.0, 1.0, 2.0, 3.0]})
+    save_table(frame, tmp_path, "c", "T", "caption")
+    back = pd.read_csv(tmp_path / "tables/c.csv")
+    assert list(back["feature"]) == ["'" + c for c in cells[:4]] + ["corridor"]
+    assert list(back["error"]) == [-1.5, 0.0, 1.0, 2.0, 3.0]
+    assert not any(str(v).startswith(("=", "+", "-", "@")) for v in back["feature"])
+    assert list(frame["feature"]) == cells  # the table's data is not changed

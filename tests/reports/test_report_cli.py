@@ -55,7 +55,7 @@ def test_a_failing_section_is_shown_and_exits_1(
         raise ValueError("boom")
 
     monkeypatch.setattr(machine, "generate", broken)
-    monkeypatch.setattr(reports, "GENERATORS", ("machine",))
+    monkeypatch.setattr(reports, "GENERATORS", (machine,))
     out = tmp_path / "report"
     code, _, err_text = cli("report", "--out", str(out), "--no-real")
     err = err_text.strip().splitlines()
@@ -75,7 +75,32 @@ def test_an_interrupted_report_leaves_nothing(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(machine, "generate", interrupted)
-    monkeypatch.setattr(reports, "GENERATORS", ("machine",))
+    monkeypatch.setattr(reports, "GENERATORS", (machine,))
     code, _, _ = cli("report", "--out", str(tmp_path / "report"), "--no-real")
     assert code == 130
     assert list(tmp_path.iterdir()) == []
+
+
+def test_each_section_is_reported_as_it_finishes(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, cli: Cli
+) -> None:
+    """Not on a terminal (a pipe, CI, `make demo | tee`): one line per section the moment it
+    is done, not all of them after the whole report."""
+    import types
+
+    import reports
+    from reports import machine
+
+    def slow(ctx: object, section: object) -> None:
+        print("second section starts")
+
+    second = types.SimpleNamespace(KEY="second", TITLE="Second", INTRO="", generate=slow)
+    monkeypatch.setattr(reports, "GENERATORS", (machine, second))
+    code, out, _ = cli("report", "--out", str(tmp_path / "report"), "--no-real")
+    assert code == 0
+    lines = out.splitlines()
+    first = next(i for i, line in enumerate(lines) if machine.TITLE in line)
+    assert lines[first].startswith("ok ")
+    assert first < lines.index("second section starts")  # printed before the next one began
+    assert sum(machine.TITLE in line for line in lines) == 1  # and not again at the end
+    assert lines[-1].startswith(f"report in {tmp_path / 'report'}/index.html")

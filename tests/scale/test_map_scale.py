@@ -41,11 +41,11 @@ def log() -> Dataset:
 @pytest.fixture(scope="module")
 def single(log: Dataset, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, pd.DataFrame]:
     """The dataset directory and its single-process trajectory.parquet."""
-    from toolkit.mapping import map_dataset
+    from toolkit.mapping import map_run
 
     root = tmp_path_factory.mktemp("scale")
     data = save(replace(log), root / "ds")
-    run = map_dataset(data, root / "one")
+    run = map_run(data, root / "one").path
     return data, pd.read_parquet(run / "trajectory.parquet")
 
 

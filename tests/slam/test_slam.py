@@ -83,7 +83,7 @@ def test_real_intel_loops_close_with_no_false_one(real: Path) -> None:
 
 
 def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_path: Path) -> None:
-    from toolkit.mapping import write_run
+    from toolkit.mapping import map_run
 
     assert building.groundtruth is not None and building.odometry is not None
     ds = replace(building, ranges=building.ranges[:1500], t=building.t[:1500])
@@ -92,7 +92,7 @@ def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_pat
     )
     truth = truth_poses(ds)
     assert truth is not None
-    run = write_run(ds, tmp_path / "run")
+    run = map_run(ds, tmp_path / "run").path
     graph, values = gtsam.readG2o(str(run / "graph.g2o"), False)
     assert values.size() >= 100 and graph.size() >= values.size() - 1
     meta = dict(line.split(": ", 1) for line in (run / "map.yaml").read_text().splitlines())

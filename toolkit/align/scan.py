@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Literal
+from typing import Any, Literal, ParamSpec, TypeVar
 
 import numba as nb
 import numpy as np
@@ -39,6 +39,9 @@ import numpy as np
 from toolkit import se2
 from toolkit.align import se2_jit
 from toolkit.dataset import LaserGeometry
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 Variant = Literal["text", "paper"]
 

@@ -37,7 +37,7 @@ from urllib.parse import quote
 import numpy as np
 
 from toolkit.align import scan as sc
-from toolkit.dataset import ROW_GROUP_SCANS, LaserGeometry
+from toolkit.dataset import ROW_GROUP_SCANS, LaserGeometry, is_dataset_dir
 from toolkit.errors import ToolkitError
 
 if TYPE_CHECKING:
@@ -368,14 +368,6 @@ def find_logs(fmt: str, sources: list[Path]) -> list[tuple[Path, Path]]:
     return _find(sources, claimed, lambda p: p.is_file() or claimed(p), dataset_name)
 
 
-def is_dataset_dir(path: Path) -> bool:
-    """A directory with a dataset's meta.json or scans.parquet (a damaged one too: mapping
-    it reports what is wrong)."""
-    from toolkit.dataset import META, SCANS
-
-    return path.is_dir() and ((path / META).exists() or (path / SCANS).exists())
-
-
 def find_datasets(sources: list[Path]) -> list[tuple[Path, Path]]:
     """(dataset directory, name) for every source: dataset directories as they are (named by
     their directory), glob patterns expanded, directory trees (a fleet) walked for datasets,
@@ -542,14 +534,14 @@ def _map_one(
     """One dataset into one run directory (on a worker: `threads` numba threads)."""
 
     def work() -> str:
-        from toolkit.mapping import map_dataset
+        from toolkit.mapping import map_run
 
         if not force and run_is_current(run, dataset, method, voxel):
             return "skipped"
         if threads:
             _cap_threads(threads)
         replace = _may_replace(run, force, is_toolkit_run)
-        map_dataset(dataset, run, method, voxel, force=replace, matcher=matcher)
+        map_run(dataset, run, method, voxel, force=replace, matcher=matcher)
         return "written"
 
     return _attempt(dataset, run, work)

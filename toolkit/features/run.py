@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -31,16 +32,27 @@ from toolkit.features.metrics import (
     per_class_recall,
 )
 from toolkit.features.model import Config, FeatureModel
-from toolkit.features.regions import read_regions, training_components, training_indices
+from toolkit.features.regions import (
+    Span,
+    read_regions,
+    spans_from_frame,
+    training_components,
+    training_indices,
+)
 from toolkit.trajio import read_trajectory
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
 
 
-def scan_poses(ds: Dataset, trajectory: Path | None = None) -> tuple[np.ndarray | None, str]:
-    """Poses (S x 3) at the scan times: the given trajectory, else ground truth, else odometry."""
+def scan_poses(
+    ds: Dataset, trajectory: Path | pd.DataFrame | None = None
+) -> tuple[np.ndarray | None, str]:
+    """Poses (S x 3) at the scan times: the given trajectory (a file t, x, y, theta or such a
+    table), else ground truth, else odometry."""
     frame: pd.DataFrame | None
-    if trajectory is not None:
+    if isinstance(trajectory, pd.DataFrame):
+        frame, source = trajectory, "the trajectory given"
+    elif trajectory is not None:
         frame = read_trajectory(trajectory)  # Parquet, TUM or CSV
         source = f"trajectory {trajectory}"
         _check_covers(frame, ds.t, trajectory)
@@ -81,51 +93,111 @@ def _check_covers(frame: pd.DataFrame, scan_t: np.ndarray, path: Path) -> None:
         )
 
 
-def _truth_labels(ds: Dataset, truth: Path | None = None) -> np.ndarray | None:
-    """True labels per scan: `truth` (t, label), else the simulator's truth.parquet when it
-    sits beside the scans."""
-    if truth is None:
-        if ds.path is None or not (ds.path / "truth.parquet").exists():
-            return None
-        truth = ds.path / "truth.parquet"
-    try:
-        frame = pd.read_parquet(truth)
-    except (OSError, ValueError) as e:
-        raise ToolkitError(f"cannot read truth: {e}", file=truth) from None
+TRUTH_TOLERANCE = 1e-3  # s: a scan takes the true label of the truth row this close in time
+
+
+def truth_labels(ds: Dataset, truth: Path | pd.DataFrame | None = None) -> np.ndarray | None:
+    """True label per scan, matched by time (within TRUTH_TOLERANCE): from `truth` (t, label;
+    a file or a table), where every scan must find its row; else from the simulator's
+    truth.parquet inside the dataset folder or beside it, when one is there and covers the
+    scans (a capture that lost frames keeps the labels of those it has). None otherwise."""
+    if truth is not None:
+        labels = _match_truth(truth, ds.t)
+        if labels is None:
+            where = truth if isinstance(truth, Path) else None
+            raise ToolkitError(
+                f"truth has no row within {TRUTH_TOLERANCE * 1e3:g} ms of every one of the "
+                f"dataset's {ds.n_scans} scans",
+                file=where,
+            )
+        return labels
+    if ds.path is None:
+        return None
+    for candidate in (ds.path / "truth.parquet", ds.path.parent / "truth.parquet"):
+        if candidate.is_file():
+            try:
+                labels = _match_truth(candidate, ds.t)
+            except ToolkitError:
+                continue  # not a truth table for these scans
+            if labels is not None:
+                return labels
+    return None
+
+
+def _match_truth(truth: Path | pd.DataFrame, t: np.ndarray) -> np.ndarray | None:
+    """The label of the truth row nearest in time to each scan, or None if a scan has none."""
+    if isinstance(truth, pd.DataFrame):
+        frame = truth
+    else:
+        try:
+            frame = pd.read_parquet(truth)
+        except (OSError, ValueError) as e:
+            raise ToolkitError(f"cannot read truth: {e}", file=truth) from None
     if "label" not in frame or "t" not in frame:
-        raise ToolkitError("truth needs columns t and label", file=truth)
-    t = frame["t"].to_numpy(np.float64)
-    if len(t) != ds.n_scans or not np.allclose(t, ds.t, rtol=0, atol=1e-3):
         raise ToolkitError(
-            f"truth has {len(t)} rows whose times do not match the dataset's {ds.n_scans} scans",
-            file=truth,
+            "truth needs columns t and label", file=truth if isinstance(truth, Path) else None
         )
-    return frame["label"].astype(str).to_numpy()
+    ft = frame["t"].to_numpy(np.float64)
+    if len(ft) == 0:
+        return None
+    order = np.argsort(ft, kind="stable")
+    ft, labels = ft[order], frame["label"].astype(str).to_numpy()[order]
+    after = np.clip(np.searchsorted(ft, t), 0, len(ft) - 1)
+    before = np.maximum(after - 1, 0)
+    nearest = np.where(np.abs(ft[before] - t) <= np.abs(ft[after] - t), before, after)
+    if not np.all(np.abs(ft[nearest] - t) <= TRUTH_TOLERANCE):
+        return None
+    return np.asarray(labels[nearest])
+
+
+@dataclass
+class LabelRun:
+    """What `label_run` computed: the model, the labels of every scan, the training scans per
+    feature, the true labels when known, labels-metrics.json's content and the time taken."""
+
+    model: FeatureModel
+    labels: Labels
+    spans: list[Span]
+    training: dict[str, np.ndarray]  # feature -> scan indices
+    truth: np.ndarray | None
+    metrics: dict[str, Any]
+    seconds: float
+
+    def probability(self, feature: str) -> np.ndarray:
+        """The probability of `feature` at every scan."""
+        return np.asarray(self.labels.prob[:, self.labels.classes.index(feature)])
 
 
 def label_run(
-    dataset: Path,
+    dataset: Dataset | Path,
     out: Path,
-    regions: Path | None = None,
+    regions: Path | pd.DataFrame | None = None,
     model_path: Path | None = None,
-    trajectory: Path | None = None,
+    trajectory: Path | pd.DataFrame | None = None,
     config: Config | None = None,
     force: bool = False,
-    truth: Path | None = None,
-) -> dict[str, Any]:
-    """Learn from `regions` (or apply `model_path`), classify, write RUN; returns the metrics."""
+    truth: Path | pd.DataFrame | None = None,
+    figures: bool = True,
+) -> LabelRun:
+    """`toolkit label`: learn from `regions` (a CSV feature,start,end or such a table) or apply
+    `model_path`, classify every scan along `trajectory` (see `scan_poses`), score against
+    `truth` (see `truth_labels`) and write RUN (without membership.png and labels-cloud.ply
+    unless `figures`). The CLI and the report both label through here."""
     if regions is None and model_path is None:
         raise ToolkitError("give --regions REGIONS.csv to learn, or --model model.json to apply")
     existing = [name for name in OUTPUTS if (out / name).exists()]
     if existing and not force:
         raise ToolkitError(f"already holds {existing[0]}; pass --force to replace", file=out)
-    ds = load(dataset)
+    ds = dataset if isinstance(dataset, Dataset) else load(dataset)
     started = time.perf_counter()
-    spans = read_regions(regions, ds.t) if regions is not None else []
+    if isinstance(regions, pd.DataFrame):
+        spans = spans_from_frame(regions, ds.t)
+    else:
+        spans = read_regions(regions, ds.t) if regions is not None else []
     training = training_indices(spans) if spans else {}
     if model_path is not None:
         model = FeatureModel.load(model_path)
-        model.check_laser(ds.laser, dataset)
+        model.check_laser(ds.laser, ds.path or "the dataset")
         if config is not None:
             from dataclasses import replace
 
@@ -135,10 +207,10 @@ def label_run(
     poses, pose_source = scan_poses(ds, trajectory)
     labels = classify(model, ds.ranges, poses)
     seconds = time.perf_counter() - started
-    metrics = _metrics(ds, model, labels, training, pose_source, seconds, model_path)
-    truth_labels = _truth_labels(ds, truth)
-    if truth_labels is not None:
-        metrics["truth"] = _scores(truth_labels, labels, training)
+    metrics = _metrics(ds, model, labels, pose_source, seconds, model_path)
+    true_labels = truth_labels(ds, truth)
+    if true_labels is not None:
+        metrics["truth"] = _scores(true_labels, labels, training)
 
     # RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
     # interrupted label leaves RUN as it was.
@@ -147,7 +219,7 @@ def label_run(
             (tmp / name).unlink(missing_ok=True)  # never write through a link to the old RUN
         _write_labels(tmp / "labels.parquet", ds.t, labels)
         model.save(tmp / "model.json")
-        if poses is not None:
+        if poses is not None and figures:
             from toolkit.features.figures import membership_figure, write_cloud
 
             with atomic_file(tmp / "membership.png") as png:
@@ -160,7 +232,7 @@ def label_run(
                 metrics["cloud_points"] = write_cloud(ply, ds.ranges, poses, ds.laser, labels)
         with atomic_file(tmp / "labels-metrics.json") as js:
             js.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
-    return metrics
+    return LabelRun(model, labels, spans, training, true_labels, metrics, seconds)
 
 
 def _write_labels(path: Path, t: np.ndarray, labels: Labels) -> None:
@@ -172,7 +244,6 @@ def _metrics(
     ds: Dataset,
     model: FeatureModel,
     labels: Labels,
-    training: dict[str, np.ndarray],
     pose_source: str,
     seconds: float,
     model_path: Path | None,
@@ -189,18 +260,6 @@ def _metrics(
         "mean_confidence": float(labels.confidence.mean()) if len(labels.label) else None,
         "seconds": round(seconds, 3),
     }
-    truth = _truth_labels(ds)
-    if truth is not None:
-        test = np.ones(len(truth), dtype=bool)
-        for idx in training.values():
-            test[idx] = False
-        correct = truth[test] == labels.label[test]
-        metrics["truth"] = {
-            "scored_scans": int(test.sum()),
-            "balanced_accuracy": balanced_accuracy(truth[test], labels.label[test]),
-            "ece": expected_calibration_error(labels.confidence[test], correct),
-            "recall": per_class_recall(truth[test], labels.label[test]),
-        }
     return metrics
 
 

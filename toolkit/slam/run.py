@@ -47,7 +47,11 @@ class SlamRun:
     timings: dict[str, float]
     config: SlamConfig
 
-    def write(self, out: Path, ds: Dataset, poses: np.ndarray, title: str) -> None:
+    def write(
+        self, out: Path, ds: Dataset, poses: np.ndarray, title: str, maps: bool = True
+    ) -> None:
+        """graph.g2o and loops.csv; with `maps`, map.png (odometry / before / after loops
+        side by side) and the occupancy grid map.pgm + map.yaml."""
         graph, values = pg.factor_graph(self.keys, poses[self.keys], self.edges, robust=0.0)
         pg.write_g2o(out / "graph.g2o", graph, values)
         truth = truth_poses(ds)
@@ -58,6 +62,8 @@ class SlamRun:
         pd.DataFrame(table, columns=None if table else columns).to_csv(
             out / "loops.csv", index=False
         )
+        if not maps:
+            return
         panels = []
         odo = odometry_poses(ds)
         if odo is not None:

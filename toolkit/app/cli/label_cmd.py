@@ -153,7 +153,7 @@ def label_command(
         config = None  # a saved model keeps its own settings
     if model is not None and beam_term is not None:
         raise ToolkitError("--beam-term is a learning setting; a --model keeps its own")
-    metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth)
+    metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth).metrics
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")
     if "truth" in metrics:

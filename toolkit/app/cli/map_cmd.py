@@ -4,7 +4,6 @@ or `toolkit map DATASET... --out DIR` (several datasets, a fleet's tree, a quote
 from __future__ import annotations
 
 import glob
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -81,7 +80,7 @@ def map_command(
     loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
     """
     # on use: the matcher (numba) and pandas load for `map` alone
-    from toolkit.mapping import map_dataset
+    from toolkit.mapping import map_run
     from toolkit.poses import Method
 
     method = Method.parse(method)
@@ -94,7 +93,7 @@ def map_command(
     if scheduler != "none" and method != Method.GAUSSIAN:
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     if scheduler == "none":
-        run = map_dataset(dataset, out, method, voxel, force, loops=loops)
+        run = map_run(dataset, out, method, voxel, force=force, loops=loops)
     else:
         from toolkit.app.fleet import client_for, matcher_for, on_shared_storage  # Dask, on use
         from toolkit.dataset import SCANS  # with the line above
@@ -102,11 +101,11 @@ def map_command(
         with client_for(scheduler) as client:
             scans = dataset / SCANS if on_shared_storage(scheduler) else None
             matcher = matcher_for(client, scans=scans) if client is not None else None
-            run = map_dataset(dataset, out, method, voxel, force, matcher=matcher, loops=loops)
+            run = map_run(dataset, out, method, voxel, force=force, matcher=matcher, loops=loops)
     if quiet:
         return
-    metrics = json.loads((run / "metrics.json").read_text())
-    line = f"{run}: {metrics['scans']} scans by {method}"
+    metrics = run.metrics
+    line = f"{run.path}: {metrics['scans']} scans by {method}"
     if "loops" in metrics:
         line += f", {metrics['loops']} loops"
     if metrics.get("pairs_per_second"):
@@ -122,7 +121,7 @@ def map_command(
 
 def _many(datasets: list[Path]) -> bool:
     """Several inputs, a glob pattern, or a directory that is not itself a dataset."""
-    from toolkit.app.fleet import is_dataset_dir  # on use: fleet loads the matcher
+    from toolkit.dataset import is_dataset_dir  # on use: the dataset module loads pyarrow
 
     if len(datasets) != 1:
         return True

@@ -57,7 +57,18 @@ def report_command(
     Simulates the corridor, imports the real logs it uses, maps every log with each method and labels the logs that have training regions; what a missing piece prevents is marked "not available" in the report.
     """
     import reports  # on use: the report loads matplotlib and every part of the toolkit
+    from reports.base import Section
+    from toolkit.progress import enabled
 
+    def line(s: Section) -> str:
+        extra = "; ".join(s.unavailable) if s.unavailable else ""
+        return f"{s.status:13s} {s.title} ({s.seconds:.0f} s)" + (f"  ({extra})" if extra else "")
+
+    def done(s: Section) -> None:  # not on a terminal: a line per section as it finishes
+        typer.echo(line(s))
+        sys.stdout.flush()
+
+    live = not enabled()  # on a terminal the bar counts the sections, the lines come after
     report = reports.build(
         out,
         datasets or [],
@@ -67,10 +78,11 @@ def report_command(
         real=False if no_real else (real or True),
         force=force,
         command=shlex.join(["toolkit", *sys.argv[1:]]),
+        on_section=done if live else None,
     )
-    for s in report.sections:
-        extra = "; ".join(s.unavailable) if s.unavailable else ""
-        typer.echo(f"{s.status:13s} {s.title}" + (f"  ({extra})" if extra else ""))
+    if not live:
+        for s in report.sections:
+            typer.echo(line(s))
     typer.echo(f"report in {report.path}/index.html ({report.seconds:.1f} s)")
     if report.failed:
         names = ", ".join(s.key for s in report.failed)
