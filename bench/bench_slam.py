@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from bench import peers
 from toolkit import se2
 from toolkit.dataset import Dataset
 from toolkit.metrics import evaluate, relation_error, truth_relations
@@ -65,44 +66,14 @@ def sim_logs(seed: int = 0) -> Iterator[tuple[str, Dataset]]:
 
 
 def _kiss(ds: Dataset, voxel: float) -> np.ndarray:
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
-    config = KISSConfig()
-    config.data.deskew = False
-    config.data.max_range = float(ds.laser.range_max or 80.0)
-    config.data.min_range = 0.0
-    config.mapping.voxel_size = voxel
-    config.registration.max_num_threads = 1
-    kiss = KissICP(config)
+    """KISS-ICP's robot poses for `ds` (`bench.peers`), from the odometry's first pose."""
+    kiss, frames, seeds = peers.kiss_icp(ds, voxel)
+    out = peers.register(kiss, frames, seeds)
     odo = odometry_poses(ds)
     mount = se2.mount_pose(ds.laser)
-    laser_odo = se2.compose(odo, np.broadcast_to(mount, odo.shape)) if odo is not None else None
-    c, s = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
-    out = np.zeros((ds.n_scans, 3))
-    stamps = np.zeros(0)
-    for k in range(ds.n_scans):
-        r = ds.ranges[k].astype(np.float64)
-        ok = np.isfinite(r)
-        pts = np.column_stack([r[ok] * c[ok], r[ok] * s[ok], np.zeros(ok.sum())])
-        if laser_odo is not None and k > 0:
-            kiss.last_delta = _matrix(se2.between(laser_odo[k - 1], laser_odo[k]))
-        if len(stamps) != len(pts):
-            stamps = np.zeros(len(pts))
-        kiss.register_frame(pts, stamps)
-        p = kiss.last_pose
-        out[k] = p[0, 3], p[1, 3], np.arctan2(p[1, 0], p[0, 0])
-    start = laser_odo[0] if laser_odo is not None else mount
+    start = se2.compose(odo[0], mount) if odo is not None else mount
     laser = se2.compose(np.broadcast_to(start, out.shape), out)
     return se2.compose(laser, np.broadcast_to(se2.inverse(mount), out.shape))
-
-
-def _matrix(p: np.ndarray) -> np.ndarray:
-    m = np.eye(4)
-    c, s = np.cos(p[2]), np.sin(p[2])
-    m[:2, :2] = [[c, -s], [s, c]]
-    m[:2, 3] = p[:2]
-    return m
 
 
 def kiss_best(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:

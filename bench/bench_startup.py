@@ -32,8 +32,6 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 if TYPE_CHECKING:
     from toolkit.dataset import Dataset
 
@@ -158,41 +156,13 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
 
 
 def kiss_icp_seconds(ds: Dataset, voxel: float = 0.3) -> float:
-    """KISS-ICP's registration time on every scan of `ds` (points at z = 0, seeded with the
-    odometry's laser motion, deskew off, one thread): the loop of `register_frame`."""
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
+    """KISS-ICP's registration time on every scan of `ds` (`bench.peers`: points at z = 0,
+    seeded with the odometry's laser motion, deskew off, one thread)."""
+    from bench import peers
 
-    from toolkit import se2
-    from toolkit.poses import odometry_poses
-
-    config = KISSConfig()
-    config.data.deskew = False
-    config.data.max_range = float(ds.laser.range_max or 80.0)
-    config.data.min_range = 0.0
-    config.mapping.voxel_size = voxel
-    config.registration.max_num_threads = 1
-    kiss = KissICP(config)
-    odo = odometry_poses(ds)
-    assert odo is not None, "the simulated log has odometry"
-    laser = se2.compose(odo, np.broadcast_to(se2.mount_pose(ds.laser), odo.shape))
-    steps = se2.between(laser[:-1], laser[1:])
-    c, s = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
-    frames = []
-    for k in range(ds.n_scans):  # the points ready before the clock starts, as the map's are
-        r = ds.ranges[k].astype(np.float64)
-        ok = np.isfinite(r)
-        frames.append(np.column_stack([r[ok] * c[ok], r[ok] * s[ok], np.zeros(ok.sum())]))
-    seeds = np.repeat(np.eye(4)[None], len(steps), axis=0)
-    seeds[:, 0, 0] = seeds[:, 1, 1] = np.cos(steps[:, 2])
-    seeds[:, 1, 0] = np.sin(steps[:, 2])
-    seeds[:, 0, 1] = -seeds[:, 1, 0]
-    seeds[:, :2, 3] = steps[:, :2]
+    kiss, frames, seeds = peers.kiss_icp(ds, voxel)
     t0 = time.perf_counter()
-    for k, pts in enumerate(frames):
-        if k > 0:
-            kiss.last_delta = seeds[k - 1]
-        kiss.register_frame(pts, np.zeros(len(pts)))
+    peers.register(kiss, frames, seeds)
     return time.perf_counter() - t0
 
 
