@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from tests.faults.conftest import digest, hidden
-from toolkit.app.fleet import is_dataset_dir
+from toolkit.dataset import is_dataset_dir
 
 ENV = {**os.environ, "TOOLKIT_NO_PROGRESS": "1"}
 
@@ -232,10 +232,12 @@ def test_sigterm_takes_the_clean_path(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
-def test_is_dataset_dir_of_a_temp(tmp_path: Path) -> None:
-    (tmp_path / ".ds.abcdefgh.tmp").mkdir()
-    (tmp_path / ".ds.abcdefgh.tmp" / "meta.json").write_text("{}")
-    assert is_dataset_dir(tmp_path / ".ds.abcdefgh.tmp")  # it looks like one ...
+def test_an_unfinished_write_is_never_a_dataset(tmp_path: Path) -> None:
+    temp = tmp_path / ".ds.abcdefgh.tmp"
+    temp.mkdir()
+    (temp / "meta.json").write_text("{}")
+    (temp / "scans.parquet").write_bytes(b"PAR1")
+    assert not is_dataset_dir(temp)  # it looks like one, but a killed writer left it
     from toolkit.app.fleet import find_datasets
 
-    assert find_datasets([tmp_path]) == []  # ... but a walk skips hidden entries
+    assert find_datasets([tmp_path]) == []
