@@ -187,6 +187,11 @@ def _meta_digest(ds: Dataset) -> str | None:
     return sha256(meta) if meta is not None and meta.is_file() else None
 
 
+#: `toolkit map`'s bar counts the scan pairs matched, then these steps: loops and pose graph
+#: (or composition), trajectory files and clouds, maps, metrics.
+MAP_STEPS = 4
+
+
 def write_run(
     ds: Dataset,
     out: str | Path,
@@ -208,12 +213,17 @@ def write_run(
     config = config or sc.MatchConfig()
     method = Method.parse(method)
     timed = dict(seconds or {})
-    with task(f"map ({method})", 4) as (progress, bar):
+    pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
+    with task(f"map ({method})", pairs + MAP_STEPS) as (progress, bar):
+
+        def matched(m: int) -> None:
+            progress.advance(bar, m)
+
         slam = None
         if loops and method != "odometry":
-            result, slam = slam_trajectory(ds, method, config, matcher)
+            result, slam = slam_trajectory(ds, method, config, matcher, progress=matched)
         else:
-            result = build(ds, method, config, matcher)
+            result = build(ds, method, config, matcher, progress=matched)
         timed |= result.timings
         progress.advance(bar)
         robot = result.poses

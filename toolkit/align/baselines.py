@@ -13,6 +13,7 @@ alignment avoids. Point-to-plane ICP on z = 0 clouds is degenerate (every normal
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -22,6 +23,8 @@ from scipy.spatial import cKDTree
 
 from toolkit.align.scan import PairMatches, pair_refs, scan_points
 from toolkit.dataset import LaserGeometry
+
+ICP_STEP = 256  # pairs between two progress calls (ICP runs one pair at a time)
 
 Method = Literal["point_to_point", "point_to_line"]
 
@@ -205,9 +208,10 @@ def match_pairs_icp(
     max_distance: float = 0.5,
     iterations: int = 30,
     ref: np.ndarray | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> PairMatches:
     """The ICP baseline on the same pairs as `match_pairs`, seeded the same way (one pair at a
-    time: ICP builds a KD-tree of each reference scan)."""
+    time: ICP builds a KD-tree of each reference scan); `progress(m)` after every m pairs."""
     n = max(len(ranges) - 1, 0)
     refs = pair_refs(ref, len(ranges))
     out = PairMatches.empty(n)
@@ -231,4 +235,6 @@ def match_pairs_icp(
         out.pose[k] = pose
         out.sigma[k] = rmse
         out.used[k] = round(fit * len(src))
+        if progress is not None and ((k + 1) % ICP_STEP == 0 or k + 1 == n):
+            progress((k + 1) % ICP_STEP or ICP_STEP)
     return out
