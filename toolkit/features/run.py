@@ -32,6 +32,7 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import Config, FeatureModel
 from toolkit.features.regions import read_regions, training_components, training_indices
+from toolkit.progress import task
 from toolkit.trajio import read_trajectory
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
@@ -130,18 +131,37 @@ def label_run(
             from dataclasses import replace
 
             model = replace(model, config=replace(model.config, smoothing=config.smoothing))
-    else:
-        model = fit(ds.ranges, ds.laser, training_components(spans), config or Config(), spans)
-    poses, pose_source = scan_poses(ds, trajectory)
-    labels = classify(model, ds.ranges, poses)
-    seconds = time.perf_counter() - started
-    metrics = _metrics(ds, model, labels, training, pose_source, seconds, model_path)
-    truth_labels = _truth_labels(ds, truth)
-    if truth_labels is not None:
-        metrics["truth"] = _scores(truth_labels, labels, training)
+    # the bar: the fitting (when learning) as one step, every scan scored, the outputs
+    with task("label", int(model_path is None) + ds.n_scans + 1) as (progress, bar):
+        if model_path is None:
+            components = training_components(spans)
+            model = fit(ds.ranges, ds.laser, components, config or Config(), spans)
+            progress.advance(bar)
+        poses, pose_source = scan_poses(ds, trajectory)
+        labels = classify(model, ds.ranges, poses, progress=lambda m: progress.advance(bar, m))
+        seconds = time.perf_counter() - started
+        metrics = _metrics(ds, model, labels, training, pose_source, seconds, model_path)
+        truth_labels = _truth_labels(ds, truth)
+        if truth_labels is not None:
+            metrics["truth"] = _scores(truth_labels, labels, training)
+        _write_run(out, ds, dataset, model, labels, poses, pose_source, training, metrics)
+        progress.advance(bar)
+    return metrics
 
-    # RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
-    # interrupted label leaves RUN as it was.
+
+def _write_run(
+    out: Path,
+    ds: Dataset,
+    dataset: Path,
+    model: FeatureModel,
+    labels: Labels,
+    poses: np.ndarray | None,
+    pose_source: str,
+    training: dict[str, np.ndarray],
+    metrics: dict[str, Any],
+) -> None:
+    """RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
+    interrupted label leaves RUN as it was."""
     with atomic_dir(out, update=True) as tmp:
         for name in (*OUTPUTS, "labels-metrics.json"):
             (tmp / name).unlink(missing_ok=True)  # never write through a link to the old RUN
@@ -160,7 +180,6 @@ def label_run(
                 metrics["cloud_points"] = write_cloud(ply, ds.ranges, poses, ds.laser, labels)
         with atomic_file(tmp / "labels-metrics.json") as js:
             js.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
-    return metrics
 
 
 def _write_labels(path: Path, t: np.ndarray, labels: Labels) -> None:
