@@ -75,11 +75,12 @@ def test_map_bar_counts_scan_pairs(
     monkeypatch.setattr(poses, "PAIRS_PER_STEP", 500)
     code, _, err = cli("map", corridor, "--out", tmp_path / "run")
     assert code == 0, err
-    progress = bars["map (gaussian)"]
-    (task,) = progress.tasks
-    assert task.total == SCANS - 1 + MAP_STEPS
+    progress = bars["map (gaussian): scan pairs"]
+    assert bars["map (gaussian): loops, outputs"] is progress
+    pairs, steps = progress.tasks
+    assert (pairs.total, steps.total) == (SCANS - 1, MAP_STEPS)
     assert progress.steps == [500, 500, 499] + [1] * MAP_STEPS  # per chunk of pairs, then outputs
-    assert task.completed == task.total
+    assert pairs.completed == pairs.total and steps.completed == steps.total
 
 
 def test_label_bar_counts_scans(
@@ -93,12 +94,12 @@ def test_label_bar_counts_scans(
     run = tmp_path / "run"
     code, _, err = cli("label", corridor, "--regions", corridor / "regions.csv", "--out", run)
     assert code == 0, err
-    progress = bars["label"]
-    (task,) = progress.tasks
-    assert task.total == 1 + SCANS + 1  # the fitting, every scan, the outputs
+    progress = bars["label: scans"]
+    scans, steps = progress.tasks
+    assert (scans.total, steps.total) == (SCANS, 2)  # every scan; the fitting, the outputs
     assert progress.steps == [1, 600, 600, 300, 1]
-    assert task.completed == task.total
+    assert scans.completed == scans.total and steps.completed == steps.total
     # applying a saved model: no fitting step
     code, _, err = cli("label", corridor, "--model", run / "model.json", "--out", tmp_path / "b")
     assert code == 0, err
-    assert bars["label"].steps == [600, 600, 300, 1]
+    assert bars["label: outputs"].steps == [600, 600, 300, 1]

@@ -38,7 +38,7 @@ from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import META, Dataset, load, sha256, write_described
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
-from toolkit.progress import task
+from toolkit.progress import counted
 from toolkit.raster import scan_chunks, world_points, write_map_png
 from toolkit.slam.render import write_occupancy
 from toolkit.slam.run import relation_metrics, slam_trajectory
@@ -187,8 +187,8 @@ def _meta_digest(ds: Dataset) -> str | None:
     return sha256(meta) if meta is not None and meta.is_file() else None
 
 
-#: `toolkit map`'s bar counts the scan pairs matched, then these steps: loops and pose graph
-#: (or composition), trajectory files and clouds, maps, metrics.
+#: `toolkit map`'s bars: the scan pairs matched, and these steps: loops and pose graph (or
+#: composition), trajectory files and clouds, maps, metrics.
 MAP_STEPS = 4
 
 
@@ -214,18 +214,15 @@ def write_run(
     method = Method.parse(method)
     timed = dict(seconds or {})
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
-    with task(f"map ({method})", pairs + MAP_STEPS) as (progress, bar):
-
-        def matched(m: int) -> None:
-            progress.advance(bar, m)
-
+    steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
+    with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
         slam = None
         if loops and method != "odometry":
             result, slam = slam_trajectory(ds, method, config, matcher, progress=matched)
         else:
             result = build(ds, method, config, matcher, progress=matched)
         timed |= result.timings
-        progress.advance(bar)
+        step()
         robot = result.poses
         truth = truth_poses(ds)
         with atomic_dir(out, force=force) as tmp:
@@ -255,7 +252,7 @@ def write_run(
                 timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
             clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
             timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
-            progress.advance(bar)
+            step()
             name = ds.path.name if ds.path else "dataset"
             if slam is None:
                 timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))
@@ -263,7 +260,7 @@ def write_run(
             else:
                 title = f"{name}: {method} with loops"
                 timing("map.png+pgm+yaml", lambda _: slam.write(tmp, ds, robot, title))
-            progress.advance(bar)
+            step()
             t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
             metrics["relation_error"] = relation_metrics(ds, robot)
@@ -273,7 +270,7 @@ def write_run(
             metrics["seconds"] = {k: round(v, 4) for k, v in timed.items()}
             text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
             (tmp / "metrics.json").write_text(text)
-            progress.advance(bar)
+            step()
     return out
 
 

@@ -32,7 +32,7 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import Config, FeatureModel
 from toolkit.features.regions import read_regions, training_components, training_indices
-from toolkit.progress import task
+from toolkit.progress import counted
 from toolkit.trajio import read_trajectory
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
@@ -131,21 +131,23 @@ def label_run(
             from dataclasses import replace
 
             model = replace(model, config=replace(model.config, smoothing=config.smoothing))
-    # the bar: the fitting (when learning) as one step, every scan scored, the outputs
-    with task("label", int(model_path is None) + ds.n_scans + 1) as (progress, bar):
-        if model_path is None:
+    # the bars: every scan scored; the fitting (when learning) and the outputs as steps
+    learn = model_path is None
+    steps = ("fitting, outputs", 2) if learn else ("outputs", 1)
+    with counted("label", ds.n_scans, "scans", *steps) as (scored, step):
+        if learn:
             components = training_components(spans)
             model = fit(ds.ranges, ds.laser, components, config or Config(), spans)
-            progress.advance(bar)
+            step()
         poses, pose_source = scan_poses(ds, trajectory)
-        labels = classify(model, ds.ranges, poses, progress=lambda m: progress.advance(bar, m))
+        labels = classify(model, ds.ranges, poses, progress=scored)
         seconds = time.perf_counter() - started
         metrics = _metrics(ds, model, labels, training, pose_source, seconds, model_path)
         truth_labels = _truth_labels(ds, truth)
         if truth_labels is not None:
             metrics["truth"] = _scores(truth_labels, labels, training)
         _write_run(out, ds, dataset, model, labels, poses, pose_source, training, metrics)
-        progress.advance(bar)
+        step()
     return metrics
 
 
