@@ -163,8 +163,9 @@ def classify(
 
 
 #: Scans scored at once between two progress steps (every scan is scored on its own: the
-#: blocks do not change the result).
-SCANS_PER_STEP = 4096
+#: blocks do not change the result). Smaller blocks cost: each starts the parallel kernels
+#: anew (4096 scored 35,000 scans/s, 16,384 and 65,536 about 70,000, on 2 loaded cores).
+SCANS_PER_STEP = 16_384
 
 
 def class_scores(
