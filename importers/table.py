@@ -31,7 +31,7 @@ from __future__ import annotations
 import io
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Literal
@@ -54,6 +54,7 @@ from toolkit import se2
 from toolkit.atomic import atomic_file
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, PoseStream, make_meta, pose_frame
 from toolkit.errors import FormatError, ToolkitError
+from toolkit.progress import task
 
 PRESETS: dict[str, dict[str, str]] = {
     # BreezySLAM examples/exp*.dat (Paris Mines rover): 707 tokens per line; Hokuyo URG-04LX
@@ -169,7 +170,7 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
     """All rows of a numeric text table, with pyarrow's CSV reader (no Python loop per row),
     block by block of whole lines (`TextBlocks`: bounded memory, capped lines)."""
     reader = TextBlocks(path, TABLE_BLOCK, text=False)
-    blocks = iter(reader)
+    blocks = _with_bar(reader, path)
     try:
         first = next(blocks)
     except StopIteration:
@@ -220,6 +221,16 @@ def read_numbers(path: Path, sep_option: str | None) -> Numbers:
         block = None if nxt is None else _clean(nxt)
     values = np.concatenate(parts) if len(parts) > 1 else parts[0]
     return Numbers(values, bad_total + garbage_total, first_bad, header, header_skipped)
+
+
+def _with_bar(reader: TextBlocks, path: Path) -> Iterator[bytes]:
+    """The reader's blocks, with a bar of the bytes read (on a terminal); it closes when the
+    blocks run out."""
+    size = path.stat().st_size
+    with task(f"reading {path.name}", total=size) as (bar, job):
+        for block in reader:
+            yield block
+            bar.update(job, completed=min(size, reader.bytes))
 
 
 def _clean(data: bytes) -> bytes:

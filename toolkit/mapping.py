@@ -40,7 +40,7 @@ from toolkit.dataset import META, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
-from toolkit.progress import task
+from toolkit.progress import counted
 from toolkit.raster import scan_chunks, world_points, write_map_png
 from toolkit.slam.render import write_occupancy
 from toolkit.slam.run import relation_metrics, slam_trajectory
@@ -189,6 +189,10 @@ def _meta_digest(ds: Dataset) -> str | None:
     return sha256(meta) if meta is not None and meta.is_file() else None
 
 
+#: `toolkit map`'s bars: the scan pairs matched, and these steps: loops and pose graph (or
+#: composition), trajectory files and clouds, maps, metrics.
+MAP_STEPS = 4
+
 #: Every file of a run directory; `map_run(outputs=...)` writes a subset (the report, which
 #: draws its own maps, leaves out the clouds and the maps). graph.g2o and loops.csv come with
 #: loop closure, groundtruth.tum with ground truth.
@@ -240,14 +244,16 @@ def map_run(
     timed = {"read": time.perf_counter() - t0} if not isinstance(dataset, Dataset) else {}
     config = config or sc.MatchConfig()
     method = Method.parse(method)
-    with task(f"map ({method})", 4) as (progress, bar):
+    pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
+    steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
+    with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
         slam = None
         if loops and method != Method.ODOMETRY:
-            result, slam = slam_trajectory(ds, method, config, matcher)
+            result, slam = slam_trajectory(ds, method, config, matcher, progress=matched)
         else:
-            result = build(ds, method, config, matcher)
+            result = build(ds, method, config, matcher, progress=matched)
         timed |= result.timings
-        progress.advance(bar)
+        step()
         robot = result.poses
         truth = truth_poses(ds)
         with atomic_dir(out, force=force) as tmp:
@@ -281,7 +287,7 @@ def map_run(
             if "cloud.ply" in outputs:
                 clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
                 timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
-            progress.advance(bar)
+            step()
             name = ds.path.name if ds.path else "dataset"
             if slam is not None:  # the graph and the loops always; the maps if asked
                 maps = "map.png" in outputs
@@ -290,7 +296,7 @@ def map_run(
             elif "map.png" in outputs:
                 timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))
                 timing("map.pgm+yaml", lambda _: write_occupancy(tmp, ds, robot))
-            progress.advance(bar)
+            step()
             t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
             metrics["relation_error"] = relation_metrics(ds, robot)
@@ -301,7 +307,7 @@ def map_run(
             if "metrics.json" in outputs:
                 text = json.dumps(metrics, indent=2, allow_nan=False) + "\n"
                 (tmp / "metrics.json").write_text(text)
-            progress.advance(bar)
+            step()
     return MapRun(out, result, metrics)
 
 

@@ -120,17 +120,25 @@ def truth_poses(ds: Dataset) -> np.ndarray | None:
     return poses_at(ds.groundtruth, ds.t)
 
 
+#: Scan pairs the default matcher runs at once between two progress steps: large enough that
+#: the parallel batch keeps both cores busy (the chunks do not change the result).
+PAIRS_PER_STEP = 4096
+
+
 def build(
     ds: Dataset,
     method: Method | str = Method.GAUSSIAN,
     config: sc.MatchConfig | None = None,
     matcher: Callable[..., sc.PairMatches] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> TrajectoryResult:
     """The trajectory of `ds` by `method`: gaussian (the paper's matcher), icp (2D
     point-to-line), icp-point (Open3D point-to-point) or odometry (no matching).
 
     `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
-    runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`)."""
+    runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`). `progress(m)` is told
+    of every m scan pairs matched (S - 1 in all; per `PAIRS_PER_STEP` by the default matcher,
+    all at once by a given one)."""
     method = Method.parse(method)
     t_start = time.perf_counter()
     odo = odometry_poses(ds)
@@ -158,14 +166,23 @@ def build(
         # matching time (and pairs/s) is the matching's
         sc.match_pairs(ds.ranges[:2], seeds[:1], ds.laser, config, ref[:2])
     t0 = time.perf_counter()
-    if method == Method.GAUSSIAN:
-        matches = (matcher or sc.match_pairs)(ds.ranges, seeds, ds.laser, config, ref)
+    if method == Method.GAUSSIAN and matcher is None:
+        matches = sc.match_pairs(
+            ds.ranges, seeds, ds.laser, config, ref, chunk=PAIRS_PER_STEP, progress=progress
+        )
         used: dict[str, object] = config.to_dict()
+    elif method == Method.GAUSSIAN and matcher is not None:
+        matches = matcher(ds.ranges, seeds, ds.laser, config, ref)
+        used = config.to_dict()
+        if progress is not None:
+            progress(n - 1)
     else:
         icp_method: Literal["point_to_line", "point_to_point"] = (
             "point_to_line" if method == Method.ICP else "point_to_point"
         )
-        matches = align.match_pairs_icp(ds.ranges, seeds, ds.laser, icp_method, ref=ref)
+        matches = align.match_pairs_icp(
+            ds.ranges, seeds, ds.laser, icp_method, ref=ref, progress=progress
+        )
         used = {"icp": icp_method, "max_distance": 0.5, "iterations": 30}
         used |= {k: getattr(config, k) for k in ("keyframe_distance", "keyframe_angle")}
     seconds = time.perf_counter() - t0

@@ -30,6 +30,7 @@ float32 kernel with constant working memory and gives the same poses.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal, ParamSpec, TypeVar
 
@@ -680,12 +681,14 @@ def match_pairs(
     config: MatchConfig | None = None,
     ref: np.ndarray | None = None,
     chunk: int = 65_536,
+    progress: Callable[[int], object] | None = None,
 ) -> PairMatches:
     """Match every scan k >= 1 of `ranges` (S x B) against scan ref[k] (default k - 1).
 
     `seeds[k-1]` is the odometry's pose of laser k in the frame of laser ref[k] (see
     `toolkit.se2.laser_motion`). Pairs are independent given the seeds: all are matched at once, in
-    parallel, in chunks of `chunk` pairs so the working memory stays bounded.
+    parallel, in chunks of `chunk` pairs so the working memory stays bounded (and the result does
+    not depend on `chunk`); `progress(m)` is called after each chunk of m pairs.
     """
     config = config or MatchConfig()
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
@@ -717,6 +720,8 @@ def match_pairs(
                 out.covariance[lo:hi],
                 stats[lo:hi],
             )
+            if progress is not None:
+                progress(hi - lo)
     out.sigma[:] = stats[:, 0]
     out.used[:] = stats[:, 1]
     out.degenerate[:] = stats[:, 2]

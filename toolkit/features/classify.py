@@ -13,6 +13,7 @@ too). In the HMM each scan counts for the path travelled since the previous one 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -138,16 +139,20 @@ def smooth(emit: np.ndarray, eps: np.ndarray, how: str) -> np.ndarray:
 
 
 def classify(
-    model: FeatureModel, ranges: np.ndarray, poses: np.ndarray | None = None, chunk: int = CHUNK
+    model: FeatureModel,
+    ranges: np.ndarray,
+    poses: np.ndarray | None = None,
+    chunk: int = CHUNK,
+    progress: Callable[[int], object] | None = None,
 ) -> Labels:
     """Posterior per class for every scan (Eq. 9), smoothed along the trajectory (Eq. 7).
 
     `poses` (S x 3: x, y, theta at the scan times) sets how fast places may change; without
-    it a fixed switching probability per scan is used.
+    it a fixed switching probability per scan is used. `progress(m)`: m more scans scored.
     """
     model.check_laser(_laser_like(model, ranges))
     cfg = model.config
-    scores = class_scores(model, ranges, chunk)
+    scores = class_scores(model, ranges, chunk, progress)
     if cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)
@@ -157,21 +162,36 @@ def classify(
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
 
-def class_scores(model: FeatureModel, ranges: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
+#: Scans scored at once between two progress steps (every scan is scored on its own: the
+#: blocks do not change the result). Smaller blocks cost: each starts the parallel kernels
+#: anew (4096 scored 35,000 scans/s, 16,384 and 65,536 about 70,000, on 2 loaded cores).
+SCANS_PER_STEP = 16_384
+
+
+def class_scores(
+    model: FeatureModel,
+    ranges: np.ndarray,
+    chunk: int = CHUNK,
+    progress: Callable[[int], object] | None = None,
+) -> np.ndarray:
     """Per scan and class, the log-score the HMM takes as evidence (S, K): the descriptor
     classifier's log-probabilities, plus `beam_term` times the per-beam model's tempered
-    log-posterior; without descriptors, the per-beam model's tempered log-likelihood."""
+    log-posterior; without descriptors, the per-beam model's tempered log-likelihood. Scored
+    in blocks of `SCANS_PER_STEP` scans, `progress(m)` after each."""
     cfg = model.config
-    if model.places is None or not cfg.descriptors:
-        return per_class(model, loglik(model, ranges, chunk) * model.temperature)
     out = np.empty((len(ranges), len(model.classes)))
-    for i in range(0, len(ranges), 8 * chunk):
-        block = ranges[i : i + 8 * chunk]
-        scores = model.places.log_proba(describe(block, model.laser), none=cfg.none_class)
-        if cfg.beam_term:
-            beams = per_class(model, loglik(model, block, chunk) * model.temperature)
-            scores = scores + cfg.beam_term * np.log(softmax(beams))
+    for i in range(0, len(ranges), SCANS_PER_STEP):
+        block = ranges[i : i + SCANS_PER_STEP]
+        if model.places is None or not cfg.descriptors:
+            scores = per_class(model, loglik(model, block, chunk) * model.temperature)
+        else:
+            scores = model.places.log_proba(describe(block, model.laser), none=cfg.none_class)
+            if cfg.beam_term:
+                beams = per_class(model, loglik(model, block, chunk) * model.temperature)
+                scores = scores + cfg.beam_term * np.log(softmax(beams))
         out[i : i + len(block)] = scores
+        if progress is not None:
+            progress(len(block))
     return out
 
 

@@ -39,6 +39,7 @@ from toolkit.features.regions import (
     training_components,
     training_indices,
 )
+from toolkit.progress import counted
 from toolkit.trajio import read_trajectory
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
@@ -202,18 +203,41 @@ def label_run(
             from dataclasses import replace
 
             model = replace(model, config=replace(model.config, smoothing=config.smoothing))
-    else:
-        model = fit(ds.ranges, ds.laser, training_components(spans), config or Config(), spans)
-    poses, pose_source = scan_poses(ds, trajectory)
-    labels = classify(model, ds.ranges, poses)
-    seconds = time.perf_counter() - started
-    metrics = _metrics(ds, model, labels, pose_source, seconds, model_path)
-    true_labels = truth_labels(ds, truth)
-    if true_labels is not None:
-        metrics["truth"] = _scores(true_labels, labels, training)
+    # the bars: every scan scored; the fitting (when learning) and the outputs as steps
+    learn = model_path is None
+    steps = ("fitting, outputs", 2) if learn else ("outputs", 1)
+    with counted("label", ds.n_scans, "scans", *steps) as (scored, step):
+        if learn:
+            components = training_components(spans)
+            model = fit(ds.ranges, ds.laser, components, config or Config(), spans)
+            step()
+        poses, pose_source = scan_poses(ds, trajectory)
+        labels = classify(model, ds.ranges, poses, progress=scored)
+        seconds = time.perf_counter() - started
+        metrics = _metrics(ds, model, labels, pose_source, seconds, model_path)
+        true_labels = truth_labels(ds, truth)
+        if true_labels is not None:
+            metrics["truth"] = _scores(true_labels, labels, training)
+        name = ds.path.name if ds.path else str(dataset)
+        _write_run(out, ds, name, model, labels, poses, pose_source, training, metrics, figures)
+        step()
+    return LabelRun(model, labels, spans, training, true_labels, metrics, seconds)
 
-    # RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
-    # interrupted label leaves RUN as it was.
+
+def _write_run(
+    out: Path,
+    ds: Dataset,
+    name: str,
+    model: FeatureModel,
+    labels: Labels,
+    poses: np.ndarray | None,
+    pose_source: str,
+    training: dict[str, np.ndarray],
+    metrics: dict[str, Any],
+    figures: bool,
+) -> None:
+    """RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
+    interrupted label leaves RUN as it was."""
     with atomic_dir(out, update=True) as tmp:
         for name in (*OUTPUTS, "labels-metrics.json"):
             (tmp / name).unlink(missing_ok=True)  # never write through a link to the old RUN
@@ -225,14 +249,12 @@ def label_run(
             with atomic_file(tmp / "membership.png") as png:
                 membership_figure(
                     png, ds.ranges, poses, ds.laser, labels, training,
-                    title=f"{ds.path.name if ds.path else dataset}: feature membership "
-                    f"({pose_source})",
+                    title=f"{name}: feature membership ({pose_source})",
                 )  # fmt: skip
             with atomic_file(tmp / "labels-cloud.ply") as ply:
                 metrics["cloud_points"] = write_cloud(ply, ds.ranges, poses, ds.laser, labels)
         with atomic_file(tmp / "labels-metrics.json") as js:
             js.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
-    return LabelRun(model, labels, spans, training, true_labels, metrics, seconds)
 
 
 def _write_labels(path: Path, t: np.ndarray, labels: Labels) -> None:

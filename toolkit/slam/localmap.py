@@ -10,6 +10,7 @@ missing): a log without odometry is no longer matched "from standstill"."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -17,6 +18,8 @@ from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry, pose_frame
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
+
+STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
 
 
 class MotionMatcher(sc.StreamMatcher):
@@ -51,11 +54,16 @@ class MotionMatcher(sc.StreamMatcher):
         return pose
 
 
-def sequential(ds: Dataset, config: sc.MatchConfig | None = None) -> TrajectoryResult:
+def sequential(
+    ds: Dataset,
+    config: sc.MatchConfig | None = None,
+    progress: Callable[[int], object] | None = None,
+) -> TrajectoryResult:
     """The sequential trajectory of `ds`: the batch matcher seeded by odometry, or the streaming
-    matcher seeded by constant velocity when the log has no odometry."""
+    matcher seeded by constant velocity when the log has no odometry. `progress(m)`: m more
+    scan pairs matched (S - 1 in all)."""
     if odometry_poses(ds) is not None:
-        return build(ds, "gaussian", config)
+        return build(ds, "gaussian", config, progress=progress)
     config = config or sc.MatchConfig()
     matcher = MotionMatcher(ds.laser, config)
     poses = np.zeros((ds.n_scans, 3))
@@ -69,6 +77,8 @@ def sequential(ds: Dataset, config: sc.MatchConfig | None = None) -> TrajectoryR
             matches.covariance[k - 1] = matcher.covariance
             matches.sigma[k - 1], matches.used[k - 1] = sigma, n_used
             matches.degenerate[k - 1], matches.agreement[k - 1] = degenerate, agreement
+            if progress is not None and (k % STREAM_STEP == 0 or k == ds.n_scans - 1):
+                progress(k % STREAM_STEP or STREAM_STEP)
     seconds = time.perf_counter() - t0
     frame = pose_frame(ds.t, poses)
     used = config.to_dict()

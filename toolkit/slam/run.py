@@ -103,14 +103,16 @@ def slam_trajectory(
     config: sc.MatchConfig | None = None,
     matcher: Callable[..., sc.PairMatches] | None = None,
     slam: SlamConfig | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> tuple[TrajectoryResult, SlamRun]:
     """The sequential trajectory by `method` (gaussian: odometry or constant velocity as the
-    motion model), then loops and the pose graph; the result's frame holds the final poses."""
+    motion model), then loops and the pose graph; the result's frame holds the final poses.
+    `progress(m)`: m more scan pairs matched (`toolkit.poses.build`)."""
     t0 = time.perf_counter()
     if method == "gaussian" and matcher is None:
-        result = sequential(ds, config)
+        result = sequential(ds, config, progress)
     else:
-        result = build(ds, method, config, matcher)
+        result = build(ds, method, config, matcher, progress)
     matching = time.perf_counter() - t0
     slam = slam or SlamConfig()
     before = result.poses
