@@ -40,6 +40,7 @@ Time: a capture has no clock. In order of preference:
 
 from __future__ import annotations
 
+import importlib
 import io
 import json
 import lzma
@@ -48,6 +49,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import Literal
 
 import numpy as np
@@ -162,9 +164,13 @@ def _crc_block(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.n
 
 def crc_frames_numba(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """Same as `crc_frames_numpy`, compiled with numba (sequential per frame)."""
-    from importers._lms200_crc import crc_kernel
+    kernel = _numba_crc().crc_kernel
+    return np.asarray(kernel(buf, np.asarray(starts, np.int64), np.asarray(lengths, np.int64)))
 
-    return np.asarray(crc_kernel(buf, np.asarray(starts, np.int64), np.asarray(lengths, np.int64)))
+
+def _numba_crc() -> ModuleType:
+    """The numba kernel's module, loaded on first use: importing numba costs 1-2 s."""
+    return importlib.import_module("importers._lms200_crc")
 
 
 CRC_METHODS = {"numpy": crc_frames_numpy, "numba": crc_frames_numba}
@@ -179,7 +185,7 @@ def default_crc_method(size: int = 0) -> str:
     if size < NUMBA_MIN_BYTES and "numba" not in sys.modules:
         return "numpy"
     try:
-        import importers._lms200_crc  # noqa: F401
+        _numba_crc()
     except Exception:  # numba missing or broken: the numpy path needs nothing more
         return "numpy"
     return "numba"

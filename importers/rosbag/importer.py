@@ -33,7 +33,15 @@ from rich.progress import TaskID
 from importers import register
 from importers.base import FormatOptions, Importer, option
 from importers.rosbag.decode import PARAMS, BeamCountChanged, decode_scans, decode_with_typestore
-from importers.rosbag.source import BagSource, Topic, describe, open_bag, open_recovery
+from importers.rosbag.source import (
+    BagSource,
+    Topic,
+    bag_kind,
+    describe,
+    open_bag,
+    open_recovery,
+)
+from importers.rosbag.writer import write_bag
 from toolkit.dataset import Dataset, ImportReport, LaserGeometry, make_meta
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.progress import task
@@ -138,8 +146,6 @@ class RosbagImporter(Importer[RosbagOptions, RosbagWriteOptions]):
     WriteOptions = RosbagWriteOptions
 
     def sniff(self, path: Path) -> bool:
-        from importers.rosbag.source import bag_kind
-
         return bag_kind(path) is not None
 
     def read(self, sources: Sequence[Path], options: RosbagOptions) -> Dataset:
@@ -162,8 +168,6 @@ class RosbagImporter(Importer[RosbagOptions, RosbagWriteOptions]):
         self, ds: Dataset, out: Path, options: RosbagWriteOptions | None = None
     ) -> list[Path]:
         """Write `ds` as a bag under directory `out`: version ros1 (log.bag), ros2 or mcap (log/)."""
-        from importers.rosbag.writer import write_bag
-
         o = options or RosbagWriteOptions()
         return [
             write_bag(

@@ -23,6 +23,11 @@ from pathlib import Path
 
 from toolkit.errors import FormatError
 
+try:  # optional: only lz4-compressed chunks need it
+    import lz4.frame  # type: ignore[import-untyped,unused-ignore]
+except ImportError:
+    lz4 = None
+
 V2_MAGIC = b"#ROSBAG V2.0\n"
 V12_MAGIC = b"#ROSRECORD V1.2\n"
 _MAX_HEADER = 1 << 20
@@ -192,12 +197,10 @@ def _decompress(path: Path, header: dict[str, bytes], data: memoryview) -> bytes
     if kind == b"bz2":
         return bz2.decompress(data)
     if kind == b"lz4":
-        try:
-            import lz4.frame  # type: ignore[import-untyped,unused-ignore]
-        except ImportError:
+        if lz4 is None:
             raise FormatError(
                 "lz4-compressed chunks need the lz4 package (pip install lz4)", file=path
-            ) from None
+            )
         return bytes(lz4.frame.decompress(data))
     raise ValueError(f"compression {kind!r}")
 

@@ -10,14 +10,15 @@ from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
+
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
 
 from importers.base import head_bytes
 from importers.rosbag import ros1raw
 from toolkit.errors import FormatError, ToolkitError
-
-if TYPE_CHECKING:
-    from rosbags.typesys.store import Typestore
 
 ROS1_MAGICS = (ros1raw.V2_MAGIC[:-1], b"#ROSRECORD")
 MCAP_MAGIC = b"\x89MCAP"
@@ -110,8 +111,6 @@ def bag_kind(path: Path) -> str | None:
 
 def open_bag(paths: Sequence[Path]) -> BagSource:
     """Open one ROS2 bag (directory, .db3 or .mcap) or one or more ROS1 .bag files."""
-    from rosbags.typesys import Stores, get_typestore
-
     kinds = {p: bag_kind(p) for p in paths}
     for p, kind in kinds.items():
         if kind is None:
@@ -140,8 +139,6 @@ def open_bag(paths: Sequence[Path]) -> BagSource:
 
 
 def _open_rosbags(paths: list[Path], ros2: bool, store: Typestore) -> BagSource:
-    from rosbags.highlevel import AnyReader
-
     stack = ExitStack()
     try:
         reader = stack.enter_context(AnyReader(paths, default_typestore=store))
@@ -158,8 +155,6 @@ def _open_rosbags(paths: list[Path], ros2: bool, store: Typestore) -> BagSource:
 
 
 def open_recovery(path: Path, store: Typestore, why: str | None) -> BagSource:
-    from rosbags.typesys import get_types_from_msg
-
     raw = ros1raw.read_bag(path)
     topics: dict[str, Topic] = {}
     types: dict[str, Any] = {}

@@ -14,21 +14,24 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
 
 from toolkit.atomic import atomic_path
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.errors import ToolkitError
 
-if TYPE_CHECKING:
-    from rosbags.typesys.store import Msg, Typestore
+if TYPE_CHECKING:  # Msg exists for type checkers only
+    from rosbags.typesys.store import Msg
 
 VERSIONS = ("ros1", "ros2", "mcap")
 TFMESSAGE = "tf2_msgs/msg/TFMessage"
 
 
 def _typestore(ros1: bool) -> Typestore:
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     if TFMESSAGE not in store.fielddefs:
         store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TFMESSAGE))
@@ -112,8 +115,6 @@ def write_bag(
         msgs = _Messages(_typestore(ros1), ros1)
         streams = _streams(ds, msgs, scan_topic, odom_topic, gt_topic, frame_id)
         if ros1:
-            from rosbags.rosbag1 import Writer as Writer1
-
             with Writer1(path) as w1:
                 conns1 = {
                     topic: w1.add_connection(topic, msgtype, typestore=msgs.store)
@@ -122,9 +123,6 @@ def write_bag(
                 for topic, stamp, raw in streams.ordered():
                     w1.write(conns1[topic], stamp, raw)
         else:
-            from rosbags.rosbag2 import StoragePlugin
-            from rosbags.rosbag2 import Writer as Writer2
-
             plugin = StoragePlugin.MCAP if version == "mcap" else StoragePlugin.SQLITE3
             with Writer2(path, version=9, storage_plugin=plugin) as w2:
                 conns2 = {
