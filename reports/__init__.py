@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+from rich.progress import TaskID
+
 from reports import (
     accuracy,
     fig3_pairs,
@@ -40,8 +42,11 @@ from reports.context import (
     catalog_sources,
     default_real,
 )
+from reports.index import write_index
+from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import check_dataset_dir
 from toolkit.errors import ToolkitError
+from toolkit.progress import task
 
 GENERATORS: tuple[ModuleType, ...] = (
     table1_sections,
@@ -119,12 +124,6 @@ def build(
     are used (unless `bundled` is False). `quick` uses fewer trials and sizes (tests, CI).
     `on_section` is called with each section as soon as it is done (the CLI prints a line).
     """
-    from rich.progress import TaskID
-
-    from reports.index import write_index
-    from toolkit.atomic import atomic_dir, check_output
-    from toolkit.progress import task
-
     out = Path(out)
     check_output(out, force)
     sources = sources_from_paths(list(datasets), regions)

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
@@ -94,9 +96,6 @@ def save_figure(
     """Write `fig` as figures/NAME.png and figures/NAME.svg and close it. The tight bounding
     box is found once for both files (`bbox_inches="tight"` lays the figure out again for
     each: a quarter of the report's time in figures)."""
-    import matplotlib
-    import matplotlib.pyplot as plt
-
     folder = out / FIGURES
     folder.mkdir(parents=True, exist_ok=True)
     files = []
@@ -131,11 +130,7 @@ def save_table(
 
 def new_figure(width: float = 7.0, height: float = 4.0) -> MplFigure:
     """A matplotlib figure on the Agg backend (no display needed)."""
-    import matplotlib
-
     matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     return plt.figure(figsize=(width, height))
 
 

@@ -13,6 +13,7 @@ from typing import Any
 from reports.base import Section, new_figure, save_figure
 from reports.context import CORRIDOR, Context
 from reports.runs import safe_name, world_points
+from toolkit.poses import truth_poses
 
 KEY = "maps"
 TITLE = "Fig. 6-7: odometry against corrected maps"
@@ -45,8 +46,6 @@ def _maps(ctx: Context, section: Section, name: str) -> dict[str, Any]:
     axes = fig.subplots(1, len(methods), squeeze=False)[0]
     gt = None
     if truth:
-        from toolkit.poses import truth_poses
-
         gt = truth_poses(ds)
     for ax, method in zip(axes, methods, strict=True):
         run = runs[method]

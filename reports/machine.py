@@ -12,6 +12,7 @@ from typing import Any
 
 import pandas as pd
 
+import toolkit
 from reports.base import Section, save_table
 from reports.context import Context
 
@@ -51,8 +52,6 @@ def git_commit(root: Path) -> str | None:
 
 def machine_info() -> dict[str, Any]:
     """CPU, OS, Python and package versions, date, load: plain values."""
-    import toolkit
-
     info: dict[str, Any] = {
         "date (UTC)": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M:%S"),
         "cpu": cpu_model(),
