@@ -22,6 +22,7 @@ processes, one thread each), or the address of a running `dask scheduler` (tcp:/
 
 from __future__ import annotations
 
+import glob
 import itertools
 import json
 import os
@@ -31,19 +32,29 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 from urllib.parse import quote
 
+import numba
 import numpy as np
+import pyarrow.parquet as pq
+from distributed import Client, LocalCluster, as_completed
 
+import importers
+from importers.base import ImportOptions, strip_compression_suffix
 from toolkit.align import scan as sc
-from toolkit.dataset import ROW_GROUP_SCANS, LaserGeometry, is_dataset_dir
+from toolkit.dataset import (
+    META,
+    ROW_GROUP_SCANS,
+    SCANS,
+    LaserGeometry,
+    is_dataset_dir,
+    read_scan_rows,
+    sha256,
+)
 from toolkit.errors import ToolkitError
-
-if TYPE_CHECKING:
-    from distributed import Client
-
-    from importers.base import ImportOptions
+from toolkit.mapping import map_run
+from toolkit.progress import track
 
 CHUNK_PAIRS = ROW_GROUP_SCANS  # pairs per task: ~0.1 s of work, 3 MB of scans to ship or read
 CONNECT_TIMEOUT = "10s"  # to reach a scheduler given by address
@@ -80,8 +91,6 @@ def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Cl
     if kind == "none":
         yield None
         return
-    from distributed import Client, LocalCluster
-
     if kind == "local":
         with (
             LocalCluster(
@@ -152,8 +161,6 @@ def _match_chunk(
     if threads:
         _cap_threads(threads)
     if isinstance(own, tuple):
-        from toolkit.dataset import read_scan_rows
-
         path, start, stop = own
         own = read_scan_rows(Path(path), start, stop)
     out = sc.match_pairs(np.vstack([earlier, own]), seeds, laser, config, ref)
@@ -162,8 +169,6 @@ def _match_chunk(
 
 def _cap_threads(threads: int) -> None:
     """At most `threads` numba threads in this process (a worker's share of its cores)."""
-    import numba
-
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
 
 
@@ -178,8 +183,6 @@ class ChunkTimes:
 
 def row_group_scans(scans: Path) -> int:
     """The scans per row group of a scans.parquet (its first group's), the natural chunk."""
-    import pyarrow.parquet as pq
-
     meta = pq.ParquetFile(scans).metadata
     return max(meta.row_group(0).num_rows, 2) if meta.num_row_groups else CHUNK_PAIRS
 
@@ -213,8 +216,6 @@ def match_pairs_on(
     if len(refs) > 2 and (np.diff(refs[1:]) < 0).any():
         raise ValueError("chunked matching needs reference scans that never go backwards")
     if scans is not None:
-        import pyarrow.parquet as pq
-
         scans = Path(scans).resolve()
         if pq.ParquetFile(scans).metadata.num_rows != len(ranges):
             raise ToolkitError(f"has not the {len(ranges)} scans being matched", file=scans)
@@ -287,8 +288,6 @@ class Outcome:
 def dataset_name(source: Path, root: Path | None) -> Path:
     """The dataset's name: the source's path below `root` (the directory it was found in)
     without its extensions, e.g. robotA/2024-05-01.log.gz -> robotA/2024-05-01."""
-    from importers.base import strip_compression_suffix
-
     rel = source.relative_to(root) if root is not None else Path(source.name)
     name = strip_compression_suffix(rel.name)
     name = Path(name).stem or name
@@ -310,7 +309,6 @@ def _find(
 ) -> list[tuple[Path, Path]]:
     """(input, name) for every source: `taken` paths as they are, glob patterns expanded,
     other directories walked for what `claimed` says is one input (not looking inside it)."""
-    import glob
 
     def walk(directory: Path, root: Path) -> list[tuple[Path, Path]]:
         found: list[tuple[Path, Path]] = []
@@ -350,8 +348,6 @@ def find_logs(fmt: str, sources: list[Path]) -> list[tuple[Path, Path]]:
     """(log, dataset name) for every source: files as they are, glob patterns expanded,
     directories walked for what the format's sniffer claims (a directory it claims, such as a
     Rawseeds session, is one log). With 'auto', any format's sniffer."""
-    import importers
-
     sniffers = [importers.get(name) for name in (importers.names() if fmt == "auto" else [fmt])]
 
     def claimed(path: Path) -> bool:
@@ -382,8 +378,6 @@ def find_datasets(sources: list[Path]) -> list[tuple[Path, Path]]:
 def is_complete(dataset: Path, source: Path) -> bool:
     """True when `dataset` holds a finished import (meta.json is written last, atomically) of
     `source` whose files are unchanged (same sha256)."""
-    from toolkit.dataset import META, sha256
-
     meta_path = dataset / META
     if not meta_path.is_file():
         return False
@@ -400,8 +394,6 @@ def is_complete(dataset: Path, source: Path) -> bool:
 def is_toolkit_dataset(path: Path) -> bool:
     """A directory holding a finished import's meta.json (of any source): the toolkit's own
     output, which a fleet import may replace without --force when its source changed."""
-    from toolkit.dataset import META
-
     try:
         meta = json.loads((path / META).read_text())
         return isinstance(meta, dict) and "format" in meta.get("source", {})
@@ -444,8 +436,6 @@ def _import_one(
     """Worker side: one log into one dataset."""
 
     def work() -> str:
-        import importers
-
         if not force and is_complete(out, source):
             return "skipped"
         replace = _may_replace(out, force, is_toolkit_dataset)
@@ -460,12 +450,8 @@ def _each(
 ) -> list[Outcome]:
     """fn(*job) for every job, one task each on `client` (None: here, one after the other);
     each job starts with (source, target). Outcomes in the jobs' order."""
-    from toolkit.progress import track
-
     if client is None:
         return [fn(*job) for job in track(jobs, what)]
-    from distributed import as_completed
-
     futures = {client.submit(fn, *job, pure=False): job for job in jobs}
     done: dict[Path, Outcome] = {}
     for future in track(as_completed(futures), what, total=len(futures)):
@@ -504,9 +490,6 @@ def run_is_current(run: Path, dataset: Path, method: str, voxel: float) -> bool:
     renamed into place whole) of the same inputs: the dataset's meta.json (written last by an
     import: its sources' sha256 and creation time), the method, the voxel size and, for
     gaussian, the matcher's parameters."""
-    from toolkit.align.scan import MatchConfig
-    from toolkit.dataset import META, sha256
-
     try:
         config = json.loads((run / "config.json").read_text())
         if not (run / "metrics.json").is_file():
@@ -516,7 +499,7 @@ def run_is_current(run: Path, dataset: Path, method: str, voxel: float) -> bool:
             and config.get("method") == method
             and config.get("voxel") == voxel
         )
-        matcher = json.loads(json.dumps(MatchConfig().to_dict()))
+        matcher = json.loads(json.dumps(sc.MatchConfig().to_dict()))
         return same and (method != "gaussian" or config.get("matcher") == matcher)
     except (OSError, ValueError):
         return False
@@ -534,8 +517,6 @@ def _map_one(
     """One dataset into one run directory (on a worker: `threads` numba threads)."""
 
     def work() -> str:
-        from toolkit.mapping import map_run
-
         if not force and run_is_current(run, dataset, method, voxel):
             return "skipped"
         if threads:
@@ -563,8 +544,6 @@ def map_many(
     scans from the dataset when `shared_storage` (else the scans are shipped). Failures
     are returned by dataset and do not stop the others; current runs are skipped unless
     `force`."""
-    from toolkit.dataset import SCANS
-
     jobs = [(dataset.resolve(), out / name) for dataset, name in datasets]
     if client is not None and len(jobs) == 1 and method == "gaussian":
         dataset, run = jobs[0]

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+import importers
 from importers.base import FormatOptions, Importer
 from toolkit.atomic import atomic_dir
 from toolkit.dataset import write_dataset_files, write_described
@@ -46,8 +47,6 @@ def write_simulation(
 
     `options`: the writer's options (`toolkit formats` lists them), as text or plain values;
     parsed into the format's typed write options before any work (unknown ones: an error)."""
-    import importers
-
     out = Path(out)
     if fmt == "lms200":  # the capture's unit mode is the simulated scanner's
         options.setdefault("units", sim.params.get("units", "cm"))
@@ -82,14 +81,10 @@ def write_simulation(
 
 def writer_formats() -> list[str]:
     """The formats the simulator can write: those whose importer has a writer, and dataset."""
-    import importers
-
     return [n for n in importers.names() if importers.get(n).writes] + [DATASET_FORMAT]
 
 
 def _writer(fmt: str) -> Importer[Any, Any]:
-    import importers
-
     known = writer_formats()
     if fmt not in known:
         if fmt in importers.names():
