@@ -91,7 +91,6 @@ def label_log(
             trajectory=ds.odometry,
             force=True,
             truth=truth,
-            figures=False,
         )
     except ToolkitError as e:  # its regions or truth do not fit the log: say so, go on
         raise NotAvailable(f"labelling {name}: {e.line()}") from None

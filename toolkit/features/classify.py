@@ -14,7 +14,7 @@ too). In the HMM each scan counts for the path travelled since the previous one 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numba
@@ -196,6 +196,4 @@ def class_scores(
 
 
 def _laser_like(model: FeatureModel, ranges: np.ndarray) -> LaserGeometry:
-    from dataclasses import replace
-
     return replace(model.laser, beams=int(ranges.shape[1]))

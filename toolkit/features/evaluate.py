@@ -40,7 +40,7 @@ from toolkit.features.metrics import (
 )
 from toolkit.features.model import PAPER, SURROUNDINGS, Config
 from toolkit.features.regions import spans_from_frame, training_indices
-from toolkit.sim import Simulation
+from toolkit.sim import Simulation, simulate
 from toolkit.sim.truth import REGION_PARTS, training_regions
 
 FULL = Config()
@@ -90,8 +90,6 @@ def score(
     """Train on the simulator's regions (`parts` spans per feature), classify the whole log,
     score the other scans."""
     if sim is None:
-        from toolkit.sim import simulate
-
         sim = simulate(scenario, seed=seed)
     ds = sim.dataset
     regions = training_regions(ds.t, sim.labels, parts=parts, along=sim.distance())
@@ -123,8 +121,6 @@ def score(
 def worlds(seed: int) -> dict[str, Any]:
     """The three runs of the protocol for one seed: a (teach and score), b (same world,
     other route), c (another world)."""
-    from toolkit.sim import simulate
-
     return {
         "a": simulate("random", seed=seed),
         "b": simulate("random", seed=seed, route=1),
@@ -217,8 +213,6 @@ def scenarios_table(
     names: tuple[str, ...] = ("corridor", "building"),
 ) -> pd.DataFrame:
     """Balanced accuracy and ECE on the simulator's fixed scenarios, a row per configuration."""
-    from toolkit.sim import simulate
-
     sims = {s: simulate(s, seed=seed) for s in names}
     rows = []
     for name, config in configs:

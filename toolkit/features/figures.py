@@ -4,10 +4,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+import open3d as o3d
 
-from toolkit.dataset import LaserGeometry
+from toolkit.atomic import atomic_file
+from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.features.classify import Labels
 
 NONE_GREY = (0.75, 0.75, 0.75)
@@ -43,11 +48,7 @@ def membership_figure(
     """One panel per feature: the map in grey, trajectory points coloured by the feature's
     probability, training positions marked; and a found/not-found panel per feature
     (red: labelled as the feature, blue: not), as in the paper's Fig. 9/10."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     features = [c for c in labels.classes if c != "none"]
     pts, _ = world_points(ranges, poses, laser, every=max(1, len(ranges) // 400))
     n = len(features)
@@ -88,8 +89,6 @@ def membership_figure(
 
 def label_colours(classes: list[str]) -> np.ndarray:
     """An RGB colour per class (tab10), grey for "none"."""
-    import matplotlib
-
     cmap = matplotlib.colormaps["tab10"]
     out = []
     k = 0
@@ -107,8 +106,6 @@ def write_cloud(
 ) -> int:
     """The 3D cloud: every return at its world position and the laser's mounting height,
     coloured by its scan's label; written with Open3D. Returns the number of points."""
-    import open3d as o3d
-
     pts, scan = world_points(ranges, poses, laser)
     colours = label_colours(labels.classes)
     which = {c: k for k, c in enumerate(labels.classes)}
@@ -124,3 +121,25 @@ def write_cloud(
     finally:
         named.unlink(missing_ok=True)
     return len(xyz)
+
+
+def write_figures(
+    folder: Path,
+    ds: Dataset,
+    name: str,
+    labels: Labels,
+    poses: np.ndarray,
+    pose_source: str,
+    training: dict[str, np.ndarray],
+    metrics: dict[str, Any],
+) -> None:
+    """membership.png and labels-cloud.ply of a label run into `folder` (each atomically),
+    the cloud's point count into `metrics`: the `figures` that `toolkit label` passes to
+    `toolkit.features.run.label_run`."""
+    with atomic_file(folder / "membership.png") as png:
+        membership_figure(
+            png, ds.ranges, poses, ds.laser, labels, training,
+            title=f"{name}: feature membership ({pose_source})",
+        )  # fmt: skip
+    with atomic_file(folder / "labels-cloud.ply") as ply:
+        metrics["cloud_points"] = write_cloud(ply, ds.ranges, poses, ds.laser, labels)

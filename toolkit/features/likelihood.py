@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy.special import ndtr
 
 from toolkit.features.model import FeatureModel
 
@@ -48,8 +49,6 @@ def commonness(model: FeatureModel) -> np.ndarray:
     world's probability of the feature's reading (its return / no-return and range bin, over
     the feature's own distribution) over that of the world's most common reading; 1 where
     the feature reads what the log mostly reads there, near 0 where it is distinctive."""
-    from scipy.special import ndtr
-
     bg = model.background
     if bg is None:
         raise ValueError("commonness needs the background model")

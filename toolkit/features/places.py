@@ -127,9 +127,9 @@ def fit_places(
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
-    from sklearn.covariance import LedoitWolf
-    from sklearn.linear_model import LogisticRegression
-    from sklearn.preprocessing import StandardScaler
+    from sklearn.covariance import LedoitWolf  # noqa: PLC0415
+    from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
+    from sklearn.preprocessing import StandardScaler  # noqa: PLC0415
 
     y = np.asarray(y).astype(str)
     classes = list(dict.fromkeys(y))
@@ -211,8 +211,9 @@ def calibrate(
     left out (a place taught by one span: half of it), the classifier refitted on the rest,
     and the held-out scans' log-probabilities of their place pooled; the factor maximising
     them (between 0.05 and 10: a strongly regularised fit may also be too timid)."""
-    from scipy.optimize import minimize_scalar
-    from sklearn.linear_model import LogisticRegression
+    # learning only, as in fit_places: applying a saved model needs numpy alone
+    from scipy.optimize import minimize_scalar  # noqa: PLC0415
+    from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
 
     held_logits, held_truth = [], []
     for g in np.unique(groups):

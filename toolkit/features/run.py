@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,12 @@ from toolkit.progress import counted
 from toolkit.trajio import read_trajectory
 
 OUTPUTS = ("model.json", "labels.parquet", "membership.png", "labels-cloud.ply")
+
+# draws RUN's figures into the run folder being written: (folder, dataset, name, labels,
+# poses, pose source, training scans, metrics to add to), as `figures.write_figures`
+FigureWriter = Callable[
+    [Path, Dataset, str, Labels, np.ndarray, str, dict[str, np.ndarray], dict[str, Any]], None
+]
 
 
 def scan_poses(
@@ -178,12 +185,13 @@ def label_run(
     config: Config | None = None,
     force: bool = False,
     truth: Path | pd.DataFrame | None = None,
-    figures: bool = True,
+    figures: FigureWriter | None = None,
 ) -> LabelRun:
     """`toolkit label`: learn from `regions` (a CSV feature,start,end or such a table) or apply
     `model_path`, classify every scan along `trajectory` (see `scan_poses`), score against
-    `truth` (see `truth_labels`) and write RUN (without membership.png and labels-cloud.ply
-    unless `figures`). The CLI and the report both label through here."""
+    `truth` (see `truth_labels`) and write RUN (with membership.png and labels-cloud.ply
+    drawn by `figures`, e.g. `toolkit.features.figures.write_figures`, if given: the label
+    command passes it, so that matplotlib and Open3D load only there). The CLI and the report both label through here."""
     if regions is None and model_path is None:
         raise ToolkitError("give --regions REGIONS.csv to learn, or --model model.json to apply")
     existing = [name for name in OUTPUTS if (out / name).exists()]
@@ -200,8 +208,6 @@ def label_run(
         model = FeatureModel.load(model_path)
         model.check_laser(ds.laser, ds.path or "the dataset")
         if config is not None:
-            from dataclasses import replace
-
             model = replace(model, config=replace(model.config, smoothing=config.smoothing))
     # the bars: every scan scored; the fitting (when learning) and the outputs as steps
     learn = model_path is None
@@ -234,7 +240,7 @@ def _write_run(
     pose_source: str,
     training: dict[str, np.ndarray],
     metrics: dict[str, Any],
-    figures: bool,
+    figures: FigureWriter | None,
 ) -> None:
     """RUN as a whole: a copy of it (hard links) gets the new files, then replaces it; an
     interrupted label leaves RUN as it was."""
@@ -243,16 +249,8 @@ def _write_run(
             (tmp / name).unlink(missing_ok=True)  # never write through a link to the old RUN
         _write_labels(tmp / "labels.parquet", ds.t, labels)
         model.save(tmp / "model.json")
-        if poses is not None and figures:
-            from toolkit.features.figures import membership_figure, write_cloud
-
-            with atomic_file(tmp / "membership.png") as png:
-                membership_figure(
-                    png, ds.ranges, poses, ds.laser, labels, training,
-                    title=f"{name}: feature membership ({pose_source})",
-                )  # fmt: skip
-            with atomic_file(tmp / "labels-cloud.ply") as ply:
-                metrics["cloud_points"] = write_cloud(ply, ds.ranges, poses, ds.laser, labels)
+        if poses is not None and figures is not None:
+            figures(tmp, ds, name, labels, poses, pose_source, training, metrics)
         with atomic_file(tmp / "labels-metrics.json") as js:
             js.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
 

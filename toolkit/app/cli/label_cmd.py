@@ -116,6 +116,7 @@ def label_command(
     # on use: the features (numba, scipy, scikit-learn) load for `label` alone
 
     from toolkit.errors import ToolkitError
+    from toolkit.features.figures import write_figures  # matplotlib and Open3D: label alone
     from toolkit.features.model import NONE_MODELS, PAPER, SMOOTHINGS, SURROUNDINGS, Config
     from toolkit.features.run import label_run
 
@@ -153,7 +154,9 @@ def label_command(
         config = None  # a saved model keeps its own settings
     if model is not None and beam_term is not None:
         raise ToolkitError("--beam-term is a learning setting; a --model keeps its own")
-    metrics = label_run(dataset, out, regions, model, trajectory, config, force, truth).metrics
+    metrics = label_run(
+        dataset, out, regions, model, trajectory, config, force, truth, write_figures
+    ).metrics
     counts = ", ".join(f"{k} {v}" for k, v in metrics["label_counts"].items())
     typer.echo(f"labelled {metrics['scans']} scans in {metrics['seconds']} s: {counts}")
     if "truth" in metrics:
