@@ -83,7 +83,8 @@ def _single(
 
 
 def run(out: Path, quick: bool) -> list[dict[str, Any]]:
-    from toolkit.app.fleet import ChunkTimes, client_for, match_pairs_on
+    from toolkit.app.fleet import client_for
+    from toolkit.app.fleet_map import ChunkTimes, match_pairs_on
     from toolkit.dataset import write_scans
 
     scans = 10_000 if quick else 50_000

@@ -16,10 +16,11 @@ import pandas as pd
 
 from reports.base import Figure, NotAvailable, Section, new_figure, save_figure, save_table
 from reports.context import Context
-from reports.runs import poses_at, safe_name, world_points
+from reports.runs import safe_name, world_points
 from toolkit.dataset import Dataset, path_distance
 from toolkit.features import balanced_accuracy
 from toolkit.features.run import LabelRun
+from toolkit.poses import poses_at
 
 KEY = "features"
 TITLE = "Fig. 8-10: learnt features"

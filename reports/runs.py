@@ -20,7 +20,6 @@ from toolkit.errors import ToolkitError
 from toolkit.features.run import LabelRun, label_run
 from toolkit.mapping import map_run
 from toolkit.poses import build
-from toolkit.poses import poses_at as _poses_at
 from toolkit.raster import world_points as _world_points
 
 RUNS = "runs"  # the report's folder of run outputs (trajectories, metrics, labels)
@@ -148,8 +147,3 @@ def world_points(ds: Dataset, poses: np.ndarray, every: int = 1) -> tuple[np.nda
 def safe_name(name: str) -> str:
     """A log's name as part of a file name."""
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
-
-
-def poses_at(frame: pd.DataFrame, t: np.ndarray) -> np.ndarray:
-    """Poses (S x 3) of a pose table at times `t` (the trajectory module's interpolation)."""
-    return np.asarray(_poses_at(frame, t))

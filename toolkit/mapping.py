@@ -31,9 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
-from toolkit import trajio
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import META, Dataset, load, sha256, write_described
@@ -95,24 +93,6 @@ def voxel_down(rows: np.ndarray, voxel: float) -> np.ndarray:
     return out
 
 
-def write_cloud(
-    path: Path,
-    ds: Dataset,
-    robot: np.ndarray,
-    voxel: float = 0.0,
-    chunk: int = CLOUD_CHUNK,
-) -> int:
-    """The 3D map: every return at its world x, y and the laser's height, coloured by time
-    (viridis), with its scan's time `t` and index `scan` as properties; a binary PLY, or a
-    binary PCD when `path` ends in .pcd. Returns the number of points written.
-
-    Without `voxel` the returns are streamed chunk by chunk of scans (memory does not grow
-    with the log); with `voxel` > 0 each chunk is reduced to one point per voxel (the mean)
-    and then their union again.
-    """
-    return write_clouds([path], ds, robot, voxel, chunk)
-
-
 def write_clouds(
     paths: list[Path],
     ds: Dataset,
@@ -120,7 +100,12 @@ def write_clouds(
     voxel: float = 0.0,
     chunk: int = CLOUD_CHUNK,
 ) -> int:
-    """`write_cloud` to several files (.ply, .pcd) in one pass: the points are computed once."""
+    """The 3D map to each of `paths` (a binary PLY, or a binary PCD for a .pcd path), the points
+    computed once: every return at its world x, y and the laser's height, coloured by time
+    (viridis), with its scan's time `t` and index `scan` as properties. Returns the number of
+    points written. Without `voxel` the returns are streamed chunk by chunk of scans (memory
+    does not grow with the log); with `voxel` > 0 each chunk is reduced to one point per voxel
+    (the mean) and then their union again."""
     kinds = [Path(p).suffix.lower() == ".pcd" for p in paths]
     span = (float(ds.t[0]), float(ds.t[-1])) if len(ds.t) else (0.0, 1.0)
     if voxel > 0:
@@ -184,7 +169,7 @@ def run_metrics(ds: Dataset, result: TrajectoryResult) -> dict[str, Any]:
 
 def _meta_digest(ds: Dataset) -> str | None:
     """sha256 of the dataset's meta.json (its identity: sources' sha256, import time), so a
-    re-run can tell an unchanged dataset (`toolkit.app.fleet.run_is_current`)."""
+    re-run can tell an unchanged dataset (`toolkit.app.fleet_map.run_is_current`)."""
     meta = ds.path / META if ds.path else None
     return sha256(meta) if meta is not None and meta.is_file() else None
 
@@ -309,8 +294,3 @@ def map_run(
                 (tmp / "metrics.json").write_text(text)
             step()
     return MapRun(out, result, metrics)
-
-
-def read_trajectory(path: str | Path) -> pd.DataFrame:
-    """A trajectory t, x, y, theta: a run's trajectory.parquet or .tum (`toolkit.trajio`)."""
-    return trajio.read_trajectory(path)

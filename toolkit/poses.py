@@ -136,7 +136,7 @@ def build(
     point-to-line), icp-point (Open3D point-to-point) or odometry (no matching).
 
     `matcher` replaces `match_pairs` for gaussian (same arguments and result), e.g. one that
-    runs the pairs on a Dask cluster (`toolkit.app.fleet.matcher_for`). `progress(m)` is told
+    runs the pairs on a Dask cluster (`toolkit.app.fleet_map.matcher_for`). `progress(m)` is told
     of every m scan pairs matched (S - 1 in all; per `PAIRS_PER_STEP` by the default matcher,
     all at once by a given one)."""
     method = Method.parse(method)

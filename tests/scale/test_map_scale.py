@@ -16,14 +16,8 @@ import pandas as pd
 import pytest
 
 from tests.conftest import Cli
-from toolkit.app.fleet import (
-    chunk_plan,
-    client_for,
-    match_pairs_on,
-    matcher_for,
-    pair_chunks,
-    parse_scheduler,
-)
+from toolkit.app.fleet import client_for, parse_scheduler
+from toolkit.app.fleet_map import chunk_plan, match_pairs_on, matcher_for, pair_chunks
 from toolkit.dataset import Dataset, load, save
 from toolkit.poses import build
 from toolkit.sim import simulate

@@ -20,30 +20,21 @@ import numpy as np
 from toolkit import se2
 from toolkit.dataset import Dataset
 from toolkit.metrics import align_se2
-from toolkit.raster import grid_for, map_image, map_text
+from toolkit.raster import CHUNK, grid_for, map_image, map_text, scan_chunks, world_points
 from toolkit.writers import write_png
-
-CHUNK = 20_000
-
-
-def _laser_poses(robot: np.ndarray, ds: Dataset) -> np.ndarray:
-    return se2.compose(robot, np.broadcast_to(se2.mount_pose(ds.laser), robot.shape))
 
 
 def _bounds(ds: Dataset, robot: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding box of the returns within `reach` of the laser (chunk by chunk)."""
+    """Bounding box of the trajectory (plus 1 m) and of the returns within `reach` of the
+    laser, chunk by chunk."""
     lo = robot[:, :2].min(axis=0) - 1.0
     hi = robot[:, :2].max(axis=0) + 1.0
-    a = ds.laser.angles
-    for s in range(0, ds.n_scans, CHUNK):
-        part = slice(s, min(s + CHUNK, ds.n_scans))
-        lp = _laser_poses(robot[part], ds)
-        r = np.where(ds.ranges[part] <= reach, ds.ranges[part], np.nan)
-        x = lp[:, :1] + r * np.cos(lp[:, 2:3] + a)
-        y = lp[:, 1:2] + r * np.sin(lp[:, 2:3] + a)
-        if np.isfinite(x).any():
-            lo = np.minimum(lo, [np.nanmin(x), np.nanmin(y)])
-            hi = np.maximum(hi, [np.nanmax(x), np.nanmax(y)])
+    for part in scan_chunks(ds.n_scans, CHUNK):
+        near = np.where(ds.ranges[part] <= reach, ds.ranges[part], np.nan)
+        xy, _ = world_points(near, robot[part], ds.laser)
+        if len(xy):
+            lo = np.minimum(lo, xy.min(axis=0))
+            hi = np.maximum(hi, xy.max(axis=0))
     return lo, hi
 
 
@@ -110,9 +101,8 @@ def occupancy(
     hits = np.zeros((shape[1], shape[0]), dtype=np.int32)
     seen = np.zeros_like(hits)
     angles = ds.laser.angles.astype(np.float64)
-    for s in range(0, ds.n_scans, CHUNK):
-        part = slice(s, min(s + CHUNK, ds.n_scans))
-        lp = _laser_poses(robot[part], ds)
+    for part in scan_chunks(ds.n_scans, CHUNK):
+        lp = se2.laser_poses(robot[part], ds.laser)
         _trace(lp, ds.ranges[part], angles, lo, resolution, reach, free_range, hits, seen)
     return hits, seen, lo
 

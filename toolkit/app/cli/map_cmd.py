@@ -95,7 +95,8 @@ def map_command(
     if scheduler == "none":
         run = map_run(dataset, out, method, voxel, force=force, loops=loops)
     else:
-        from toolkit.app.fleet import client_for, matcher_for, on_shared_storage  # Dask, on use
+        from toolkit.app.fleet import client_for  # Dask, on use
+        from toolkit.app.fleet_map import matcher_for, on_shared_storage
         from toolkit.dataset import SCANS  # with the line above
 
         with client_for(scheduler) as client:
@@ -141,7 +142,8 @@ def _map_each(
     quiet: bool,
 ) -> None:
     """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
-    from toolkit.app.fleet import client_for, find_datasets, map_many, on_shared_storage  # Dask
+    from toolkit.app.fleet import client_for, find_datasets  # Dask, on use
+    from toolkit.app.fleet_map import map_many, on_shared_storage
 
     found = find_datasets(datasets)
     if not found:
