@@ -15,12 +15,31 @@ import fcntl
 import os
 import re
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from toolkit.errors import OutputExistsError, ToolkitError
+
+_STOPS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP back while a temporary is created and its name
+    recorded: a signal between the mkdir and the assignment would otherwise leave a
+    temporary that no cleanup knows of. They are delivered when the block ends."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _umask() -> int:
@@ -51,6 +70,20 @@ def output_lock(out: Path) -> Iterator[None]:
     The lock file is removed on release; a waiter that opened the old file re-checks that it
     locked the file now at the path (the classic unlink-safe flock protocol)."""
     path = lock_path(out)
+    fd: int | None = None
+    try:
+        with _signals_held():
+            fd = _lock(path, out)
+        yield
+    finally:
+        if fd is not None:
+            with suppress(OSError):
+                os.unlink(path)
+            os.close(fd)
+
+
+def _lock(path: Path, out: Path) -> int:
+    """Open and lock `path` without waiting; the descriptor of the file now at `path`."""
     while True:
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
@@ -68,14 +101,8 @@ def output_lock(out: Path) -> Iterator[None]:
         except FileNotFoundError:
             same = False
         if same:
-            break
+            return fd
         os.close(fd)  # the holder removed the file while we waited: lock the new one
-    try:
-        yield
-    finally:
-        with suppress(OSError):
-            os.unlink(path)
-        os.close(fd)
 
 
 def remove_stale(out: Path) -> list[Path]:
@@ -140,11 +167,10 @@ def atomic_dir(out: str | Path, force: bool = False, update: bool = False) -> It
     with output_lock(out):
         remove_stale(out)
         check_output(out, force or update)
+        tmp: Path | None = None
         try:
-            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-        except OSError as e:
-            raise _write_error(e, out, None) from None
-        try:
+            with _signals_held():
+                tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
             _publish_mode(tmp, 0o777)
             if update and out.is_dir():
                 shutil.copytree(out, tmp, dirs_exist_ok=True, copy_function=_link_or_copy)
@@ -153,8 +179,9 @@ def atomic_dir(out: str | Path, force: bool = False, update: bool = False) -> It
                 raise OutputExistsError("appeared while this command ran; not replaced", file=out)
             _replace(tmp, out)
         except BaseException as e:
-            shutil.rmtree(tmp, ignore_errors=True)
-            if isinstance(e, OSError) and e.errno in _WRITE_ERRORS:
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(e, OSError) and (tmp is None or e.errno in _WRITE_ERRORS):
                 raise _write_error(e, out, tmp) from None
             raise
 
@@ -187,32 +214,35 @@ def atomic_path(out: str | Path) -> Iterator[Path]:
     directory, only if the block succeeds, and nothing is left behind otherwise."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    box = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    box: Path | None = None
     try:
+        with _signals_held():
+            box = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
         tmp = box / out.name
         yield tmp
         _replace(tmp, out)
     finally:
-        shutil.rmtree(box, ignore_errors=True)
+        if box is not None:
+            shutil.rmtree(box, ignore_errors=True)
 
 
 @contextmanager
 def atomic_file(out: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `out`; it replaces `out` only if the block succeeds."""
     out = Path(out)
+    tmp: Path | None = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    except OSError as e:
-        raise _write_error(e, out, None) from None
-    os.close(fd)
-    tmp = Path(name)
-    try:
+        with _signals_held():
+            fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+            os.close(fd)
+            tmp = Path(name)
         _publish_mode(tmp, 0o666)
         yield tmp
         os.replace(tmp, out)
     except BaseException as e:
-        tmp.unlink(missing_ok=True)
-        if isinstance(e, OSError) and e.errno in _WRITE_ERRORS:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+        if isinstance(e, OSError) and (tmp is None or e.errno in _WRITE_ERRORS):
             raise _write_error(e, out, None) from None
         raise
