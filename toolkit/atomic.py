@@ -24,22 +24,33 @@ from pathlib import Path
 
 from toolkit.errors import OutputExistsError, ToolkitError
 
-_STOPS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+_STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 @contextmanager
 def _signals_held() -> Iterator[None]:
-    """Hold Ctrl-C, SIGTERM and SIGHUP back while a temporary is created and its name
-    recorded: a signal between the mkdir and the assignment would otherwise leave a
-    temporary that no cleanup knows of. They are delivered when the block ends."""
+    """Hold Ctrl-C, SIGTERM and SIGHUP back for a few instructions: between creating a
+    temporary and recording its name, and between the two renames that replace an output.
+    A signal there would leave a temporary no cleanup knows of, or the old output in the
+    trash. The Python handlers are swapped for a recorder (a thread mask would not do: the
+    kernel hands a process's signal to any thread that does not block it); a signal that
+    came is raised again when the block ends, and takes the usual clean path."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+    came: list[int] = []
+    held = {}
+    for sig in _STOPS:
+        current = signal.getsignal(sig)
+        if current not in (signal.SIG_IGN, None):
+            held[sig] = signal.signal(sig, lambda signum, frame: came.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
+        if came:
+            signal.raise_signal(came[0])
 
 
 def _umask() -> int:
@@ -194,7 +205,13 @@ def _link_or_copy(src: str, dst: str) -> None:
 
 
 def _replace(tmp: Path, out: Path) -> None:
-    """Rename `tmp` (a file or a directory) to `out`, replacing whatever `out` is."""
+    """Rename `tmp` (a file or a directory) to `out`, replacing whatever `out` is. Signals
+    wait: stopped between the two renames, the old output would be left in the trash."""
+    with _signals_held():
+        _swap(tmp, out)
+
+
+def _swap(tmp: Path, out: Path) -> None:
     if out.exists():
         trash = out.with_name(f".{out.name}.old-{os.getpid()}")
         os.replace(out, trash)

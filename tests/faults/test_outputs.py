@@ -7,7 +7,11 @@ import errno
 import json
 import os
 import shutil
+import signal
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import pandas as pd
@@ -15,8 +19,10 @@ import pytest
 
 from tests.conftest import Cli
 from tests.faults.conftest import digest, hidden
-from toolkit.atomic import atomic_dir, output_lock
+from toolkit.atomic import atomic_dir, atomic_file, output_lock
 from toolkit.errors import OutputExistsError, ToolkitError
+
+T = TypeVar("T")
 
 
 def _fleet(small: dict[str, Path], tmp_path: Path) -> Path:
@@ -106,6 +112,52 @@ def test_concurrent_cli_writers(small: dict[str, Path], tmp_path: Path, cli: Cli
         == f"error: {out}: another toolkit command is writing it now; wait for it or stop it"
     )
     assert not out.exists()
+
+
+def _signal_after(real: Callable[..., T]) -> Callable[..., T]:
+    """`real`, then SIGINT to this process: the signal lands right after the temporary exists,
+    before the caller has recorded its name (the window CI once hit)."""
+
+    def call(*args: object, **kwargs: object) -> T:
+        result = real(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+        return result
+
+    return call
+
+
+@pytest.mark.parametrize("make", ["mkdtemp", "mkstemp"])
+def test_a_signal_as_the_temporary_is_created_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, make: str
+) -> None:
+    monkeypatch.setattr(tempfile, make, _signal_after(getattr(tempfile, make)))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "kept").write_text("the user's")
+    writer = (
+        atomic_dir(tmp_path / "out", update=True)
+        if make == "mkdtemp"
+        else atomic_file(tmp_path / "out" / "kept")
+    )
+    with pytest.raises(KeyboardInterrupt), writer as tmp:
+        Path(tmp, "new").write_text("x") if make == "mkdtemp" else Path(tmp).write_text("x")
+    assert hidden(tmp_path) == []
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["kept"]
+    assert (tmp_path / "out" / "kept").read_text() == "the user's"
+
+
+def test_a_signal_between_the_renames_keeps_the_output(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Replacing an output is two renames (old -> trash, new -> out): a signal between them
+    waits, so OUT is the old or the new directory, never missing."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "v").write_text("old")
+    monkeypatch.setattr(os, "replace", _signal_after(os.replace))
+    with pytest.raises(KeyboardInterrupt), atomic_dir(out, force=True) as tmp:
+        (tmp / "v").write_text("new")
+    assert (out / "v").read_text() in ("old", "new")
+    assert hidden(tmp_path) == []
 
 
 def test_an_output_created_meanwhile_is_not_replaced(tmp_path: Path) -> None:
