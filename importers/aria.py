@@ -29,6 +29,7 @@ import csv
 import io
 import math
 import re
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -206,17 +207,9 @@ def parse_rows(texts: list[str], width: int) -> tuple[np.ndarray, np.ndarray]:
     clean = [row if _NUMBER_CHARS.fullmatch(row) else "" for row in texts]
     # each row starts with its index: rows the parser skips (too many fields) are known
     text = "\n".join(f"{i} {row}" for i, row in enumerate(clean))
-    frame = pd.read_csv(
-        io.StringIO(text),
-        sep=r"\s+",
-        header=None,
-        names=range(width + 1),
-        index_col=False,
-        on_bad_lines="skip",
-        quoting=csv.QUOTE_NONE,
-        skip_blank_lines=False,
-        low_memory=False,
-    )
+    with warnings.catch_warnings():  # short rows are expected here and found below
+        warnings.simplefilter("ignore", pd.errors.ParserWarning)
+        frame = _read_rows(text, width)
     numbers = frame.apply(pd.to_numeric, errors="coerce").to_numpy(np.float64)
     index = numbers[:, 0]
     finite = np.isfinite(numbers).all(axis=1)
@@ -228,6 +221,20 @@ def parse_rows(texts: list[str], width: int) -> tuple[np.ndarray, np.ndarray]:
     values = np.empty((len(texts), width))
     values[at] = numbers[rows, 1:]
     return ok, values[ok]
+
+
+def _read_rows(text: str, width: int) -> pd.DataFrame:
+    return pd.read_csv(
+        io.StringIO(text),
+        sep=r"\s+",
+        header=None,
+        names=range(width + 1),
+        index_col=False,
+        on_bad_lines="skip",
+        quoting=csv.QUOTE_NONE,
+        skip_blank_lines=False,
+        low_memory=False,
+    )
 
 
 def _parse(path: Path, report: ImportReport) -> tuple[dict[str, tuple[str, int]], _Scans]:

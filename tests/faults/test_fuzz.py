@@ -121,6 +121,7 @@ def import_bytes(fmt: str, data: bytes, tmp: Path, compress: str = "") -> None:
 
 
 @pytest.mark.parametrize("fmt", ["carmen", "aria", "table", "rawseeds", "lms200", "auto"])
+@pytest.mark.filterwarnings("error::pandas.errors.ParserWarning")  # a stray stderr line
 def test_any_bytes_give_a_dataset_or_one_error(fmt: str, tmp_path: Path) -> None:
     seed_fmt = "carmen" if fmt == "auto" else fmt
 
