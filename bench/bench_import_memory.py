@@ -45,6 +45,8 @@ def carmen_log(path: Path, megabytes: float) -> int:
     tiled_odo = odo.loc[np.tile(np.arange(len(odo)), copies)].reset_index(drop=True)
     tiled_odo["t"] = tiled_odo["t"].to_numpy() + np.repeat(np.arange(copies) * span, len(odo))
     rng = np.random.default_rng(0)  # mm noise per copy, so that Parquet cannot dedupe copies
+    for col in ("x", "y", "theta"):  # (odometry too: 0.1 mm, printed with 6 decimals)
+        tiled_odo[col] += rng.normal(0, 1e-4, len(tiled_odo))
     ranges = np.tile(ds.ranges, (copies, 1))
     ranges += rng.normal(0, 0.005, ranges.shape).astype(np.float32)
     big = Dataset(

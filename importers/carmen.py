@@ -101,6 +101,7 @@ MAX_OUT_OF_ORDER = 0.25
 NOMINAL_RATE = 1.0
 CONVERT_ROWS = 512  # laser lines whose tokens are held before converting them in one call
 POSE_BLOCK = 1 << 16  # ODOM/TRUEPOS lines whose values are held before they are spilled
+POSE_GROUP = 1 << 17  # poses per Parquet row group when streamed (write_table: up to 1 Mi)
 MAX_PARAMS = 1000  # distinct PARAM names and other words kept (a garbage file has millions)
 
 #: old-format beam layouts: beams -> (first angle, step), degrees
@@ -243,11 +244,10 @@ class _PoseLines:
     count: int = 0
     seven: int = 0  # lines of 7 fields (no timestamp)
     where: Path | None = None  # where the values spill (None: kept in memory)
-    numbers: array = field(default_factory=lambda: array("q"))
     stamps: array = field(default_factory=lambda: array("d"))  # of the flushed lines
     finite: bytearray = field(default_factory=bytearray)  # per flushed line: 4 finite values
-    pending: array = field(default_factory=lambda: array("d"))  # 4 per line, not yet flushed
-    values: RowSpill = field(init=False)  # x, y, theta, timestamp per line
+    pending: array = field(default_factory=lambda: array("d"))  # 5 per line, not yet flushed
+    values: RowSpill = field(init=False)  # x, y, theta, timestamp, line number per line
     wrong: list[int] = field(default_factory=list)  # first and last line without 10 fields
     wrong_count: int = 0
     non_numeric: list[int] = field(default_factory=list)
@@ -267,22 +267,26 @@ class _PoseLines:
         except ValueError:
             self.non_numeric.append(number)
             return
-        self.numbers.append(number)
         self.pending.extend(fields)
-        if len(self.pending) >= 4 * POSE_BLOCK:
+        self.pending.append(number)
+        if len(self.pending) >= 5 * POSE_BLOCK:
             self.flush()
 
     def __post_init__(self) -> None:
-        self.values = RowSpill(4, np.float64, self.where)
+        self.values = RowSpill(5, np.float64, self.where)
 
     def flush(self) -> None:
         if not self.pending:
             return
-        block = np.array(self.pending, dtype=np.float64).reshape(-1, 4)
+        block = np.array(self.pending, dtype=np.float64).reshape(-1, 5)
         self.pending = array("d")
         self.values.append(block)
         self.stamps.frombytes(block[:, 3].tobytes())
-        self.finite.extend(np.isfinite(block).all(axis=1).tobytes())
+        self.finite.extend(np.isfinite(block[:, :4]).all(axis=1).tobytes())
+
+    def number(self, row: int) -> int:
+        """The line number of the `row`-th line with 10 numeric fields."""
+        return int(self.values.row(row)[4])
 
 
 @dataclass
@@ -319,7 +323,7 @@ class _LaserStream:
     lines: np.ndarray  # (S,) line numbers
     index: np.ndarray  # (S,) position among this laser's lines in the file (for scan order)
     ranges: RowSpill  # float32 rows (parsed as float64, as the file's text), S of them kept:
-    rows: np.ndarray  # (S,) the kept rows of `ranges`, increasing
+    rows: np.ndarray  # the kept rows of `ranges` (S of them True)
     laser_pose: np.ndarray  # (S, 3)
     robot_pose: np.ndarray  # (S, 3)
     stamp: np.ndarray | None  # (S,) message timestamps, None without a clock
@@ -485,7 +489,7 @@ def _parse_laser(
         lines=numbers[ok],
         index=np.frombuffer(rows.index, dtype=np.int64)[ok],
         ranges=rows.ranges,
-        rows=np.arange(rows.ranges.rows),
+        rows=np.ones(rows.ranges.rows, dtype=bool),
         laser_pose=parts["poses"][:, :3],
         robot_pose=parts["poses"][:, 3:],
         stamp=parts["stamp"][:, 0] if clock else None,
@@ -662,17 +666,17 @@ class _Built:
 
 @dataclass
 class _SpilledPoses:
-    """An ODOM or TRUEPOS stream: the kept `rows` (increasing) of its lines' x, y, theta, t."""
+    """An ODOM or TRUEPOS stream: the kept `rows` (a mask) of its lines' x, y, theta, t."""
 
     values: RowSpill
     rows: np.ndarray
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return int(np.count_nonzero(self.rows))
 
     def blocks(self) -> Iterator[np.ndarray]:
         """The kept poses block by block, as t, x, y, theta rows."""
-        for block in self.values.take(self.rows):
+        for block in self.values.take(self.rows, POSE_GROUP):
             yield block[:, [3, 0, 1, 2]]
 
     def frame(self) -> pd.DataFrame:
@@ -1002,17 +1006,15 @@ class _Reader:
         if lines.non_numeric:
             report.drop(f"{msg} non-numeric value", len(lines.non_numeric),
                         _where(path, lines.non_numeric[0]))  # fmt: skip
-        numbers = np.frombuffer(lines.numbers, dtype=np.int64)
         stamp = np.frombuffer(lines.stamps, dtype=np.float64)
         if not clock:
             report.note(f"{msg} lines not used: the scans have no usable clock to align them to")
             return None
         finite = np.frombuffer(bytes(lines.finite), dtype=bool)
-        rows = np.arange(stamp.size)
         if not finite.all():
             report.drop(f"{msg} NaN or inf value", int((~finite).sum()),
-                        _where(path, int(numbers[int(np.argmin(finite))])))  # fmt: skip
-            rows, numbers, stamp = rows[finite], numbers[finite], stamp[finite]
+                        _where(path, lines.number(int(np.argmin(finite)))))  # fmt: skip
+            stamp = stamp[finite]
         keep = longest_in_order(stamp)
         why = broken_clock(stamp, keep)
         if why is not None:
@@ -1020,13 +1022,20 @@ class _Reader:
             return None
         late = np.flatnonzero(~keep)
         if late.size:
+            first = int(np.flatnonzero(finite)[late[0]])
             report.drop(f"{msg} timestamp out of order", late.size,
-                        _where(path, int(numbers[late[0]])))  # fmt: skip
-        rows = rows[keep]
+                        _where(path, lines.number(first)))  # fmt: skip
         decisions[f"{msg.lower()}_lines_kept"] = int(keep.sum())
-        if not len(rows):
+        if not keep.any():
             return None
-        return _SpilledPoses(lines.values, rows)
+        return _SpilledPoses(lines.values, _narrow(finite, keep))
+
+
+def _narrow(mask: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """`mask` with its True entries kept where `keep` (one per True entry) is True."""
+    out = mask.copy()
+    out[np.flatnonzero(mask)[~keep]] = False
+    return out
 
 
 def _take(s: _LaserStream, keep: np.ndarray) -> _LaserStream:
@@ -1035,7 +1044,7 @@ def _take(s: _LaserStream, keep: np.ndarray) -> _LaserStream:
         s.lines[keep],
         s.index[keep],
         s.ranges,
-        s.rows[keep],
+        _narrow(s.rows, keep),
         s.laser_pose[keep],
         s.robot_pose[keep],
         None if s.stamp is None else s.stamp[keep],
