@@ -8,9 +8,9 @@ import json
 import tempfile
 import tracemalloc
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
@@ -22,9 +22,9 @@ from toolkit.dataset import Dataset, column_numpy, save
 from toolkit.sim import Simulation
 
 
-def _values(column: Any) -> np.ndarray:
+def _values(column: pa.ChunkedArray) -> np.ndarray:
     arr = column.combine_chunks()
-    if hasattr(arr, "values") and hasattr(arr.type, "list_size"):  # ranges: fixed-size lists
+    if isinstance(arr, pa.FixedSizeListArray):  # ranges
         return column_numpy(arr.values).reshape(len(arr), -1)
     return column_numpy(arr)
 
@@ -59,9 +59,9 @@ def small_spill(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     opened: list[int] = []
     real_temporary = tempfile.TemporaryFile
 
-    def counted(*args: Any, **kwargs: Any) -> Any:
+    def counted(*args: object, **kwargs: object) -> object:
         opened.append(1)
-        return real_temporary(*args, **kwargs)
+        return real_temporary(*args, **kwargs)  # type: ignore[call-overload]
 
     monkeypatch.setattr(importers.base.tempfile, "TemporaryFile", counted)
     return opened
