@@ -10,7 +10,7 @@ def main() -> None:
 
     # Arrow's allocator (mimalloc) keeps freed memory for a while and commits its arenas
     # eagerly: an import that writes row group after row group peaks 45-55 MB higher with
-    # its defaults (bench_import_memory: CARMEN 85 MB 234 -> 180 MB, Rawseeds 1 GB 376 ->
+    # its defaults (bench_import_memory: CARMEN 85 MB 236 -> 180 MB, Rawseeds 1 GB 376 ->
     # 344 MB; ~5% more CPU, in madvise). Read when pyarrow loads, so set here, before; the
     # user's own settings win.
     os.environ.setdefault("MIMALLOC_PURGE_DELAY", "0")
