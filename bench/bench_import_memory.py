@@ -4,7 +4,7 @@ Each import runs in a fresh child process (`python -m toolkit import ...`, as a 
 it) whose peak RSS (VmHWM) is read from /proc while it runs; `base_mb` is the RSS of a child
 that only imports the same modules (interpreter, numpy, pandas, pyarrow, the importer), so
 `peak - base` is what the data costs (with Arrow's Parquet writer: its code, paged in on first
-use, and its row-group buffers, ~40 MB whatever the log's length). Inputs, generated in a temporary directory and deleted:
+use, and its row-group buffers, ~20 MB whatever the log's length). Inputs, generated in a temporary directory and deleted:
   - a CARMEN log of ~85 MB: the real intel-corrected log tiled with shifted times and noise
     on the ranges (5 mm) and the odometry (0.1 mm), so that Parquet cannot deduplicate the
     copies, written by the CARMEN writer (quick: ~20 MB);
