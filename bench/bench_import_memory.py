@@ -3,9 +3,11 @@
 Each import runs in a fresh child process (`python -m toolkit import ...`, as a user runs
 it) whose peak RSS (VmHWM) is read from /proc while it runs; `base_mb` is the RSS of a child
 that only imports the same modules (interpreter, numpy, pandas, pyarrow, the importer), so
-`peak - base` is what the data costs. Inputs, generated in a temporary directory and deleted:
-  - a CARMEN log of ~85 MB: the real intel-corrected log tiled with shifted times, written
-    by the CARMEN writer (quick: ~20 MB);
+`peak - base` is what the data costs (with Arrow's Parquet writer: its code, paged in on first
+use, and its row-group buffers, ~20 MB whatever the log's length). Inputs, generated in a temporary directory and deleted:
+  - a CARMEN log of ~85 MB: the real intel-corrected log tiled with shifted times and noise
+    on the ranges (5 mm) and the odometry (0.1 mm), so that Parquet cannot deduplicate the
+    copies, written by the CARMEN writer (quick: ~20 MB);
   - a Rawseeds SICK_FRONT session of ~1 GB (`bench_import_rawseeds.generate`; quick: 100 MB).
 """
 
@@ -45,6 +47,8 @@ def carmen_log(path: Path, megabytes: float) -> int:
     tiled_odo = odo.loc[np.tile(np.arange(len(odo)), copies)].reset_index(drop=True)
     tiled_odo["t"] = tiled_odo["t"].to_numpy() + np.repeat(np.arange(copies) * span, len(odo))
     rng = np.random.default_rng(0)  # mm noise per copy, so that Parquet cannot dedupe copies
+    for col in ("x", "y", "theta"):  # (odometry too: 0.1 mm, printed with 6 decimals)
+        tiled_odo[col] += rng.normal(0, 1e-4, len(tiled_odo))
     ranges = np.tile(ds.ranges, (copies, 1))
     ranges += rng.normal(0, 0.005, ranges.shape).astype(np.float32)
     big = Dataset(

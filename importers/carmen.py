@@ -43,6 +43,7 @@ from ds.groundtruth; timestamps with 6 decimals, ranges with 3 (mm), NaN as the 
 from __future__ import annotations
 
 import bisect
+import json
 import math
 import re
 from array import array
@@ -57,17 +58,34 @@ import pandas as pd
 from rich.progress import TaskID
 
 from importers import register
-from importers.base import FormatOptions, Importer, TextBlocks, head_bytes, option
+from importers.base import (
+    FormatOptions,
+    Importer,
+    RowSpill,
+    TextBlocks,
+    head_bytes,
+    option,
+    write_pose_blocks,
+)
 from toolkit import se2
-from toolkit.atomic import atomic_file
+from toolkit.atomic import atomic_dir, atomic_file
 from toolkit.dataset import (
+    FORMAT_VERSION,
+    GROUNDTRUTH,
+    META,
+    ODOMETRY,
+    SCANS,
     Dataset,
     ImportReport,
     LaserGeometry,
     PoseStream,
     Scans,
+    ScansWriter,
+    check_scans,
     make_meta,
+    plausible_poses,
     pose_frame,
+    write_poses,
 )
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.progress import task
@@ -82,6 +100,8 @@ MIN_DISTINCT = 0.5
 MAX_OUT_OF_ORDER = 0.25
 NOMINAL_RATE = 1.0
 CONVERT_ROWS = 512  # laser lines whose tokens are held before converting them in one call
+POSE_BLOCK = 1 << 16  # ODOM/TRUEPOS lines whose values are held before they are spilled
+POSE_GROUP = 1 << 17  # poses per Parquet row group when streamed (write_table: up to 1 Mi)
 MAX_PARAMS = 1000  # distinct PARAM names and other words kept (a garbage file has millions)
 
 #: old-format beam layouts: beams -> (first angle, step), degrees
@@ -146,16 +166,21 @@ class _Drops:
 @dataclass
 class _LayoutRows:
     """A laser message's lines of one layout: their numbers, positions among the message's
-    lines, and their numeric fields converted in blocks (the tokens are not kept)."""
+    lines, and their numeric fields converted in blocks (the tokens are not kept); the ranges
+    of the lines whose fields are numbers go to a `RowSpill` (on disk for `import_to`)."""
 
     cols: np.ndarray  # token columns of the fields, see `_columns`; the ranges' first
     beams: int  # ranges: the first `beams` fields, kept as float32 (converted via float64)
+    where: Path | None = None  # where the ranges spill (None: kept in memory)
     numbers: array = field(default_factory=lambda: array("q"))
     index: array = field(default_factory=lambda: array("q"))
     ok: bytearray = field(default_factory=bytearray)  # per line: its fields are numbers
     pending: list[list[str]] = field(default_factory=list)
-    blocks: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # ok lines:
-    # (ranges float32, the other fields float64)
+    rest: list[np.ndarray] = field(default_factory=list)  # ok lines' other fields, float64
+    ranges: RowSpill = field(init=False)  # ok lines' ranges, float32
+
+    def __post_init__(self) -> None:
+        self.ranges = RowSpill(self.beams, np.float32, self.where)
 
     def add(self, number: int, index: int, tokens: list[str]) -> None:
         lo, hi = int(self.cols.min()), int(self.cols.max()) + 1
@@ -181,8 +206,8 @@ class _LayoutRows:
                 except ValueError:
                     self.ok.append(0)
             values = np.array(good).reshape(len(good), cols.size)
-        ranges = values[:, : self.beams].astype(np.float32)
-        self.blocks.append((ranges, values[:, self.beams :].copy()))
+        self.ranges.append(values[:, : self.beams].astype(np.float32))
+        self.rest.append(values[:, self.beams :].copy())
         self.pending = []
 
 
@@ -194,6 +219,7 @@ class _LaserLines:
     count: int = 0
     layouts: dict[tuple[int, int, bool], _LayoutRows] = field(default_factory=dict)
     bad: _Drops = field(default_factory=_Drops)
+    where: Path | None = None  # where the ranges spill (None: kept in memory)
 
     def add(self, msg: str, number: int, tokens: list[str]) -> None:
         lay = _layout(msg, tokens)
@@ -204,19 +230,24 @@ class _LaserLines:
             if rows is None:
                 cols = _columns(msg, *lay)
                 flat = np.concatenate([cols[k] for k in _FIELDS if k in cols])
-                rows = self.layouts[lay] = _LayoutRows(flat, lay[0])
+                rows = self.layouts[lay] = _LayoutRows(flat, lay[0], self.where)
             rows.add(number, self.count, tokens)
         self.count += 1
 
 
 @dataclass
 class _PoseLines:
-    """ODOM or TRUEPOS lines: x, y, theta and timestamp of those with 10 fields."""
+    """ODOM or TRUEPOS lines: x, y, theta and timestamp of those with 10 fields. The four
+    values go to a `RowSpill` (on disk for `import_to`) every `POSE_BLOCK` lines; what the
+    stream's order is decided on stays: timestamps, line numbers, finite or not."""
 
     count: int = 0
     seven: int = 0  # lines of 7 fields (no timestamp)
-    numbers: array = field(default_factory=lambda: array("q"))
-    values: array = field(default_factory=lambda: array("d"))  # 4 per line
+    where: Path | None = None  # where the values spill (None: kept in memory)
+    stamps: array = field(default_factory=lambda: array("d"))  # of the flushed lines
+    finite: bytearray = field(default_factory=bytearray)  # per flushed line: 4 finite values
+    pending: array = field(default_factory=lambda: array("d"))  # 5 per line, not yet flushed
+    values: RowSpill = field(init=False)  # x, y, theta, timestamp, line number per line
     wrong: list[int] = field(default_factory=list)  # first and last line without 10 fields
     wrong_count: int = 0
     non_numeric: list[int] = field(default_factory=list)
@@ -236,23 +267,52 @@ class _PoseLines:
         except ValueError:
             self.non_numeric.append(number)
             return
-        self.numbers.append(number)
-        self.values.extend(fields)
+        self.pending.extend(fields)
+        self.pending.append(number)
+        if len(self.pending) >= 5 * POSE_BLOCK:
+            self.flush()
+
+    def __post_init__(self) -> None:
+        self.values = RowSpill(5, np.float64, self.where)
+
+    def flush(self) -> None:
+        if not self.pending:
+            return
+        block = np.array(self.pending, dtype=np.float64).reshape(-1, 5)
+        self.pending = array("d")
+        self.values.append(block)
+        self.stamps.frombytes(block[:, 3].tobytes())
+        self.finite.extend(np.isfinite(block[:, :4]).all(axis=1).tobytes())
+
+    def number(self, row: int) -> int:
+        """The line number of the `row`-th line with 10 numeric fields."""
+        return int(self.values.row(row)[4])
 
 
 @dataclass
 class _Lines:
     """The data lines of a log, by message, converted as they are read; the rest counted."""
 
+    where: Path | None = None  # where converted values spill (None: kept in memory)
     lasers: dict[str, _LaserLines] = field(default_factory=dict)
-    odom: _PoseLines = field(default_factory=_PoseLines)
-    truepos: _PoseLines = field(default_factory=_PoseLines)
+    odom: _PoseLines = field(init=False)
+    truepos: _PoseLines = field(init=False)
     params: dict[str, list[str]] = field(default_factory=dict)
     skipped: Counter[str] = field(default_factory=Counter)
     dpslam_odometry: int = 0  # DP-SLAM Odometry lines, all
     bad: list[tuple[str, int]] = field(default_factory=list)  # (reason, line) of damaged ones
     stream_error: str | None = None  # the compressed stream ended early
     last_line: int = 0  # number of the last line, if it lacks its newline (else 0)
+
+    def __post_init__(self) -> None:
+        self.odom = _PoseLines(where=self.where)
+        self.truepos = _PoseLines(where=self.where)
+
+    def laser(self, msg: str) -> _LaserLines:
+        lines = self.lasers.get(msg)
+        if lines is None:
+            lines = self.lasers[msg] = _LaserLines(where=self.where)
+        return lines
 
 
 @dataclass
@@ -262,7 +322,8 @@ class _LaserStream:
     name: str
     lines: np.ndarray  # (S,) line numbers
     index: np.ndarray  # (S,) position among this laser's lines in the file (for scan order)
-    ranges: np.ndarray  # (S, B) float32 (parsed as float64, as the file's text)
+    ranges: RowSpill  # float32 rows (parsed as float64, as the file's text), S of them kept:
+    rows: np.ndarray  # the kept rows of `ranges` (S of them True)
     laser_pose: np.ndarray  # (S, 3)
     robot_pose: np.ndarray  # (S, 3)
     stamp: np.ndarray | None  # (S,) message timestamps, None without a clock
@@ -273,10 +334,11 @@ class _LaserStream:
 # ---------------------------------------------------------------- reading lines
 
 
-def _split_lines(path: Path) -> _Lines:
+def _split_lines(path: Path, where: Path | None = None) -> _Lines:
     """One pass over the file in blocks (bounded memory: `TextBlocks`): every data line
-    filed under its message, laser and pose fields converted to numbers as they come."""
-    out = _Lines()
+    filed under its message, laser and pose fields converted to numbers as they come (and,
+    with `where`, spilled there)."""
+    out = _Lines(where)
     reader = TextBlocks(path)
     number = 0
     seen_text = False
@@ -292,6 +354,8 @@ def _split_lines(path: Path) -> _Lines:
     for laser in out.lasers.values():
         for rows in laser.layouts.values():
             rows.flush()
+    out.odom.flush()
+    out.truepos.flush()
     out.stream_error = reader.error
     if not seen_text:
         raise FormatError("empty file", file=path)
@@ -309,7 +373,7 @@ def _sort_line(
         return dpslam_pose
     msg = tokens[0]
     if msg in OLD_LASERS or msg in NEW_LASERS:
-        out.lasers.setdefault(msg, _LaserLines()).add(msg, number, tokens)
+        out.laser(msg).add(msg, number, tokens)
     elif msg == "ODOM":
         out.odom.add(number, tokens)
     elif msg == "TRUEPOS":
@@ -327,9 +391,7 @@ def _sort_line(
     elif msg.lower() == "laser":
         # as an old-format laser line without clock: laser pose = robot pose = Odometry
         pose = dpslam_pose if dpslam_pose is not None else ["nan"] * 3
-        out.lasers.setdefault(DPSLAM_LASER, _LaserLines()).add(
-            DPSLAM_LASER, number, tokens + pose + pose
-        )
+        out.laser(DPSLAM_LASER).add(DPSLAM_LASER, number, tokens + pose + pose)
     else:
         if msg in out.skipped or len(out.skipped) < MAX_PARAMS:
             out.skipped[msg] += 1
@@ -404,7 +466,8 @@ def _parse_laser(
             why = f"beam count {lay[0]} (the log's is {n})" if lay[0] != n else (
                 "wrong number of fields")  # fmt: skip
             drops.add(why, np.frombuffer(rows.numbers, dtype=np.int64))
-            rows.blocks = []
+            rows.ranges.close()
+            rows.rest = []
     rows = lines.layouts[main]
     ok = np.frombuffer(bytes(rows.ok), dtype=np.uint8).astype(bool)
     numbers = np.frombuffer(rows.numbers, dtype=np.int64)
@@ -413,27 +476,20 @@ def _parse_laser(
     if not ok.any():
         return None
     cols = _columns(msg, n, m, clock)
-    # the fields in arrays of their own, block by block (each block freed once copied)
-    sizes = {k: cols[k].size for k in _FIELDS if k in cols}
-    total = sum(len(r) for r, _ in rows.blocks)
-    parts = {k: np.empty((total, size), np.float32 if k == "ranges" else np.float64)
-             for k, size in sizes.items()}  # fmt: skip
-    at = 0
-    while rows.blocks:
-        ranges, rest = rows.blocks.pop(0)
-        parts["ranges"][at : at + len(ranges)] = ranges
-        col = 0
-        for k, size in sizes.items():
-            if k != "ranges":
-                parts[k][at : at + len(ranges)] = rest[:, col : col + size]
-                col += size
-        at += len(ranges)
-        del ranges, rest
+    # the other fields in arrays of their own (the ranges stay where they are)
+    sizes = {k: cols[k].size for k in _FIELDS if k in cols and k != "ranges"}
+    rest = np.concatenate(rows.rest) if rows.rest else np.empty((0, sum(sizes.values())))
+    rows.rest = []
+    parts, col = {}, 0
+    for k, size in sizes.items():
+        parts[k] = rest[:, col : col + size]
+        col += size
     return _LaserStream(
         name=msg,
         lines=numbers[ok],
         index=np.frombuffer(rows.index, dtype=np.int64)[ok],
-        ranges=parts["ranges"],
+        ranges=rows.ranges,
+        rows=np.ones(rows.ranges.rows, dtype=bool),
         laser_pose=parts["poses"][:, :3],
         robot_pose=parts["poses"][:, 3:],
         stamp=parts["stamp"][:, 0] if clock else None,
@@ -501,16 +557,50 @@ def longest_in_order(stamp: np.ndarray) -> np.ndarray:
 
 def no_return_code(ranges: np.ndarray) -> float | None:
     """The largest value recurring at least CODE_MIN_COUNT times: the scanner's no-return code."""
-    # by blocks of rows (a log's distinct values are few: mm steps), so that no copy of the
-    # whole log is sorted
-    parts = [np.unique(block[np.isfinite(block)], return_counts=True)
-             for block in _row_blocks(ranges)]  # fmt: skip
-    if not parts or not sum(u.size for u, _ in parts):
-        return None
-    uniq, inverse = np.unique(np.concatenate([u for u, _ in parts]), return_inverse=True)
-    counts = np.bincount(inverse, weights=np.concatenate([c for _, c in parts]))
-    frequent = uniq[counts >= CODE_MIN_COUNT]
-    return _as_printed(frequent[-1]) if frequent.size else None
+    values = _Values()
+    for block in _row_blocks(ranges):  # a log's distinct values are few: mm steps
+        values.add(block[np.isfinite(block)])
+    return values.code()
+
+
+class _Values:
+    """The distinct values of a laser's ranges with their counts, gathered block by block
+    (a log's distinct values are few: mm steps), so that no copy of the whole log is sorted."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple[np.ndarray, np.ndarray]] = []
+        self.uniq: np.ndarray = np.empty(0, np.float32)
+        self.counts: np.ndarray = np.empty(0, np.float64)
+
+    def add(self, finite: np.ndarray) -> None:
+        if finite.size:
+            self.parts.append(np.unique(finite, return_counts=True))
+        if len(self.parts) >= 16:
+            self.merge()
+
+    def merge(self) -> None:
+        if not self.parts:
+            return
+        self.parts.append((self.uniq, self.counts))
+        uniq, inverse = np.unique(np.concatenate([u for u, _ in self.parts]), return_inverse=True)
+        self.counts = np.bincount(inverse, weights=np.concatenate([c for _, c in self.parts]))
+        self.uniq, self.parts = uniq, []
+
+    def code(self) -> float | None:
+        """The largest value recurring at least CODE_MIN_COUNT times."""
+        self.merge()
+        frequent = self.uniq[self.counts >= CODE_MIN_COUNT]
+        return _as_printed(frequent[-1]) if frequent.size else None
+
+    def top(self) -> float:
+        """The largest value, -inf if none."""
+        self.merge()
+        return self.uniq[-1] if self.uniq.size else -np.inf
+
+    def at_least(self, code: float) -> int:
+        """How many values are >= `code` (compared as the float32 ranges are)."""
+        self.merge()
+        return int(self.counts[self.uniq >= code].sum())
 
 
 def _as_printed(value: float) -> float:
@@ -544,23 +634,144 @@ def _param_float(lines: _Lines, name: str, report: ImportReport) -> float | None
 
 @dataclass
 class _Built:
-    scans: Scans
+    """One laser, decided: times, geometry, the no-return code; its ranges are read from
+    the stream's spill and cleaned block by block (`blocks`), or all at once (`ranges`)."""
+
     stream: _LaserStream
     t: np.ndarray
+    laser: LaserGeometry
+    code: float | None  # ranges at or above it become NaN
     time_source: str
     decisions: dict[str, Any]
+
+    def blocks(self) -> Iterator[np.ndarray]:
+        """The kept scans' ranges in order, cleaned (NaN, inf, negative and no-return -> NaN)."""
+        code = self.code
+        for block in self.stream.ranges.take(self.stream.rows):
+            with np.errstate(invalid="ignore"):
+                block[~np.isfinite(block) | (block < 0)] = np.nan
+                if code is not None:
+                    block[block >= code] = np.nan
+            yield block
+
+    def ranges(self) -> np.ndarray:
+        parts = list(self.blocks())
+        if not parts:
+            return np.empty((0, self.laser.beams), np.float32)
+        return np.concatenate(parts) if len(parts) > 1 else parts[0]
+
+    def scans(self) -> Scans:
+        return Scans(self.t, self.ranges(), self.laser)
+
+
+@dataclass
+class _SpilledPoses:
+    """An ODOM or TRUEPOS stream: the kept `rows` (a mask) of its lines' x, y, theta, t."""
+
+    values: RowSpill
+    rows: np.ndarray
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(self.rows))
+
+    def blocks(self) -> Iterator[np.ndarray]:
+        """The kept poses block by block, as t, x, y, theta rows."""
+        for block in self.values.take(self.rows, POSE_GROUP):
+            yield block[:, [3, 0, 1, 2]]
+
+    def frame(self) -> pd.DataFrame:
+        parts = list(self.blocks())
+        v = np.concatenate(parts) if parts else np.empty((0, 4))
+        return pose_frame(v[:, 0], v[:, 1:])
+
+
+_Poses = pd.DataFrame | _SpilledPoses
+
+
+def _frame(poses: _Poses | None) -> pd.DataFrame | None:
+    return poses.frame() if isinstance(poses, _SpilledPoses) else poses
+
+
+@dataclass
+class _Plan:
+    """A log, decided: its lasers, pose streams and meta.json; the data still to be read."""
+
+    main: _Built
+    others: dict[str, _Built]  # further lasers by (lower-case) name
+    odometry: _Poses | None
+    groundtruth: _Poses | None
+    poses: dict[str, _Poses]
+    meta: dict[str, Any]
+
+    def write(self, directory: Path) -> None:
+        """The dataset's files, as `write_dataset_files` writes them, block by block: the
+        ranges and poses in Parquet row groups as they are read from the spill."""
+        meta = self.meta
+        source = meta.get("source")
+        report = ImportReport.from_dict(meta.get("import_report", {}))
+        files = (source or {}).get("files") or [{}]
+        origin = Path(files[0].get("path", "dataset"))  # what errors name
+        lasers = [(SCANS, self.main)] + [(f"scans-{k}.parquet", b) for k, b in self.others.items()]
+        for _, built in lasers:
+            check_scans(built.t, None, origin)
+        fixed = 0
+        for name, built in lasers:
+            with ScansWriter(directory / name, built.laser.beams, laser=built.laser,
+                             source=source) as writer:  # fmt: skip
+                at = 0
+                for block in built.blocks():
+                    fixed += check_scans(built.t[:0], block, origin)
+                    writer.write(built.t[at : at + len(block)], block)
+                    at += len(block)
+        if fixed:
+            report.note(f"{fixed} impossible range(s) (infinite, negative, > 1e6 m) set to NaN")
+        streams = [(ODOMETRY, "odometry", self.odometry), (GROUNDTRUTH, "groundtruth",
+                   self.groundtruth)] + [(f"poses-{k}.parquet", k, v) for k, v in self.poses.items()]  # fmt: skip
+        for name, what, poses in streams:
+            if poses is None:
+                continue
+            if isinstance(poses, _SpilledPoses):
+                write_pose_blocks(directory / name, poses.blocks(), report, what)
+            else:
+                frame = plausible_poses(poses, report, what)
+                assert frame is not None
+                write_poses(directory / name, frame)
+        meta["import_report"] = report.to_dict()
+        meta.setdefault("format_version", FORMAT_VERSION)
+        meta["laser"] = self.main.laser.to_dict()
+        meta["lasers"] = {k: b.laser.to_dict() for k, b in self.others.items()}
+        meta["scans"] = int(self.main.t.size)
+        meta["beams"] = self.main.laser.beams
+        (directory / META).write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
 
 
 class _Reader:
     """Turns the parsed lines of one log into a Dataset, recording each decision."""
 
-    def __init__(self, path: Path, options: CarmenOptions) -> None:
+    def __init__(self, path: Path, options: CarmenOptions, where: Path | None = None) -> None:
         self.path = path
         self.options = options
         self.report = ImportReport()
-        self.lines = _split_lines(path)
+        self.lines = _split_lines(path, where)
 
     def dataset(self) -> Dataset:
+        """The whole dataset in memory."""
+        plan = self.plan()
+        main = plan.main
+        return Dataset(
+            t=main.t,
+            ranges=main.ranges(),
+            laser=main.laser,
+            odometry=_frame(plan.odometry),
+            groundtruth=_frame(plan.groundtruth),
+            meta=plan.meta,
+            lasers={k: b.scans() for k, b in plan.others.items()},
+            poses={k: f for k, v in plan.poses.items() if (f := _frame(v)) is not None},
+        )
+
+    def plan(self) -> _Plan:
+        """Every decision and the report; the ranges and ODOM/TRUEPOS poses stay where they
+        were put while reading (memory or spill) until they are written."""
         lines, report, path = self.lines, self.report, self.path
         if not lines.lasers:
             raise FormatError(
@@ -589,32 +800,23 @@ class _Reader:
         for name, count in sorted(lines.skipped.items()):
             report.note(f"skipped {count} {name} line(s): not used")
         report.records_read = read + lines.odom.count + lines.truepos.count + lines.dpslam_odometry
-        kept = sum(b.scans.t.size for b in built.values())
+        kept = sum(b.t.size for b in built.values())
         report.records_kept = kept + decisions.get("odom_lines_kept", 0)
         report.records_kept += decisions.get("truepos_lines_kept", 0)
         report.records_kept += lines.dpslam_odometry - len(lines.bad)
         for reason, number in lines.bad:
             report.drop(reason, 1, _where(path, number))
-        others = {name.lower(): b.scans for name, b in built.items() if name != primary}
+        others = {name.lower(): b for name, b in built.items() if name != primary}
         meta = make_meta(
             "carmen",
             [path],
-            main.scans.laser,
+            main.laser,
             report,
             time_source=main.time_source,
             lasers={k: v.laser for k, v in others.items()},
             carmen=decisions,
         )
-        return Dataset(
-            t=main.t,
-            ranges=main.scans.ranges,
-            laser=main.scans.laser,
-            odometry=odometry,
-            groundtruth=groundtruth,
-            meta=meta,
-            lasers=others,
-            poses=poses,
-        )
+        return _Plan(main, others, odometry, groundtruth, poses, meta)
 
     def _primary(self, streams: dict[str, _LaserStream]) -> str:
         wanted = self.options.laser
@@ -651,33 +853,31 @@ class _Reader:
             decisions["clock_fallback"] = why
             decisions["rate_hz"] = hz
         assert t is not None
-        ranges = s.ranges  # in place: this laser's own converted values (memory: one copy)
-        with np.errstate(invalid="ignore"):
-            bad = ~np.isfinite(ranges) | (ranges < 0)
-        if bad.any():
-            report.note(f"{name}: {int(bad.sum())} range values NaN, inf or negative -> NaN")
-            ranges[bad] = np.nan
-        del bad
-        geometry, code, how_code = self._geometry(s, ranges)
-        if code is not None:
+        # one pass over the kept ranges: how many are NaN, inf or negative, the distinct
+        # others with their counts (the no-return code, the largest value); the ranges are
+        # cleaned as they are written (`_Built.blocks`)
+        bad, values = 0, _Values()
+        for block in s.ranges.take(s.rows):
             with np.errstate(invalid="ignore"):
-                no_return = ranges >= code
-            ranges[no_return] = np.nan
+                ok = np.isfinite(block) & (block >= 0)
+            bad += block.size - int(np.count_nonzero(ok))
+            values.add(block[ok])
+        if bad:
+            report.note(f"{name}: {bad} range values NaN, inf or negative -> NaN")
+        geometry, code, how_code = self._geometry(s, values)
+        if code is not None:
             report.note(f"{name}: no-return code {code:g} m ({how_code}): "
-                        f"{int(no_return.sum())} values >= {code:g} m -> NaN")  # fmt: skip
-            del no_return
+                        f"{values.at_least(code)} values >= {code:g} m -> NaN")  # fmt: skip
             decisions[f"{name}_no_return_from"] = round(float(code), 6)
         decisions[f"{name}_range_max"] = geometry.range_max
         decisions[f"{name}_range_max_source"] = how_code
-        scans = Scans(t, ranges.astype(np.float32), geometry)
-        s.ranges = s.ranges[:0]  # the float64 values are no longer needed: free them
-        return _Built(scans, s, t, time_source, decisions)
+        return _Built(s, np.ascontiguousarray(t), geometry, code, time_source, decisions)
 
     def _geometry(
-        self, s: _LaserStream, ranges: np.ndarray
+        self, s: _LaserStream, values: _Values
     ) -> tuple[LaserGeometry, float | None, str]:
         """Beam layout, mounting and range_max; the value at and above which ranges are NaN."""
-        n = ranges.shape[1]
+        n = s.ranges.width
         if s.header is not None:
             start, fov, res, max_range = np.median(s.header, axis=0)
             if not res > 0:
@@ -705,14 +905,14 @@ class _Reader:
             assert range_max is not None
             code = range_max - 5e-4  # printed to the mm: the code itself, not a return below it
         else:
-            found = no_return_code(ranges)
+            found = values.code()
             how = "detected: largest value recurring at the top"
             if found is not None:
                 range_max, code = found, found * (1 - CODE_BAND)
             else:
                 how += "; none found"
         if range_max is None:
-            top = np.nanmax(ranges, initial=-np.inf) if ranges.size else -np.inf
+            top = values.top()
             range_max = _as_printed(top) if np.isfinite(top) else 81.91
             how += ", range_max = the largest reading"
         return LaserGeometry(n, float(start), float(res), range_max, **self._mount(s)), code, how
@@ -752,12 +952,12 @@ class _Reader:
 
     def _poses(
         self, main: _Built, decisions: dict[str, Any]
-    ) -> tuple[pd.DataFrame | None, pd.DataFrame | None, dict[str, pd.DataFrame]]:
+    ) -> tuple[_Poses | None, _Poses | None, dict[str, _Poses]]:
         report = self.report
         scan_poses = _pose_frame(main.t, main.stream.robot_pose)
         which = self.options.poses
         clock = main.time_source == "log"
-        odometry: pd.DataFrame | None = None
+        odometry: _Poses | None = None
         if self.lines.odom.count:
             odometry = self._stamped("ODOM", self.lines.odom, clock, decisions)
         if odometry is not None:
@@ -770,8 +970,8 @@ class _Reader:
         truepos = None
         if self.lines.truepos.count:
             truepos = self._stamped("TRUEPOS", self.lines.truepos, clock, decisions)
-        poses: dict[str, pd.DataFrame] = {}
-        groundtruth = truepos
+        poses: dict[str, _Poses] = {}
+        groundtruth: _Poses | None = truepos
         if which == "groundtruth":
             groundtruth = scan_poses
             decisions["groundtruth"] = f"robot pose of the {main.stream.name} lines (-O poses)"
@@ -789,7 +989,7 @@ class _Reader:
 
     def _stamped(
         self, msg: str, lines: _PoseLines, clock: bool, decisions: dict[str, Any]
-    ) -> pd.DataFrame | None:
+    ) -> _SpilledPoses | None:
         """ODOM or TRUEPOS poses at their own times, or None when there is no usable clock."""
         report, path = self.report, self.path
         if lines.seven == lines.count:
@@ -806,17 +1006,15 @@ class _Reader:
         if lines.non_numeric:
             report.drop(f"{msg} non-numeric value", len(lines.non_numeric),
                         _where(path, lines.non_numeric[0]))  # fmt: skip
-        values = np.frombuffer(lines.values, dtype=np.float64).reshape(-1, 4)
-        numbers = np.frombuffer(lines.numbers, dtype=np.int64)
+        stamp = np.frombuffer(lines.stamps, dtype=np.float64)
         if not clock:
             report.note(f"{msg} lines not used: the scans have no usable clock to align them to")
             return None
-        finite = np.isfinite(values).all(axis=1)
+        finite = np.frombuffer(bytes(lines.finite), dtype=bool)
         if not finite.all():
             report.drop(f"{msg} NaN or inf value", int((~finite).sum()),
-                        _where(path, int(numbers[int(np.argmin(finite))])))  # fmt: skip
-            values, numbers = values[finite], numbers[finite]
-        stamp = values[:, 3]
+                        _where(path, lines.number(int(np.argmin(finite)))))  # fmt: skip
+            stamp = stamp[finite]
         keep = longest_in_order(stamp)
         why = broken_clock(stamp, keep)
         if why is not None:
@@ -824,13 +1022,20 @@ class _Reader:
             return None
         late = np.flatnonzero(~keep)
         if late.size:
+            first = int(np.flatnonzero(finite)[late[0]])
             report.drop(f"{msg} timestamp out of order", late.size,
-                        _where(path, int(numbers[late[0]])))  # fmt: skip
-        values = values[keep]
+                        _where(path, lines.number(first)))  # fmt: skip
         decisions[f"{msg.lower()}_lines_kept"] = int(keep.sum())
-        if not len(values):
+        if not keep.any():
             return None
-        return pose_frame(values[:, 3], values[:, :3])
+        return _SpilledPoses(lines.values, _narrow(finite, keep))
+
+
+def _narrow(mask: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """`mask` with its True entries kept where `keep` (one per True entry) is True."""
+    out = mask.copy()
+    out[np.flatnonzero(mask)[~keep]] = False
+    return out
 
 
 def _take(s: _LaserStream, keep: np.ndarray) -> _LaserStream:
@@ -838,7 +1043,8 @@ def _take(s: _LaserStream, keep: np.ndarray) -> _LaserStream:
         s.name,
         s.lines[keep],
         s.index[keep],
-        s.ranges[keep],
+        s.ranges,
+        _narrow(s.rows, keep),
         s.laser_pose[keep],
         s.robot_pose[keep],
         None if s.stamp is None else s.stamp[keep],
@@ -1009,6 +1215,19 @@ class Carmen(Importer[CarmenOptions, CarmenWriteOptions]):
             raise ToolkitError(f"carmen reads one log file, got {len(sources)}")
         path = Path(sources[0])
         return _Reader(path, options).dataset()
+
+    def import_to(
+        self, sources: Sequence[Path], out: Path, options: CarmenOptions, force: bool = False
+    ) -> Path:
+        """The dataset `read` gives, streamed: the converted ranges and poses spill to unnamed
+        files in the output's temporary folder as the text is read, and are written from there
+        in Parquet row groups, so that memory holds blocks of the log, not the log."""
+        if len(sources) != 1:
+            raise ToolkitError(f"carmen reads one log file, got {len(sources)}")
+        path = Path(sources[0])
+        with atomic_dir(out, force=force) as tmp:
+            _Reader(path, options, where=tmp).plan().write(tmp)
+        return out
 
     def write(
         self, ds: Dataset, out: Path, options: CarmenWriteOptions | None = None

@@ -46,7 +46,7 @@ import json
 import lzma
 import sys
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -90,6 +90,7 @@ DEFAULT_BAUD = 38400
 BITS_PER_BYTE = 10  # 8N1
 CHUNK = 8192  # frames decoded per block: bounded index arrays
 CRC_BLOCK = 8192  # frames per CRC block
+SEARCH_FRAMES = 2 * CRC_BLOCK  # candidate frames CRC-checked per progress step (~12 MB)
 NUMBA_MIN_BYTES = 1 << 30  # from here the numba CRC repays its import (bench_import_lms200)
 
 
@@ -197,14 +198,29 @@ def default_crc_method(size: int = 0) -> str:
 class Telegrams:
     """The telegrams of a capture: accepted (CRC-valid, non-overlapping) and rejected."""
 
-    def __init__(self, buf: np.ndarray, crc: str = "numpy") -> None:
+    def __init__(
+        self, buf: np.ndarray, crc: str = "numpy", progress: Callable[[int], None] | None = None
+    ) -> None:
+        """`progress(m)`: called as the search passes each further `m` bytes of `buf`."""
         self.size = int(buf.size)
         starts, lengths, truncated = _candidates(buf)
         payload = lengths - 2  # bytes under the CRC: STX .. STATUS
         stored = buf[starts + payload].astype(np.uint32) | (
             buf[starts + payload + 1].astype(np.uint32) << 8
         )
-        valid = CRC_METHODS[crc](buf, starts, payload) == stored
+        # the CRCs (most of the time) in steps of SEARCH_FRAMES, a multiple of CRC_BLOCK: the
+        # same blocks as in one call
+        valid = np.empty(starts.size, bool)
+        done = 0
+        for a in range(0, starts.size, SEARCH_FRAMES):
+            b = a + SEARCH_FRAMES
+            valid[a:b] = CRC_METHODS[crc](buf, starts[a:b], payload[a:b]) == stored[a:b]
+            reached = int(starts[b]) if b < starts.size else self.size
+            if progress is not None and reached > done:
+                progress(reached - done)
+            done = reached
+        if progress is not None and done < self.size:
+            progress(self.size - done)
         self.start, self.length = _greedy(starts[valid], lengths[valid])
         self.cmd = buf[self.start + 4]
         # candidates outside accepted telegrams: damaged frames (or chance 0x02 0x80 in noise)
@@ -398,9 +414,8 @@ class LMS200(Importer[LMS200Options, LMS200WriteOptions]):
         report = ImportReport()
         buf = _read_capture(capture, report)
         crc = options.crc or default_crc_method(buf.size)
-        with task(f"searching {capture.name}", total=1) as (bar, job):
-            tg = Telegrams(buf, crc)
-            bar.advance(TaskID(job))
+        with task(f"searching {capture.name}", total=buf.size) as (bar, job):
+            tg = Telegrams(buf, crc, progress=lambda m: bar.advance(TaskID(job), m))
         report.records_read = int(tg.start.size) + tg.rejected_crc + tg.truncated
         report.drop("telegram CRC mismatch", tg.rejected_crc, _where(capture, "CRC"))
         report.drop("telegram cut off at end of capture", tg.truncated)

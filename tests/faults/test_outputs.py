@@ -227,12 +227,13 @@ def test_label_writes_the_run_as_a_whole(
 def test_disk_full_names_the_users_path(
     small: dict[str, Path], tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import toolkit.dataset
+    import pyarrow.parquet as pq
 
     def full(*args: object, **kwargs: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(toolkit.dataset, "write_scans", full)
+    # every Parquet table goes through it (write_table, ScansWriter, the streaming importers)
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", full)
     out = tmp_path / "ds"
     code, _, err = cli("import", "carmen", small["log"], "--out", out)
     assert code == 1

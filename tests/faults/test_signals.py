@@ -1,5 +1,5 @@
 """Fault injection: `toolkit` killed by SIGINT, SIGTERM or SIGKILL at several points of
-import, map, label and the fleet paths (with and without Dask). Afterwards the output is
+import, map, label, report and the fleet paths (with and without Dask). Afterwards the output is
 complete and valid or absent, the inputs are untouched, a re-run succeeds and leaves no
 temporary folder. The points: early (during start-up imports), while the output's temporary
 directory exists (writing), and after a delay."""
@@ -155,6 +155,19 @@ def test_label(small: dict[str, Path], tmp_path: Path, sig: int, when: str) -> N
     args = ["label", small["dataset"], "--regions", small["regions"], "--out", out]
     fault(args, out, [small["dataset"], small["regions"]], sig, when, valid_label)
     assert (out / "metrics.json").read_text() == "{}"
+
+
+def valid_report(path: Path) -> None:
+    assert (path / "index.html").stat().st_size > 0
+    assert json.loads((path / "report.json").read_text())
+
+
+@pytest.mark.parametrize(("sig", "when"), _cases([]))  # all slow: a report takes ~1 min
+def test_report(small: dict[str, Path], tmp_path: Path, sig: int, when: str) -> None:
+    out = tmp_path / "w" / "report"
+    args = ["report", small["dataset"], "--regions", small["regions"], "--out", out,
+            "--no-real", "--quick"]  # fmt: skip
+    fault(args, out, [small["dataset"], small["regions"]], sig, when, valid_report)
 
 
 def _fleet_outputs(out: Path) -> list[Path]:

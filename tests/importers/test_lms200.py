@@ -8,15 +8,20 @@ from __future__ import annotations
 
 import gzip
 import json
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from rich.progress import TaskID
 
 import importers
+from importers import lms200
 from importers.lms200 import (
     LMS200,
     LMS200Options,
@@ -30,6 +35,7 @@ from importers.lms200 import (
 )
 from tests.conftest import Cli
 from tests.importers.checks import assert_bad_input_is_one_line
+from tests.test_progress import Recording
 from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError, ToolkitError
 
@@ -447,3 +453,42 @@ def test_cli_bad_input_is_one_line_and_no_output(
     src = tmp_path / "bad.lms"
     src.write_bytes(content)
     assert_bad_input_is_one_line(cli, "lms200", src, tmp_path)
+
+
+@pytest.mark.parametrize("crc", ["numpy", "numba"])
+def test_search_progress_advances_with_the_bytes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, crc: str
+) -> None:
+    """The bar of the telegram search counts the capture's bytes, step by step as the CRCs
+    are checked, and the steps change nothing: same scans, same report as one step."""
+    ds = _dataset(scans=400, beams=181, seed=3)
+    capture, _, _ = write(
+        ds, tmp_path, noise_bytes=6.0, bit_error_rate=2e-5, truncate_last=True, seed=3
+    )
+    monkeypatch.setattr(lms200, "SEARCH_FRAMES", 10**9)
+    whole = _read(capture, crc=crc)
+    made: dict[str, Recording] = {}
+    monkeypatch.setattr(lms200, "SEARCH_FRAMES", 64)
+    monkeypatch.setattr(lms200, "task", _recorded_task(made))
+    stepped = _read(capture, crc=crc)
+    bar = made[f"searching {capture.name}"]
+    (search,) = bar.tasks
+    size = capture.stat().st_size
+    assert search.total == size and search.completed == size
+    assert len(bar.steps) >= 400 // 64 and all(step > 0 for step in bar.steps)
+    assert max(bar.steps) < size / 3  # bytes, not one jump at the end
+    np.testing.assert_array_equal(stepped.t, whole.t)
+    np.testing.assert_array_equal(stepped.ranges, whole.ranges)
+    assert stepped.meta["capture"] == whole.meta["capture"]
+    assert stepped.meta["import_report"] == whole.meta["import_report"]
+
+
+def _recorded_task(made: dict[str, Recording]) -> Callable[..., Any]:
+    """`toolkit.progress.task` with a bar that records its advances (`made`, by description)."""
+
+    @contextmanager
+    def recorded(description: str, total: float) -> Iterator[tuple[Recording, TaskID]]:
+        with Recording(made) as progress:
+            yield progress, progress.add_task(description, total=total)
+
+    return recorded
