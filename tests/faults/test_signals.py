@@ -162,7 +162,8 @@ def valid_report(path: Path) -> None:
     assert json.loads((path / "report.json").read_text())
 
 
-@pytest.mark.parametrize(("sig", "when"), _cases([]))  # all slow: a report takes ~1 min
+@pytest.mark.slow  # a report and its re-run take ~2 min: one case, the others are import's
+@pytest.mark.parametrize(("sig", "when"), [(signal.SIGTERM, "writing")], ids=["SIGTERM-writing"])
 def test_report(small: dict[str, Path], tmp_path: Path, sig: int, when: str) -> None:
     out = tmp_path / "w" / "report"
     args = ["report", small["dataset"], "--regions", small["regions"], "--out", out,
