@@ -14,7 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.descriptors import describe, place_columns
+from toolkit.features.descriptors import chosen_columns, features, path_length
 from toolkit.features.likelihood import (
     background_bins,
     beam_terms,
@@ -125,12 +125,14 @@ def fit(
     training: dict[str, np.ndarray] | list[tuple[str, np.ndarray]],
     config: Config | None = None,
     spans: list[Span] | None = None,
+    poses: np.ndarray | None = None,
 ) -> FeatureModel:
     """Learn a model: per feature (or per component: pairs of feature name and scan indices),
     per-beam statistics of its training scans (indices into `ranges`); the background from
     the whole log; the temperature by leave-one-out; the lateral weight, if the config leaves
     it open, by leave-one-span-out. With `spans` (those `training` came from), a feature's
-    separate spans become separate components."""
+    separate spans become separate components. `poses` (S x 3, at the scan times) measure
+    the path for the descriptors' context (without: `STEP_WITHOUT_POSES` per scan)."""
     config = config or Config()
     if not training:
         raise ToolkitError("no features to learn")
@@ -152,7 +154,7 @@ def fit(
         model, choice = choose_lateral(model, ranges, components, held)
     _calibrate(model, ranges, components, held)
     if config.descriptors:
-        model.places = _fit_places(ranges, laser, components, config)
+        model.places = _fit_places(ranges, laser, components, config, poses)
         model.fit_report["descriptor_temperature"] = round(model.places.temperature, 4)
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
@@ -164,18 +166,19 @@ def _fit_places(
     laser: LaserGeometry,
     components: list[tuple[str, np.ndarray]],
     config: Config,
+    poses: np.ndarray | None = None,
 ) -> PlaceClassifier:
     """The descriptor classifier from the training scans, each component a span."""
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
-    x = describe(ranges, laser)
+    columns = chosen_columns(config.view_ahead, config.mozos)
+    x = features(ranges, laser, columns, path_length(len(ranges), poses), config.context)
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
-    columns = np.arange(x.shape[1]) if config.view_ahead else place_columns()
     return fit_places(
-        x[idx], y, groups, config.descriptor_c, columns, x[rest], config.self_training,
-        config.priors,
+        x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
+        config.priors, forest=config.classifier == "trees", gate=len(columns),
     )  # fmt: skip
 
 
