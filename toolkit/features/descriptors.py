@@ -372,11 +372,14 @@ def path_length(n: int, poses: np.ndarray | None) -> np.ndarray:
     return np.cumsum(step)
 
 
-def context_windows(along: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per scan, the first and one-past-last index of the scans within `half` metres of path
-    before and after it (itself included)."""
-    lo = np.searchsorted(along, along - half, side="left")
-    hi = np.searchsorted(along, along + half, side="right")
+def context_windows(
+    along: np.ndarray, half: float, rows: slice | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per scan (of `rows`, default all), the first and one-past-last index of the scans
+    within `half` metres of path before and after it (itself included)."""
+    at = along if rows is None else along[rows]
+    lo = np.searchsorted(along, at - half, side="left")
+    hi = np.searchsorted(along, at + half, side="right")
     return lo, np.maximum(hi, lo + 1)
 
 
@@ -386,16 +389,39 @@ def with_context(
     """Descriptors `x[own]` (S x D; default: all rows) followed by their mean and spread over
     each scan's window of rows [lo, hi) (S x 3D): a place persists over several scans, and a door, a niche and the mouth
     of a side corridor differ in how long and how deep the gap beside the robot stays."""
-    centre = x.mean(axis=0) if len(x) else 0.0  # running sums of centred values: less
-    d = x - centre  # cancellation in the spread
+    centre = x.mean(axis=0) if len(x) else np.zeros(x.shape[1])  # running sums of centred
+    d = x - centre  # values: less cancellation in the spread
     c1 = np.zeros((len(x) + 1, x.shape[1]))
     c2 = np.zeros_like(c1)
     np.cumsum(d, axis=0, out=c1[1:])
     np.cumsum(d * d, axis=0, out=c2[1:])
-    count = (hi - lo)[:, None].astype(np.float64)
-    mean = (c1[hi] - c1[lo]) / count
-    spread = np.sqrt(np.maximum((c2[hi] - c2[lo]) / count - mean * mean, 0.0))
-    return np.hstack([x if own is None else x[own], mean + centre, spread])
+    own = np.arange(len(lo)) if own is None else own
+    out = np.empty((len(lo), 3 * x.shape[1]))
+    _window_moments(x, c1, c2, lo, hi, own, centre, out)
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _window_moments(  # pragma: no cover - numba
+    x: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    own: np.ndarray,
+    centre: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Per scan: its descriptors, their window mean and spread from the running sums."""
+    d = x.shape[1]
+    for s in numba.prange(len(lo)):
+        a, b, i = lo[s], hi[s], own[s]
+        count = float(b - a)
+        for j in range(d):
+            mean = (c1[b, j] - c1[a, j]) / count
+            out[s, j] = x[i, j]
+            out[s, d + j] = mean + centre[j]
+            out[s, 2 * d + j] = np.sqrt(max((c2[b, j] - c2[a, j]) / count - mean * mean, 0.0))
 
 
 def chosen_columns(view_ahead: bool = False, mozos: bool = False) -> np.ndarray:
@@ -420,8 +446,7 @@ def features(
     rows = rows or slice(0, len(ranges))
     if context <= 0:
         return describe(ranges[rows], laser)[:, columns]
-    lo, hi = context_windows(along, context)
-    lo, hi = lo[rows], hi[rows]
+    lo, hi = context_windows(along, context, rows)
     first, last = int(lo.min()), int(hi.max())
     x = describe(ranges[first:last], laser)[:, columns]
     own = np.arange(len(lo)) + (rows.start or 0) - first

@@ -147,7 +147,7 @@ class PlaceClassifier:
     def log_distance(self, x: np.ndarray) -> np.ndarray:
         """Per scan, half the log squared Mahalanobis distance to the nearest class centre."""
         g = self.centres.shape[1]  # the gate's (leading) columns
-        z = ((x[:, self.columns] - self.mean) / self.scale)[:, :g]
+        z = (x[:, self.columns[:g]] - self.mean[:g]) / self.scale[:g]
         zp = z @ self.precision
         quad = np.einsum("sd,sd->s", zp, z)[:, None] - 2 * zp @ self.centres.T
         quad += np.einsum("kd,kd->k", self.centres @ self.precision, self.centres)[None, :]
