@@ -1,19 +1,21 @@
 """The place classifier on scan descriptors: learnt from about ten scans per place.
 
-A multinomial logistic regression (scikit-learn) on standardised descriptors
-(`toolkit.features.descriptors`), L2-regularised with `C`, gives a probability per taught
-place. Ten scans per class are few for some sixty descriptors: the strong regularisation
-keeps the weights small, and the temperature (`calibrate`, fitted by leave-one-span-out on
-the training spans) keeps the probabilities honest on scans the model has not seen.
+The default is scikit-learn's extremely randomised trees on the standardised descriptors and
+their context along the path (`toolkit.features.descriptors.features`): the mean over the
+trees of the leaf's class shares is the probability per taught place. `Forest` keeps the
+fitted trees as arrays and applies them in a compiled kernel. The alternative
+(`forest=False`, `--classifier logistic`) is a multinomial logistic regression,
+L2-regularised with `C`, with a temperature (`calibrate`, fitted by leave-one-span-out on
+the training spans).
 
 "None of these": a scan far from every taught place in the descriptor space (Mahalanobis
-distance to the nearest class centre under a shrunk pooled covariance, Ledoit-Wolf) is
-"none". Its probability is a logistic function of that distance, beyond `none_distance`
-times the farthest held-out training scan's distance (a place the user never taught, not a
-taught place seen from a new spot).
+distance to the nearest class centre under a shrunk pooled covariance, Ledoit-Wolf, on the
+scan's own descriptors) is "none". Its probability is a logistic function of that distance,
+beyond `NONE_DISTANCE` times the farthest held-out training scan's distance (a place the
+user never taught, not a taught place seen from a new spot).
 
-Only numbers are kept (the scaler, the weights, the centres and the precision matrix), so a
-model is plain JSON and applying it is two matrix products per chunk of scans.
+Only numbers are kept (the scaler, the trees' nodes or the weights, the centres and the
+precision matrix), so a model is plain JSON.
 """
 
 from __future__ import annotations
