@@ -14,7 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.descriptors import chosen_columns, features, path_length
+from toolkit.features.descriptors import chosen_columns, context_windows, features, path_length
 from toolkit.features.likelihood import (
     background_bins,
     beam_terms,
@@ -134,6 +134,9 @@ def fit(
     separate spans become separate components. `poses` (S x 3, at the scan times) measure
     the path for the descriptors' context (without: `STEP_WITHOUT_POSES` per scan)."""
     config = config or Config()
+    sparse = config.descriptors and config.context > 0 and _sparse(len(ranges), poses, config)
+    if sparse:  # no context to pool: each scan alone (recorded in the fit report)
+        config = replace(config, context=0.0)
     if not training:
         raise ToolkitError("no features to learn")
     components = list(training.items()) if isinstance(training, dict) else list(training)
@@ -156,9 +159,26 @@ def fit(
     if config.descriptors:
         model.places = _fit_places(ranges, laser, components, config, poses)
         model.fit_report["descriptor_temperature"] = round(model.places.temperature, 4)
+    if sparse:
+        model.fit_report["context"] = (
+            f"off: fewer than {MIN_CONTEXT_SCANS} scans within the context's path on the "
+            "median scan (scans far apart)"
+        )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
     return model
+
+
+#: the context is used when the median scan's window holds at least this many scans
+MIN_CONTEXT_SCANS = 3
+
+
+def _sparse(n: int, poses: np.ndarray | None, config: Config) -> bool:
+    """Whether scans are too far apart along the path for the context: a window of one or
+    two scans holds the neighbouring places, not more of this one (the Intel log's scans
+    are about 1 m apart; the simulator's 0.1 m)."""
+    lo, hi = context_windows(path_length(n, poses), config.context)
+    return n > 0 and float(np.median(hi - lo)) < MIN_CONTEXT_SCANS
 
 
 def _fit_places(
