@@ -15,8 +15,8 @@ row of the ablation adds one part to the one before; the default row is `Config(
 
     python -m toolkit.features.evaluate [--seeds 100-119] [--scenarios] [--out table.md]
 
-Seeds 0-9 are the development seeds (every constant was tuned on them); 100-119 are held out,
-run only to measure.
+Seeds 0-29 are the development seeds (every constant was tuned on 0-9 or 0-19); 100-119 are
+held out, run only to measure.
 """
 
 from __future__ import annotations
