@@ -7,8 +7,9 @@ mixture: twice the work). Rows: the paper's literal per-scan model (the Gaussian
 log-likelihood as one matrix product per chunk); robust beams and the "none" class (a compiled
 kernel over scans in parallel; tempered posteriors); with the HMM forward filter along the
 path (streaming); the per-beam model's forward-backward with the evidence length (the former
-default); the scan descriptors' classifier (docs/places.md) alone and with the per-beam term
-(the default); and `--none-model surroundings` (lateral 2), with one and two components per
+default); the last default (descriptors, logistic regression, per-beam term); the default
+(descriptors and their context along the path, extremely randomised trees; docs/places.md)
+alone and with the per-beam term; and `--none-model surroundings` (lateral 2), with one and two components per
 feature.
 Median of 3 runs after a warm-up on a small slice (compiles the kernels).
 """
@@ -25,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from toolkit.features import PAPER, Config, classify, fit
-from toolkit.features.evaluate import BEAMS, LATERAL2
+from toolkit.features.evaluate import BEAMS, LATERAL2, LOGISTIC
 from toolkit.features.regions import spans_from_frame, training_indices
 
 SCANS = 1_000_000
@@ -66,15 +67,15 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         ("per-beam: + HMM forward filter (streaming)", dataclasses.replace(BEAMS, smoothing="forward", evidence_length=None), poses),
         ("per-beam: forward-backward, evidence length (the former default)", BEAMS, poses),
         ("per-beam: two components per feature (the regions' spans)", BEAMS, poses),
-        ("descriptors alone (no per-beam term), HMM", dataclasses.replace(Config(), beam_term=0.0), poses),
-        ("toolkit default: descriptors + per-beam term, HMM", Config(), poses),
-        ("toolkit default, two components per feature", Config(), poses),
+        ("last default: descriptors, logistic regression + per-beam term, HMM", LOGISTIC, poses),
+        ("toolkit default: descriptors + context, trees, HMM", Config(), poses),
+        ("toolkit default + per-beam term 1", dataclasses.replace(Config(), beam_term=1.0), poses),
         ("--none-model surroundings (lateral 2, as its spans choose)", LATERAL2, poses),
         ("--none-model surroundings, two components per feature", LATERAL2, poses),
 ]  # fmt: skip
     for name, config, scan_poses in configs:
         components = spans if "two components" in name else None
-        model = fit(ds.ranges, ds.laser, training, config, components)
+        model = fit(ds.ranges, ds.laser, training, config, components, poses[: ds.n_scans])
         classify(model, ranges[:2000], None if scan_poses is None else scan_poses[:2000])
         seconds, cpu = _median_seconds(partial(classify, model, ranges, scan_poses), REPEATS)
         rows.append(

@@ -178,6 +178,13 @@ def test_trajectory_option_and_errors(
     code, _, err = cli("label", data, *regions, "--out", tmp_path / "e", "--evidence-length", -1)
     assert code == 1 and "--evidence-length -1.0" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "e").exists()
+    for option, value, said in (
+        ("--classifier", "svm", "classifier 'svm': use one of trees, logistic"),
+        ("--context", -1, "--context -1.0: a distance >= 0"),
+    ):
+        code, _, err = cli("label", data, *regions, "--out", tmp_path / "e", option, value)
+        assert code == 1 and said in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "e").exists()
     code, _, err = cli("label", data, *regions, "--out", tmp_path / "e", "--evidence-length", 0)
     assert code == 0, err
     saved = json.loads((tmp_path / "e" / "model.json").read_text())["config"]
@@ -196,3 +203,8 @@ def test_trajectory_option_and_errors(
     )
     assert code == 1 and "learnt on 361 beams, the dataset has 181" in err
     assert len(err.strip().splitlines()) == 1
+    code, _, err = cli(
+        "label", data, "--model", tmp_path / "run" / "model.json", "--out", tmp_path / "z",
+        "--context", 0,
+    )  # fmt: skip
+    assert code == 1 and "--context is a learning setting" in err

@@ -75,14 +75,14 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     def found(feature: str, where: np.ndarray) -> float:
         return float((labels.loc[where, "label"] == feature).mean())
 
-    assert found("corridor", corridor) > 0.3
+    # the log's scans are about 1 m of path apart: the context (1 m either side) would hold
+    # the neighbouring places, so the default learns without it here (the fit report says
+    # so). The corridor is found in 0.41 of its scans (the target, 0.8, is missed; with the
+    # context forced on: 0.18; the last default 0.48: docs/places.md)
+    assert model["config"]["context"] == 0.0 and model["fit_report"]["context"].startswith("off")
+    assert found("corridor", corridor) > 0.35
     assert found("corridor", corridor) > 3 * found("corridor", room)
-    assert found("room", room) >= 0.8  # issue 16's target (measured 0.91)
-    # the corridor: 0.48 of its scans (the target, 0.8, is missed: docs/places.md)
-    # the default calls half of the corridor's scans "room" (0.52; the per-beam model did
-    # less than half as often as in the rooms): room's precision is what it gave up, see
-    # docs/places.md
-    assert found("room", room) > found("room", corridor) + 0.3
+    assert found("room", room) >= 0.8  # issue 16's target (measured 0.92)
     assert labels.loc[corridor, "p_corridor"].mean() > labels.loc[room, "p_corridor"].mean()
     assert labels.loc[room, "p_room"].mean() > labels.loc[corridor, "p_room"].mean()
     assert (run / "membership.png").stat().st_size > 10_000
@@ -99,3 +99,18 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     chosen = fit(ds.ranges, ds.laser, training_indices(spans_), SURROUNDINGS, spans_)
     scores = chosen.fit_report["lateral_scores"]
     assert chosen.config.lateral_weight == 0.0 and scores["0"] > max(scores["1"], scores["2"])
+
+    # with the context forced on (1 m either side, one to three scans here), the corridor is
+    # mostly called "room"
+    from toolkit.features import Config, classify, fitting
+
+    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
+    monkeypatch.setattr(fitting, "MIN_CONTEXT_SCANS", 0)
+    forced = fit(ds.ranges, ds.laser, training_indices(spans_), Config(), spans_, poses)
+    assert forced.config.context == 1.0
+    at = place_by_position(poses[:, 0], poses[:, 1])
+    taught = np.zeros(ds.n_scans, dtype=bool)
+    taught[np.concatenate(list(training_indices(spans_).values()))] = True
+    label = classify(forced, ds.ranges, poses).label
+    assert np.mean(label[~taught & (at == "corridor")] == "corridor") < 0.3
+    assert np.mean(label[~taught & (at == "room")] == "room") >= 0.8

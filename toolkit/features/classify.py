@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from toolkit.dataset import LaserGeometry
-from toolkit.features.descriptors import describe
+from toolkit.features.descriptors import chosen_columns, features, path_length
 from toolkit.features.likelihood import CHUNK, loglik, per_class, softmax
 from toolkit.features.model import Config, FeatureModel
 
@@ -152,7 +152,7 @@ def classify(
     """
     model.check_laser(_laser_like(model, ranges))
     cfg = model.config
-    scores = class_scores(model, ranges, chunk, progress)
+    scores = class_scores(model, ranges, chunk, progress, poses)
     if cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)
@@ -173,19 +173,25 @@ def class_scores(
     ranges: np.ndarray,
     chunk: int = CHUNK,
     progress: Callable[[int], object] | None = None,
+    poses: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per scan and class, the log-score the HMM takes as evidence (S, K): the descriptor
-    classifier's log-probabilities, plus `beam_term` times the per-beam model's tempered
+    classifier's log-probabilities (on the descriptors and their context along `poses`'
+    path), plus `beam_term` times the per-beam model's tempered
     log-posterior; without descriptors, the per-beam model's tempered log-likelihood. Scored
     in blocks of `SCANS_PER_STEP` scans, `progress(m)` after each."""
     cfg = model.config
     out = np.empty((len(ranges), len(model.classes)))
+    columns = chosen_columns(cfg.view_ahead, cfg.mozos)
+    along = path_length(len(ranges), poses)
     for i in range(0, len(ranges), SCANS_PER_STEP):
-        block = ranges[i : i + SCANS_PER_STEP]
+        rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
+        block = ranges[rows]
         if model.places is None or not cfg.descriptors:
             scores = per_class(model, loglik(model, block, chunk) * model.temperature)
         else:
-            scores = model.places.log_proba(describe(block, model.laser), none=cfg.none_class)
+            x = features(ranges, model.laser, columns, along, cfg.context, rows)
+            scores = model.places.log_proba(x, none=cfg.none_class)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
                 scores = scores + cfg.beam_term * np.log(softmax(beams))

@@ -343,3 +343,111 @@ def _finish_compiled(  # pragma: no cover - numba
                 out[s, c] = min(vals[0], vals[1])
                 out[s, c + 1] = max(vals[0], vals[1])
                 c += 2
+
+
+# ---------------------------------------------------------------- context along the path
+
+#: m of path per scan assumed when there are no poses (the context window then counts scans)
+STEP_WITHOUT_POSES = 0.1
+
+
+def mozos_columns() -> np.ndarray:
+    """Indices of the descriptors of Mozos, Stachniss and Burgard (2005) alone: the range
+    statistics, the differences and gaps, the polygon, the ellipse and the histogram (the
+    peer baseline: no sectors, nothing beside the laser)."""
+    own = ("beside", "log_range_", "no_return_", "log_spread_", "log_width", "log_side")
+    return np.array([i for i, n in enumerate(names()) if not n.startswith(own)])
+
+
+def path_length(n: int, poses: np.ndarray | None) -> np.ndarray:
+    """Per scan, the path travelled from the first scan (m; turning 1 rad counts as 1 m, as in
+    the HMM); without poses (or their count differs), `STEP_WITHOUT_POSES` per scan."""
+    if poses is None or len(poses) != n:
+        return np.arange(n) * STEP_WITHOUT_POSES
+    step = np.zeros(n)
+    if n > 1:
+        d = np.diff(poses[:, :2], axis=0)
+        turn = np.abs(np.remainder(np.diff(poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
+        step[1:] = np.nan_to_num(np.hypot(d[:, 0], d[:, 1]) + turn, nan=STEP_WITHOUT_POSES)
+    return np.cumsum(step)
+
+
+def context_windows(
+    along: np.ndarray, half: float, rows: slice | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per scan (of `rows`, default all), the first and one-past-last index of the scans
+    within `half` metres of path before and after it (itself included)."""
+    at = along if rows is None else along[rows]
+    lo = np.searchsorted(along, at - half, side="left")
+    hi = np.searchsorted(along, at + half, side="right")
+    return lo, np.maximum(hi, lo + 1)
+
+
+def with_context(
+    x: np.ndarray, lo: np.ndarray, hi: np.ndarray, own: np.ndarray | None = None
+) -> np.ndarray:
+    """Descriptors `x[own]` (S x D; default: all rows) followed by their mean and spread over
+    each scan's window of rows [lo, hi) (S x 3D): a place persists over several scans, and a door, a niche and the mouth
+    of a side corridor differ in how long and how deep the gap beside the robot stays."""
+    centre = x.mean(axis=0) if len(x) else np.zeros(x.shape[1])  # running sums of centred
+    d = x - centre  # values: less cancellation in the spread
+    c1 = np.zeros((len(x) + 1, x.shape[1]))
+    c2 = np.zeros_like(c1)
+    np.cumsum(d, axis=0, out=c1[1:])
+    np.cumsum(d * d, axis=0, out=c2[1:])
+    own = np.arange(len(lo)) if own is None else own
+    out = np.empty((len(lo), 3 * x.shape[1]))
+    _window_moments(x, c1, c2, lo, hi, own, centre, out)
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _window_moments(  # pragma: no cover - numba
+    x: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    own: np.ndarray,
+    centre: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Per scan: its descriptors, their window mean and spread from the running sums."""
+    d = x.shape[1]
+    for s in numba.prange(len(lo)):
+        a, b, i = lo[s], hi[s], own[s]
+        count = float(b - a)
+        for j in range(d):
+            mean = (c1[b, j] - c1[a, j]) / count
+            out[s, j] = x[i, j]
+            out[s, d + j] = mean + centre[j]
+            out[s, 2 * d + j] = np.sqrt(max((c2[b, j] - c2[a, j]) / count - mean * mean, 0.0))
+
+
+def chosen_columns(view_ahead: bool = False, mozos: bool = False) -> np.ndarray:
+    """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place."""
+    if mozos:
+        return mozos_columns()
+    return np.arange(len(names())) if view_ahead else place_columns()
+
+
+def features(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    columns: np.ndarray,
+    along: np.ndarray,
+    context: float,
+    rows: slice | None = None,
+) -> np.ndarray:
+    """The classifier's input for scans `rows` (default all) of a log: their descriptors
+    `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
+    `context` metres of path (`along`, see `path_length`) before and after each; only the
+    scans those windows reach are described."""
+    rows = rows or slice(0, len(ranges))
+    if context <= 0:
+        return describe(ranges[rows], laser)[:, columns]
+    lo, hi = context_windows(along, context, rows)
+    first, last = int(lo.min()), int(hi.max())
+    x = describe(ranges[first:last], laser)[:, columns]
+    own = np.arange(len(lo)) + (rows.start or 0) - first
+    return with_context(x, lo - first, hi - first, own)

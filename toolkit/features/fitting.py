@@ -14,7 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.descriptors import describe, place_columns
+from toolkit.features.descriptors import chosen_columns, context_windows, features, path_length
 from toolkit.features.likelihood import (
     background_bins,
     beam_terms,
@@ -125,13 +125,18 @@ def fit(
     training: dict[str, np.ndarray] | list[tuple[str, np.ndarray]],
     config: Config | None = None,
     spans: list[Span] | None = None,
+    poses: np.ndarray | None = None,
 ) -> FeatureModel:
     """Learn a model: per feature (or per component: pairs of feature name and scan indices),
     per-beam statistics of its training scans (indices into `ranges`); the background from
     the whole log; the temperature by leave-one-out; the lateral weight, if the config leaves
     it open, by leave-one-span-out. With `spans` (those `training` came from), a feature's
-    separate spans become separate components."""
+    separate spans become separate components. `poses` (S x 3, at the scan times) measure
+    the path for the descriptors' context (without: `STEP_WITHOUT_POSES` per scan)."""
     config = config or Config()
+    sparse = config.descriptors and config.context > 0 and _sparse(len(ranges), poses, config)
+    if sparse:  # no context to pool: each scan alone (recorded in the fit report)
+        config = replace(config, context=0.0)
     if not training:
         raise ToolkitError("no features to learn")
     components = list(training.items()) if isinstance(training, dict) else list(training)
@@ -152,11 +157,28 @@ def fit(
         model, choice = choose_lateral(model, ranges, components, held)
     _calibrate(model, ranges, components, held)
     if config.descriptors:
-        model.places = _fit_places(ranges, laser, components, config)
+        model.places = _fit_places(ranges, laser, components, config, poses)
         model.fit_report["descriptor_temperature"] = round(model.places.temperature, 4)
+    if sparse:
+        model.fit_report["context"] = (
+            f"off: fewer than {MIN_CONTEXT_SCANS} scans within the context's path on the "
+            "median scan (scans far apart)"
+        )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
     return model
+
+
+#: the context is used when the median scan's window holds at least this many scans
+MIN_CONTEXT_SCANS = 3
+
+
+def _sparse(n: int, poses: np.ndarray | None, config: Config) -> bool:
+    """Whether scans are too far apart along the path for the context: a window of one or
+    two scans holds the neighbouring places, not more of this one (the Intel log's scans
+    are about 1 m apart; the simulator's 0.1 m)."""
+    lo, hi = context_windows(path_length(n, poses), config.context)
+    return n > 0 and float(np.median(hi - lo)) < MIN_CONTEXT_SCANS
 
 
 def _fit_places(
@@ -164,18 +186,19 @@ def _fit_places(
     laser: LaserGeometry,
     components: list[tuple[str, np.ndarray]],
     config: Config,
+    poses: np.ndarray | None = None,
 ) -> PlaceClassifier:
     """The descriptor classifier from the training scans, each component a span."""
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
-    x = describe(ranges, laser)
+    columns = chosen_columns(config.view_ahead, config.mozos)
+    x = features(ranges, laser, columns, path_length(len(ranges), poses), config.context)
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
-    columns = np.arange(x.shape[1]) if config.view_ahead else place_columns()
     return fit_places(
-        x[idx], y, groups, config.descriptor_c, columns, x[rest], config.self_training,
-        config.priors,
+        x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
+        config.priors, forest=config.classifier == "trees", gate=len(columns),
     )  # fmt: skip
 
 

@@ -65,7 +65,7 @@ from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.places import C_DEFAULT, PlaceClassifier
 
-MODEL_VERSION = 1
+MODEL_VERSION = 2  # 2: the descriptors' context and the forest (a version-1 model: learn anew)
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -73,6 +73,7 @@ BACKGROUND_BINS = 128
 NoneModel = Literal["world", "surroundings"]
 Smoothing = Literal["none", "forward", "forward-backward"]
 Temperature = Literal["loo", "none"]
+Classifier = Literal["trees", "logistic"]
 
 
 @dataclass(frozen=True)
@@ -101,9 +102,13 @@ class Config:
     # the per-beam model alone (the paper's, and the options above)
     descriptor_c: float = C_DEFAULT  # inverse L2 strength of the descriptors' regression
     view_ahead: bool = False  # also the descriptors of the view ahead (the next place)
+    mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
+    classifier: Classifier = "trees"  # "logistic": the regression with a temperature
+    context: float = 1.0  # m of path before and after a scan whose descriptors' mean and
+    # spread join its own (0: the scan alone)
     priors: bool = False  # the places' shares of the training log in the regression
     self_training: int = 3  # rounds of self-training on the rest of the training log
-    beam_term: float = 1.0  # weight of the per-beam model's log-posterior added to the
+    beam_term: float = 0.0  # weight of the per-beam model's log-posterior added to the
     # descriptors' (0: not used)
 
     def __post_init__(self) -> None:
@@ -112,6 +117,7 @@ class Config:
             ("none_model", NoneModel),
             ("smoothing", Smoothing),
             ("temperature", Temperature),
+            ("classifier", Classifier),
         ):
             value, allowed = getattr(self, name), get_args(kind)
             if value not in allowed:

@@ -1,35 +1,126 @@
 """The place classifier on scan descriptors: learnt from about ten scans per place.
 
-A multinomial logistic regression (scikit-learn) on standardised descriptors
-(`toolkit.features.descriptors`), L2-regularised with `C`, gives a probability per taught
-place. Ten scans per class are few for some sixty descriptors: the strong regularisation
-keeps the weights small, and the temperature (`calibrate`, fitted by leave-one-span-out on
-the training spans) keeps the probabilities honest on scans the model has not seen.
+The default is scikit-learn's extremely randomised trees on the standardised descriptors and
+their context along the path (`toolkit.features.descriptors.features`): the mean over the
+trees of the leaf's class shares is the probability per taught place. `Forest` keeps the
+fitted trees as arrays and applies them in a compiled kernel. The alternative
+(`forest=False`, `--classifier logistic`) is a multinomial logistic regression,
+L2-regularised with `C`, with a temperature (`calibrate`, fitted by leave-one-span-out on
+the training spans).
 
 "None of these": a scan far from every taught place in the descriptor space (Mahalanobis
-distance to the nearest class centre under a shrunk pooled covariance, Ledoit-Wolf) is
-"none". Its probability is a logistic function of that distance, beyond `none_distance`
-times the farthest held-out training scan's distance (a place the user never taught, not a
-taught place seen from a new spot).
+distance to the nearest class centre under a shrunk pooled covariance, Ledoit-Wolf, on the
+scan's own descriptors) is "none". Its probability is a logistic function of that distance,
+beyond `NONE_DISTANCE` times the farthest held-out training scan's distance (a place the
+user never taught, not a taught place seen from a new spot).
 
-Only numbers are kept (the scaler, the weights, the centres and the precision matrix), so a
-model is plain JSON and applying it is two matrix products per chunk of scans.
+Only numbers are kept (the scaler, the trees' nodes or the weights, the centres and the
+precision matrix), so a model is plain JSON.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import numba
 import numpy as np
 
 from toolkit.errors import ToolkitError
 
+if TYPE_CHECKING:  # scikit-learn is loaded only when learning
+    from sklearn.ensemble import ExtraTreesClassifier
+    from sklearn.linear_model import LogisticRegression
+
 C_DEFAULT = 0.03  # inverse L2 strength of the logistic regression (tuned on random seeds 0-9)
 SELF_TRAINING_ROUNDS = 3
 SELF_TRAINING_CONFIDENCE = 0.8
-NONE_DISTANCE = 15.0  # "none" beyond this many times the training scans' own distance
+NONE_DISTANCE = 40.0  # "none" beyond this many times the training scans' own distance (seeds 0-9)
 NONE_SLOPE = 4.0  # nats per unit of log-distance ratio: how sharp the "none" edge is
+TREES = 100  # extremely randomised trees in the forest (100 and 200 alike on seeds 0-19)
+LEAF = 2  # training scans at least in a leaf
+PROBA_FLOOR = 1e-4  # a forest's probability is at least this (log of 0 is no evidence)
+
+
+@dataclass
+class Forest:
+    """A fitted scikit-learn forest as arrays (every tree's nodes, concatenated): applying it
+    needs numpy and numba alone, a saved model stays JSON, and a million scans are scored in
+    parallel. `predict_proba` equals scikit-learn's (tested)."""
+
+    roots: np.ndarray  # (T,) node index of each tree's root
+    left: np.ndarray  # (N,) child node index; -1 at a leaf
+    right: np.ndarray  # (N,)
+    feature: np.ndarray  # (N,) column tested at the node
+    threshold: np.ndarray  # (N,) go left when the value <= threshold
+    value: np.ndarray  # (N, K) class shares at the node
+
+    @classmethod
+    def from_sklearn(cls, forest: ExtraTreesClassifier) -> Forest:
+        roots, left, right, feature, threshold, value = [], [], [], [], [], []
+        offset = 0
+        for est in forest.estimators_:
+            t = est.tree_
+            roots.append(offset)
+            leaf = t.children_left < 0
+            left.append(np.where(leaf, -1, t.children_left + offset))
+            right.append(np.where(leaf, -1, t.children_right + offset))
+            feature.append(t.feature)
+            threshold.append(t.threshold)
+            v = t.value[:, 0, :]
+            value.append(v / np.maximum(v.sum(axis=1, keepdims=True), 1e-300))
+            offset += t.node_count
+        return cls(
+            np.array(roots, dtype=np.int64),
+            np.concatenate(left).astype(np.int64),
+            np.concatenate(right).astype(np.int64),
+            np.concatenate(feature).astype(np.int64),
+            np.concatenate(threshold).astype(np.float64),
+            np.concatenate(value).astype(np.float64),
+        )
+
+    def predict_proba(self, z: np.ndarray) -> np.ndarray:
+        """The mean over the trees of the class shares of the leaf each row falls in."""
+        out = np.zeros((len(z), self.value.shape[1]))
+        _forest_proba(
+            np.ascontiguousarray(z, dtype=np.float64), self.roots, self.left, self.right,
+            self.feature, self.threshold, self.value, out,
+        )  # fmt: skip
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: getattr(self, k).tolist() for k in self.__dataclass_fields__}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Forest:
+        ints = ("roots", "left", "right", "feature")
+        return cls(
+            **{
+                k: np.asarray(d[k], dtype=np.int64 if k in ints else np.float64)
+                for k in cls.__dataclass_fields__
+            }
+        )
+
+
+@numba.njit(parallel=True, cache=True)
+def _forest_proba(  # pragma: no cover - numba
+    z: np.ndarray,
+    roots: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    feature: np.ndarray,
+    threshold: np.ndarray,
+    value: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    trees = len(roots)
+    for s in numba.prange(z.shape[0]):
+        for t in range(trees):
+            node = roots[t]
+            while left[node] >= 0:
+                node = left[node] if z[s, feature[node]] <= threshold[node] else right[node]
+            for k in range(value.shape[1]):
+                out[s, k] += value[node, k] / trees
 
 
 @dataclass
@@ -46,15 +137,19 @@ class PlaceClassifier:
     precision: np.ndarray  # (D, D) inverse of the shrunk pooled covariance
     reach: float  # the training scans' largest held-out log-distance to their class centre
     temperature: float = 1.0
+    forest: Forest | None = None  # the forest, instead of the regression's coef / intercept
 
     def logits(self, x: np.ndarray) -> np.ndarray:
-        """Tempered log-odds (S, K) of descriptors (S, D)."""
+        """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities)."""
         z = (x[:, self.columns] - self.mean) / self.scale
+        if self.forest is not None:
+            return np.asarray(np.log(np.maximum(self.forest.predict_proba(z), PROBA_FLOOR)))
         return np.asarray((z @ self.coef.T + self.intercept) * self.temperature)
 
     def log_distance(self, x: np.ndarray) -> np.ndarray:
         """Per scan, half the log squared Mahalanobis distance to the nearest class centre."""
-        z = (x[:, self.columns] - self.mean) / self.scale
+        g = self.centres.shape[1]  # the gate's (leading) columns
+        z = (x[:, self.columns[:g]] - self.mean[:g]) / self.scale[:g]
         zp = z @ self.precision
         quad = np.einsum("sd,sd->s", zp, z)[:, None] - 2 * zp @ self.centres.T
         quad += np.einsum("kd,kd->k", self.centres @ self.precision, self.centres)[None, :]
@@ -73,8 +168,9 @@ class PlaceClassifier:
         return np.concatenate([logp + log_known[:, None], log_none[:, None]], axis=1)
 
     def to_dict(self) -> dict[str, Any]:
+        kind = "extremely randomised trees" if self.forest is not None else "logistic regression"
         return {
-            "kind": "logistic regression on scan descriptors (Mozos et al. 2005), "
+            "kind": f"{kind} on scan descriptors (Mozos et al. 2005) and their context, "
             "standardised; none: Mahalanobis distance gate",
             "classes": self.classes,
             "columns": self.columns.tolist(),
@@ -86,6 +182,7 @@ class PlaceClassifier:
             "precision": self.precision.tolist(),
             "reach": self.reach,
             "temperature": self.temperature,
+            **({"forest": self.forest.to_dict()} if self.forest is not None else {}),
         }
 
     @classmethod
@@ -101,6 +198,7 @@ class PlaceClassifier:
             precision=np.asarray(d["precision"], dtype=np.float64),
             reach=float(d["reach"]),
             temperature=float(d["temperature"]),
+            forest=Forest.from_dict(d["forest"]) if "forest" in d else None,
         )
 
 
@@ -113,6 +211,8 @@ def fit_places(
     unlabelled: np.ndarray | None = None,
     rounds: int = SELF_TRAINING_ROUNDS,
     priors: bool = False,
+    forest: bool = True,
+    gate: int | None = None,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -123,11 +223,19 @@ def fit_places(
     rest of it). With `priors`, the places' shares of the log, by EM on the unlabelled
     scans' probabilities (`log_priors`), are added to the intercepts: ten scans of each
     place teach it as if every place were as common, while a door is a few scans in a
-    hundred of corridor."""
+    hundred of corridor (a regression only). With `forest` (the default), the classifier is
+    scikit-learn's extremely randomised trees (`TREES`, leaves of `LEAF` scans or more)
+    instead of the regression: ten scans per place are few for a regression's straight
+    boundaries between a door, a niche and a side corridor; the trees' averaged leaf shares
+    are probabilities that need no temperature (measured on the random worlds). The "none"
+    gate measures distances on the first `gate` columns (default all): a scan's own
+    descriptors, not their context (ten scans' context is too narrow a cloud to measure
+    "far" by)."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
     from sklearn.covariance import LedoitWolf  # noqa: PLC0415
+    from sklearn.ensemble import ExtraTreesClassifier  # noqa: PLC0415
     from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
     from sklearn.preprocessing import StandardScaler  # noqa: PLC0415
 
@@ -138,39 +246,54 @@ def fit_places(
     scaler = StandardScaler().fit(x)
     scale = np.where(scaler.scale_ > 1e-9, scaler.scale_, 1.0)
     z = (x - scaler.mean_) / scale
-    lr = LogisticRegression(C=c, max_iter=2000).fit(z, y)
+
+    def learner() -> ExtraTreesClassifier | LogisticRegression:
+        if forest:
+            return ExtraTreesClassifier(TREES, min_samples_leaf=LEAF, random_state=0)
+        return LogisticRegression(C=c, max_iter=2000)
+
+    est = learner().fit(z, y)
     if unlabelled is not None and rounds > 0:
         zu = (unlabelled[:, columns] - scaler.mean_) / scale
         for _ in range(rounds):
-            prob = lr.predict_proba(zu)
-            label, sure = lr.classes_[prob.argmax(axis=1)], prob.max(axis=1)
+            prob = est.predict_proba(zu)
+            label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
             zs, ys, ws = [z], [y], [np.ones(len(y))]
-            for k in lr.classes_:
+            for k in est.classes_:
                 pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE))
                 if len(pick):
                     zs.append(zu[pick])
                     ys.append(label[pick])
                     ws.append(np.full(len(pick), (y == k).sum() / len(pick)))
-            lr = LogisticRegression(C=c, max_iter=2000).fit(
+            est = learner().fit(
                 np.concatenate(zs), np.concatenate(ys), sample_weight=np.concatenate(ws)
             )
-    order = [list(lr.classes_).index(k) for k in classes]
-    coef, intercept = lr.coef_, lr.intercept_
-    if len(lr.classes_) == 2:  # sklearn keeps one row for two classes: the second's odds
-        coef = np.vstack([-coef[0] / 2, coef[0] / 2])
-        intercept = np.array([-intercept[0] / 2, intercept[0] / 2])
-    coef, intercept = coef[order], intercept[order]
-    centres = np.array([z[y == k].mean(axis=0) for k in classes])
-    within = z - centres[[classes.index(k) for k in y]]
+    order = [list(est.classes_).index(k) for k in classes]
+    trees = None
+    if forest:
+        trees = Forest.from_sklearn(est)
+        trees.value = trees.value[:, order]
+        coef, intercept = np.zeros((len(classes), 0)), np.zeros(len(classes))
+    else:
+        coef, intercept = est.coef_, est.intercept_
+        if len(est.classes_) == 2:  # sklearn keeps one row for two classes: the second's odds
+            coef = np.vstack([-coef[0] / 2, coef[0] / 2])
+            intercept = np.array([-intercept[0] / 2, intercept[0] / 2])
+        coef, intercept = coef[order], intercept[order]
+    zg = z[:, : gate or z.shape[1]]
+    centres = np.array([zg[y == k].mean(axis=0) for k in classes])
+    within = zg - centres[[classes.index(k) for k in y]]
     precision = LedoitWolf().fit(within).precision_
-    if unlabelled is not None and priors:
+    if unlabelled is not None and priors and not forest:
         zu = (unlabelled[:, columns] - scaler.mean_) / scale
         intercept = intercept + log_priors(zu @ coef.T + intercept)
     model = PlaceClassifier(
-        classes, columns, scaler.mean_, scale, coef, intercept, centres, precision, reach=0.0
-    )
-    model.reach = _reach(model, z, y, classes)
-    model.temperature = calibrate(model, x, y, groups, c)
+        classes, columns, scaler.mean_, scale, coef, intercept, centres, precision, reach=0.0,
+        forest=trees,
+    )  # fmt: skip
+    model.reach = _reach(model, zg, y, classes)
+    if not forest:  # the forest's shares are not over-confident (measured: docs/places.md)
+        model.temperature = calibrate(model, x, y, groups, c)
     return model
 
 

@@ -213,11 +213,11 @@ def label_run(
     learn = model_path is None
     steps = ("fitting, outputs", 2) if learn else ("outputs", 1)
     with counted("label", ds.n_scans, "scans", *steps) as (scored, step):
+        poses, pose_source = scan_poses(ds, trajectory)
         if learn:
             components = training_components(spans)
-            model = fit(ds.ranges, ds.laser, components, config or Config(), spans)
+            model = fit(ds.ranges, ds.laser, components, config or Config(), spans, poses)
             step()
-        poses, pose_source = scan_poses(ds, trajectory)
         labels = classify(model, ds.ranges, poses, progress=scored)
         seconds = time.perf_counter() - started
         metrics = _metrics(ds, model, labels, pose_source, seconds, model_path)

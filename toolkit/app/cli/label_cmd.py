@@ -90,8 +90,26 @@ def label_command(
             "--beam-term",
             metavar="W",
             help="expert: add the per-beam model's log-posterior, times this weight, to the "
-            "descriptor classifier's (default 1; 0 leaves it out; see the ablation in "
+            "descriptor classifier's (default 0: left out; see the ablation in "
             "docs/places.md)",
+        ),
+    ] = None,
+    context: Annotated[
+        float | None,
+        typer.Option(
+            "--context",
+            metavar="M",
+            help="expert: m of path before and after each scan whose descriptors' mean and "
+            "spread join its own (default 1; 0: each scan alone); when learning",
+        ),
+    ] = None,
+    classifier: Annotated[
+        str | None,
+        typer.Option(
+            "--classifier",
+            metavar="KIND",
+            help="expert: trees (the default: extremely randomised trees) or logistic (a "
+            "regularised logistic regression with a temperature); when learning",
         ),
     ] = None,
     paper: Annotated[
@@ -111,8 +129,9 @@ def label_command(
 ) -> None:
     """Learn places from a few scans each and find them along the whole log (Eq. 7-9).
 
-    The default: scan descriptors (docs/places.md) and a regularised logistic regression,
-    self-trained on the log, smoothed along the trajectory by the HMM, with "none"."""
+    The default: scan descriptors and their context along the path (docs/places.md),
+    extremely randomised trees self-trained on the log, smoothed along the trajectory by
+    the HMM, with "none"."""
     # on use: the features (numba, scipy, scikit-learn) load for `label` alone
 
     from toolkit.errors import ToolkitError
@@ -135,6 +154,12 @@ def label_command(
         if beam_term < 0:
             raise ToolkitError(f"--beam-term {beam_term}: a weight >= 0")
         base = replace(base, beam_term=beam_term)
+    if context is not None:
+        if context < 0:
+            raise ToolkitError(f"--context {context}: a distance >= 0 (m)")
+        base = replace(base, context=context)
+    if classifier is not None:
+        base = replace(base, classifier=classifier)  # type: ignore[arg-type]  # Config checks
     config: Config | None = base
     if smoothing is not None:
         if smoothing not in SMOOTHINGS:
@@ -152,8 +177,13 @@ def label_command(
         config = replace(config or base, lateral_weight=lateral_exponent(lateral))
     if model is not None and smoothing is None:
         config = None  # a saved model keeps its own settings
-    if model is not None and beam_term is not None:
-        raise ToolkitError("--beam-term is a learning setting; a --model keeps its own")
+    for given, flag in (
+        (beam_term, "--beam-term"),
+        (context, "--context"),
+        (classifier, "--classifier"),
+    ):
+        if model is not None and given is not None:
+            raise ToolkitError(f"{flag} is a learning setting; a --model keeps its own")
     metrics = label_run(
         dataset, out, regions, model, trajectory, config, force, truth, write_figures
     ).metrics
