@@ -1,0 +1,86 @@
+"""A map run's outputs: map.png's return counts (a numba kernel) equal numpy's histogram of
+`world_points`, and the writers that run side by side in threads report every failure and
+leave no run behind."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import toolkit
+from toolkit import mapping, raster
+from toolkit.errors import ToolkitError
+from toolkit.poses import truth_poses
+from toolkit.sim import simulate
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> toolkit.Dataset:
+    path = tmp_path_factory.mktemp("raster") / "corridor"
+    toolkit.save(simulate("corridor", seed=3, scans=150).dataset, path)
+    return toolkit.load(path)
+
+
+def _numpy_counts(
+    ds: toolkit.Dataset, robot: np.ndarray, lo: np.ndarray, cell: float, size: tuple[int, int]
+) -> np.ndarray:
+    """The returns per pixel by numpy: world_points, floor, bincount (the former map_image)."""
+    width, height = size
+    xy, _ = raster.world_points(ds.ranges, robot, ds.laser)
+    i, j = np.floor((xy - lo) / cell).astype(np.int64).T
+    inside = (i >= 0) & (i < width) & (j >= 0) & (j < height)
+    return np.bincount(j[inside] * width + i[inside], minlength=width * height)
+
+
+@pytest.mark.parametrize("cells", [1500, 90])  # fine, and coarse with returns off the grid
+def test_map_counts_equal_numpys_histogram_of_world_points(
+    dataset: toolkit.Dataset, cells: int
+) -> None:
+    ds = dataset
+    robot = truth_poses(ds)
+    assert robot is not None
+    lo, cell, size = raster.grid_for(ds, robot, cells)
+    if cells == 90:  # a grid inside the returns: some fall off it on every side
+        lo, size = lo + 4 * cell, (size[0] - 8, size[1] - 8)
+    expected = _numpy_counts(ds, robot, lo, cell, size)
+    counts = np.zeros(size[0] * size[1], np.int64)
+    ca, sa = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
+    for part in raster.scan_chunks(ds.n_scans, 40):
+        lp = toolkit.se2.laser_poses(robot[part], ds.laser)
+        c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
+        raster._count_returns(ds.ranges[part], lp, c, s, ca, sa, lo, cell, size[0], counts)
+    returns = np.isfinite(ds.ranges).sum()
+    assert np.array_equal(counts, expected)
+    if cells == 90:
+        assert 0.1 * returns < counts.sum() < returns  # some returns were off the grid
+    else:
+        assert counts.sum() > 0.95 * returns
+
+
+def test_every_writer_reports_its_time_and_the_outputs_wall(
+    dataset: toolkit.Dataset, tmp_path: Path
+) -> None:
+    run = mapping.map_run(dataset, tmp_path / "run", loops=False)
+    seconds = run.metrics["seconds"]
+    written = {"cloud.ply+pcd", "map.png", "map.pgm+yaml", "trajectory.parquet", "trajectory.tum"}
+    assert written <= set(seconds) and seconds["outputs"] > 0
+    for name in ("cloud.ply", "cloud.pcd", "map.png", "map.pgm", "map.yaml", "metrics.json"):
+        assert (run.path / name).stat().st_size > 0, name
+    traj = pd.read_parquet(run.path / "trajectory.parquet")
+    assert len(traj) == dataset.n_scans
+
+
+def test_a_failing_writer_fails_the_run_and_leaves_nothing(
+    dataset: toolkit.Dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*args: object, **kwargs: object) -> None:
+        raise ToolkitError("disk full (simulated)")
+
+    monkeypatch.setattr(mapping, "write_occupancy", broken)
+    with pytest.raises(ToolkitError, match="disk full"):
+        mapping.map_run(dataset, tmp_path / "run", loops=False)
+    assert not (tmp_path / "run").exists()
+    assert [p.name for p in tmp_path.iterdir()] == []  # no temporary left either
