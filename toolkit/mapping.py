@@ -22,6 +22,7 @@ RUN/
 from __future__ import annotations
 
 import datetime as _dt
+import importlib
 import json
 import time
 from collections.abc import Callable, Collection
@@ -29,7 +30,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,8 +42,8 @@ from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.progress import counted
 from toolkit.raster import scan_chunks, world_points, write_map_png
+from toolkit.slam.relations import relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
-from toolkit.slam.run import relation_metrics, slam_trajectory
 from toolkit.writers import (
     CLOUD,
     pcd_header,
@@ -52,6 +53,9 @@ from toolkit.writers import (
     write_pcd,
     write_ply,
 )
+
+if TYPE_CHECKING:
+    from toolkit.slam.run import SlamRun
 
 # scans per chunk of the cloud writers: ~20 MB of vertices at 361 beams; larger chunks cost
 # more in fresh memory pages than they save in calls (3x slower at 20,000)
@@ -237,9 +241,11 @@ def map_run(
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
     steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
     with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
-        slam = None
+        slam: SlamRun | None = None
         if loops and method != Method.ODOMETRY:
-            result, slam = slam_trajectory(ds, method, config, matcher, progress=matched)
+            # on use: loop closure and the pose graph load GTSAM and scipy.ndimage
+            slam_run = importlib.import_module("toolkit.slam.run")
+            result, slam = slam_run.slam_trajectory(ds, method, config, matcher, progress=matched)
         else:
             result = build(ds, method, config, matcher, progress=matched)
         timed |= result.timings
