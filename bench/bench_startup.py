@@ -75,8 +75,11 @@ def _env(code: str = THIS, **extra: str) -> dict[str, str]:
     pythonpath = [root, *[p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]]
     if code != THIS:  # the baseline's toolkit, not this tree's
         pythonpath = [root]
+    # bytecode written and reused, as in a user's install (this machine's shells set
+    # PYTHONDONTWRITEBYTECODE, which made every run compile the toolkit's modules anew)
+    environ = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     return {
-        **os.environ,
+        **environ,
         "PYTHONPATH": os.pathsep.join(pythonpath),
         "OMP_NUM_THREADS": "1",
         "TOOLKIT_NO_PROGRESS": "1",
@@ -193,9 +196,9 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
                 cpu[code].append(_CPU[-1])
                 if (run / "metrics.json").exists():
                     stages[code] = json.loads((run / "metrics.json").read_text())["seconds"]
-        for leftover in (run, work / "sim"):
-            shutil.rmtree(leftover, ignore_errors=True)
         for code in CODES:
+            for leftover in (run, work / "sim"):
+                shutil.rmtree(leftover, ignore_errors=True)
             imports, heavy, where = _imports(args, code)
             timed = stages[code]
             writing = timed.get("outputs", sum(v for k, v in timed.items() if "." in k))
@@ -216,6 +219,8 @@ def startup_rows(work: Path, repeats: int) -> list[dict[str, Any]]:
                     "load": round(_load(), 2),
                 }
             )
+        for leftover in (run, work / "sim"):
+            shutil.rmtree(leftover, ignore_errors=True)
     return rows
 
 

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 import toolkit
-from toolkit import mapping, raster
+from toolkit import mapping, raster, writers
 from toolkit.errors import ToolkitError
 from toolkit.poses import truth_poses
 from toolkit.sim import simulate
@@ -84,3 +84,31 @@ def test_a_failing_writer_fails_the_run_and_leaves_nothing(
         mapping.map_run(dataset, tmp_path / "run", loops=False)
     assert not (tmp_path / "run").exists()
     assert [p.name for p in tmp_path.iterdir()] == []  # no temporary left either
+
+
+def _numpy_cloud(
+    ds: toolkit.Dataset, robot: np.ndarray, part: slice, span: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """PLY and PCD rows by numpy (the former cloud_rows and pcd_rows)."""
+    xy, scan = raster.world_points(ds.ranges[part], robot[part], ds.laser)
+    rows = np.empty(len(xy), writers.CLOUD)
+    rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], ds.laser.z
+    t = ds.t[part][scan]
+    rgb = writers.viridis((t - span[0]) / (span[1] - span[0] if span[1] > span[0] else 1.0))
+    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    rows["t"], rows["scan"] = t, scan + (part.start or 0)
+    return rows, writers.pcd_rows(rows)
+
+
+@pytest.mark.parametrize("part", [slice(0, 150), slice(40, 97)])
+def test_cloud_vertices_are_the_bytes_numpy_gives(dataset: toolkit.Dataset, part: slice) -> None:
+    ds = dataset
+    robot = truth_poses(ds)
+    assert robot is not None
+    span = (float(ds.t[10]), float(ds.t[120]))  # times before and after: clipped colours
+    ply, pcd = mapping.cloud_chunk(ds, robot, part, span)
+    want_ply, want_pcd = _numpy_cloud(ds, robot, part, span)
+    assert len(ply) == np.isfinite(ds.ranges[part]).sum() > 0
+    assert ply.tobytes() == want_ply.tobytes()
+    assert pcd.tobytes() == want_pcd.tobytes()
+    assert mapping.cloud_rows(ds, robot, part, span).tobytes() == want_ply.tobytes()

@@ -24,6 +24,7 @@ from __future__ import annotations
 import datetime as _dt
 import importlib
 import json
+import math
 import time
 from collections.abc import Callable, Collection
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -32,8 +33,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numba as nb
 import numpy as np
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import META, Dataset, load, sha256, write_described
@@ -41,15 +44,16 @@ from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.progress import counted
-from toolkit.raster import scan_chunks, world_points, write_map_png
+from toolkit.raster import scan_chunks, write_map_png
+from toolkit.raster import world_points as world_points  # re-exported: the cloud's arithmetic
 from toolkit.slam.relations import relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
 from toolkit.writers import (
     CLOUD,
+    PCD,
+    VIRIDIS_LUT,
     pcd_header,
-    pcd_rows,
     ply_header,
-    viridis,
     write_pcd,
     write_ply,
 )
@@ -71,16 +75,71 @@ def cloud_rows(
 ) -> np.ndarray:
     """The returns of scans `part` as cloud vertices (`toolkit.writers.CLOUD`): world x, y,
     the laser's height, viridis by time over `t_span`, the scan's time and index."""
-    xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
-    rows = np.empty(len(xy), CLOUD)
-    rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], ds.laser.z
-    t = ds.t[part][scan]
+    return cloud_chunk(ds, robot, part, t_span, pcd=False)[0]
+
+
+def cloud_chunk(
+    ds: Dataset, robot: np.ndarray, part: slice, t_span: tuple[float, float], pcd: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """The returns of scans `part` as PLY vertices (`cloud_rows`) and, with `pcd`, as PCD
+    points (`toolkit.writers.PCD`; else an empty array), filled in one pass by a numba kernel:
+    the positions by `world_points`' arithmetic and the colour by `viridis`' (the same
+    bytes as those numpy functions give, without their N x 2 and N x 3 temporaries)."""
+    ranges = ds.ranges[part]
+    lp = se2.laser_poses(robot[part], ds.laser)
+    n = int(np.count_nonzero(np.isfinite(ranges)))
+    ply = np.empty(n, CLOUD)
+    points = np.empty(n if pcd else 0, PCD)
     t0, t1 = t_span
-    rgb = viridis((t - t0) / (t1 - t0 if t1 > t0 else 1.0))
-    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    rows["t"] = t
-    rows["scan"] = scan + (part.start or 0)
-    return rows
+    _cloud_vertices(
+        ranges, lp, np.cos(lp[:, 2]), np.sin(lp[:, 2]), np.cos(ds.laser.angles),
+        np.sin(ds.laser.angles), float(ds.laser.z), ds.t[part], t0, t1 - t0 if t1 > t0 else 1.0,
+        VIRIDIS_LUT, part.start or 0, ply, points, pcd,
+    )  # fmt: skip
+    return ply, points
+
+
+@nb.njit(cache=True, nogil=True)
+def _cloud_vertices(
+    ranges: np.ndarray,
+    lp: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    ca: np.ndarray,
+    sa: np.ndarray,
+    z: float,
+    t: np.ndarray,
+    t0: float,
+    span: float,
+    lut: np.ndarray,
+    first: int,
+    ply: np.ndarray,
+    pcd: np.ndarray,
+    with_pcd: bool,
+) -> None:
+    """Fill `ply` (CLOUD) and, `with_pcd`, `pcd` (PCD) with the finite returns of `ranges`
+    in row order; see `cloud_chunk`."""
+    zf = np.float32(z)
+    n = 0
+    for k in range(ranges.shape[0]):
+        index = (t[k] - t0) / span * 255.0 + 0.5  # viridis: clip, then truncate
+        index = 0.0 if index < 0.0 else (255.0 if index > 255.0 else index)
+        q = int(index)
+        red, green, blue = lut[q, 0], lut[q, 1], lut[q, 2]
+        rgb = (np.uint32(red) << 16) | (np.uint32(green) << 8) | np.uint32(blue)
+        for b in range(ranges.shape[1]):
+            r = np.float64(ranges[k, b])
+            if not math.isfinite(r):
+                continue
+            x = np.float32((c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0])
+            y = np.float32((s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1])
+            v = ply[n]
+            v.x, v.y, v.z, v.t, v.scan = x, y, zf, t[k], first + k
+            v.red, v.green, v.blue = red, green, blue
+            if with_pcd:
+                p = pcd[n]
+                p.x, p.y, p.z, p.rgb, p.t, p.scan = x, y, zf, rgb, t[k], first + k
+            n += 1
 
 
 def voxel_down(rows: np.ndarray, voxel: float) -> np.ndarray:
@@ -134,9 +193,9 @@ def write_clouds(
         for f, pcd in zip(files, kinds, strict=True):
             f.write(pcd_header(total) if pcd else ply_header(total))
         for part in scan_chunks(ds.n_scans, chunk):
-            rows = cloud_rows(ds, robot, part, span)
+            rows, points = cloud_chunk(ds, robot, part, span, pcd=any(kinds))
             for f, pcd in zip(files, kinds, strict=True):
-                (pcd_rows(rows) if pcd else rows).tofile(f)
+                (points if pcd else rows).tofile(f)
     return total
 
 
