@@ -4,6 +4,7 @@ leave no run behind."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from toolkit import mapping, raster, writers
 from toolkit.errors import ToolkitError
 from toolkit.poses import truth_poses
 from toolkit.sim import simulate
+from toolkit.slam import render
 
 
 @pytest.fixture(scope="module")
@@ -112,3 +114,60 @@ def test_cloud_vertices_are_the_bytes_numpy_gives(dataset: toolkit.Dataset, part
     assert ply.tobytes() == want_ply.tobytes()
     assert pcd.tobytes() == want_pcd.tobytes()
     assert mapping.cloud_rows(ds, robot, part, span).tobytes() == want_ply.tobytes()
+
+
+def _trace_reference(
+    lp: np.ndarray, ranges: np.ndarray, angles: np.ndarray, lo: np.ndarray, res: float,
+    reach: float, free_range: float, hits: np.ndarray, seen: np.ndarray,
+) -> None:  # fmt: skip
+    """The occupancy grid's beam tracing in plain Python (Bresenham, every cell checked)."""
+    h, w = hits.shape
+    for k in range(len(lp)):
+        x0, y0 = (lp[k, 0] - lo[0]) / res, (lp[k, 1] - lo[1]) / res
+        for b in range(len(angles)):
+            r = float(ranges[k, b])
+            hit = r == r and r <= reach
+            length = r if hit else free_range
+            if not length > 0:
+                continue
+            th = lp[k, 2] + angles[b]
+            i0, j0 = math.floor(x0), math.floor(y0)
+            i1 = math.floor(x0 + length * math.cos(th) / res)
+            j1 = math.floor(y0 + length * math.sin(th) / res)
+            di, dj = abs(i1 - i0), abs(j1 - j0)
+            si, sj = (1 if i1 > i0 else -1), (1 if j1 > j0 else -1)
+            err, i, j = di - dj, i0, j0
+            while (i, j) != (i1, j1):
+                if 0 <= i < w and 0 <= j < h:
+                    seen[j, i] += 1
+                e2 = 2 * err
+                if e2 > -dj:
+                    err, i = err - dj, i + si
+                if e2 < di:
+                    err, j = err + di, j + sj
+            if hit and 0 <= i1 < w and 0 <= j1 < h:
+                hits[j1, i1] += 1
+                seen[j1, i1] += 1
+
+
+@pytest.mark.parametrize("crop", [0, 25])  # the whole grid; a grid that cuts beams off
+def test_occupancy_tracing_equals_plain_bresenham(dataset: toolkit.Dataset, crop: int) -> None:
+    ds = dataset
+    robot = truth_poses(ds)
+    assert robot is not None
+    part = slice(0, 150, 10)
+    lp = toolkit.se2.laser_poses(robot[part], ds.laser)
+    res = 0.1
+    lo, hi = render._bounds(ds, robot, 30.0)
+    lo = np.floor(lo / res) * res + crop * res
+    w, h = (np.ceil((hi - lo) / res).astype(np.int64) + 1 - crop).tolist()
+    grids = [np.zeros((h, w), np.int32) for _ in range(4)]
+    angles = ds.laser.angles.astype(np.float64)
+    args = (lp, ds.ranges[part], angles, lo, res, 30.0, 2.0)
+    render._trace(*args, grids[0], grids[1])
+    _trace_reference(*args, grids[2], grids[3])
+    assert grids[1].sum() > 1000
+    xy, _ = raster.world_points(ds.ranges[part], robot[part], ds.laser)
+    off = (np.floor((xy - lo) / res) < 0) | (np.floor((xy - lo) / res) >= [w, h])
+    assert off.any() == (crop > 0)  # beams that leave the grid, or none
+    assert np.array_equal(grids[0], grids[2]) and np.array_equal(grids[1], grids[3])
