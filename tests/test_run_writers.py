@@ -171,3 +171,17 @@ def test_occupancy_tracing_equals_plain_bresenham(dataset: toolkit.Dataset, crop
     off = (np.floor((xy - lo) / res) < 0) | (np.floor((xy - lo) / res) >= [w, h])
     assert off.any() == (crop > 0)  # beams that leave the grid, or none
     assert np.array_equal(grids[0], grids[2]) and np.array_equal(grids[1], grids[3])
+
+
+@pytest.mark.parametrize("reach", [np.inf, 2.5])
+def test_returns_box_is_world_points_extent(dataset: toolkit.Dataset, reach: float) -> None:
+    ds = dataset
+    robot = truth_poses(ds)
+    assert robot is not None
+    near = np.where(ds.ranges <= reach, ds.ranges, np.nan)
+    xy, _ = raster.world_points(near, robot, ds.laser)
+    assert 0 < len(xy) < (np.isfinite(ds.ranges).sum() if reach < np.inf else len(xy) + 1)
+    box = raster.returns_box(ds.ranges, robot, ds.laser, reach)
+    assert box is not None
+    assert np.array_equal(box[0], xy.min(axis=0)) and np.array_equal(box[1], xy.max(axis=0))
+    assert raster.returns_box(ds.ranges, robot, ds.laser, 0.01) is None  # no return that near

@@ -113,6 +113,46 @@ def _count_returns(
                 counts[j * width + i] += 1
 
 
+def returns_box(
+    ranges: np.ndarray, robot: np.ndarray, laser: LaserGeometry, reach: float = np.inf
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Lower and upper corner (x, y) of the returns of `ranges` (S x B) within `reach` of
+    the laser, placed as `world_points` places them (the same values, without its N x 2
+    array); None when there is none."""
+    lp = se2.laser_poses(robot, laser)
+    c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
+    box = np.array([np.inf, np.inf, -np.inf, -np.inf])
+    n = _box_returns(ranges, lp, c, s, np.cos(laser.angles), np.sin(laser.angles), reach, box)
+    return (box[:2], box[2:]) if n else None
+
+
+@nb.njit(cache=True, nogil=True)
+def _box_returns(
+    ranges: np.ndarray,
+    lp: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    ca: np.ndarray,
+    sa: np.ndarray,
+    reach: float,
+    box: np.ndarray,
+) -> int:
+    """Widen `box` (x min, y min, x max, y max) to the finite returns within `reach`; their
+    number. The arithmetic of `_count_returns`."""
+    n = 0
+    for k in range(ranges.shape[0]):
+        for b in range(ranges.shape[1]):
+            r = np.float64(ranges[k, b])
+            if not (math.isfinite(r) and r <= reach):
+                continue
+            x = (c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0]
+            y = (s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1]
+            box[0], box[1] = min(box[0], x), min(box[1], y)
+            box[2], box[3] = max(box[2], x), max(box[3], y)
+            n += 1
+    return n
+
+
 def grid_for(
     ds: Dataset, robot: np.ndarray, cells: int = 1500, chunk: int = CHUNK
 ) -> tuple[np.ndarray, float, tuple[int, int]]:

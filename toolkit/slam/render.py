@@ -20,21 +20,18 @@ import numpy as np
 from toolkit import se2
 from toolkit.dataset import Dataset
 from toolkit.metrics import align_se2
-from toolkit.raster import CHUNK, grid_for, map_image, map_text, scan_chunks, world_points
+from toolkit.raster import CHUNK, grid_for, map_image, map_text, returns_box, scan_chunks
 from toolkit.writers import write_png
 
 
 def _bounds(ds: Dataset, robot: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box of the trajectory (plus 1 m) and of the returns within `reach` of the
-    laser, chunk by chunk."""
+    laser (`returns_box`: one pass, no N x 2 array)."""
     lo = robot[:, :2].min(axis=0) - 1.0
     hi = robot[:, :2].max(axis=0) + 1.0
-    for part in scan_chunks(ds.n_scans, CHUNK):
-        near = np.where(ds.ranges[part] <= reach, ds.ranges[part], np.nan)
-        xy, _ = world_points(near, robot[part], ds.laser)
-        if len(xy):
-            lo = np.minimum(lo, xy.min(axis=0))
-            hi = np.maximum(hi, xy.max(axis=0))
+    box = returns_box(ds.ranges, robot, ds.laser, reach)
+    if box is not None:
+        lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
     return lo, hi
 
 
