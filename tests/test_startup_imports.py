@@ -69,3 +69,23 @@ def test_map_with_loops_loads_the_pose_graph_and_nothing_to_plot(
 
 def test_info_loads_numpy_and_pyarrow_only(dataset: Path) -> None:
     assert loaded("info", dataset) == set()
+
+
+def test_the_command_ends_with_its_output_and_exit_code_after_freezing_the_gc(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """`toolkit` freezes the garbage collector when the command is done (a fast shutdown):
+    what it printed is all there, and failures still exit 1 with one line."""
+    env = {**os.environ, "TOOLKIT_NO_PROGRESS": "1"}
+    ok = subprocess.run(
+        [sys.executable, "-m", "toolkit", "info", str(dataset), "--json"],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert json.loads(ok.stdout)["scans"] == 60
+    bad = subprocess.run(
+        [sys.executable, "-m", "toolkit", "info", str(tmp_path / "missing")],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert bad.returncode == 1 and bad.stderr.startswith("error: ")
+    assert len(bad.stderr.strip().splitlines()) == 1
