@@ -5,7 +5,9 @@ Eq. 2). The 3D cloud puts each return at its world position and the laser's moun
 coloured by time. Everything is done in chunks of scans, so a log of a million scans maps
 in bounded memory: the cloud is streamed to a binary PLY and PCD (or voxel-downsampled chunk
 by chunk), and map.png is the returns counted into a pixel grid chunk by chunk. The writers
-are numpy (`toolkit.writers`): no plotting or 3D library is loaded.
+are numpy (`toolkit.writers`) and numba kernels that place each return once (the cloud's
+vertices here, the map's counts in `toolkit.raster`): no plotting or 3D library is loaded.
+They run side by side in threads (`map_run`).
 
 RUN/
     config.json          what was run: dataset, method, matcher parameters, voxel size
