@@ -5,7 +5,9 @@ Eq. 2). The 3D cloud puts each return at its world position and the laser's moun
 coloured by time. Everything is done in chunks of scans, so a log of a million scans maps
 in bounded memory: the cloud is streamed to a binary PLY and PCD (or voxel-downsampled chunk
 by chunk), and map.png is the returns counted into a pixel grid chunk by chunk. The writers
-are numpy (`toolkit.writers`): no plotting or 3D library is loaded.
+are numpy (`toolkit.writers`) and numba kernels that place each return once (the cloud's
+vertices here, the map's counts in `toolkit.raster`): no plotting or 3D library is loaded.
+They run side by side in threads (`map_run`).
 
 RUN/
     config.json          what was run: dataset, method, matcher parameters, voxel size
@@ -22,16 +24,21 @@ RUN/
 from __future__ import annotations
 
 import datetime as _dt
+import importlib
 import json
+import math
 import time
 from collections.abc import Callable, Collection
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import numba as nb
 import numpy as np
 
+from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import META, Dataset, load, sha256, write_described
@@ -39,22 +46,30 @@ from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.progress import counted
-from toolkit.raster import scan_chunks, world_points, write_map_png
-from toolkit.slam.render import write_occupancy
-from toolkit.slam.run import relation_metrics, slam_trajectory
+from toolkit.raster import scan_chunks, write_map_png
+from toolkit.raster import world_points as world_points  # re-exported: the cloud's arithmetic
+from toolkit.slam.relations import relation_metrics
+from toolkit.slam.render import write_occupancy, write_side_by_side
 from toolkit.writers import (
     CLOUD,
+    PCD,
+    VIRIDIS_LUT,
     pcd_header,
-    pcd_rows,
     ply_header,
-    viridis,
     write_pcd,
     write_ply,
 )
 
+if TYPE_CHECKING:
+    from toolkit.slam.run import SlamRun
+
 # scans per chunk of the cloud writers: ~20 MB of vertices at 361 beams; larger chunks cost
 # more in fresh memory pages than they save in calls (3x slower at 20,000)
 CLOUD_CHUNK = 2_000
+
+#: Threads that write a run's outputs side by side (`map_run`): the clouds, map.png and the
+#: occupancy grid, the three long ones, each on its own.
+WRITER_THREADS = 3
 
 
 def cloud_rows(
@@ -62,16 +77,71 @@ def cloud_rows(
 ) -> np.ndarray:
     """The returns of scans `part` as cloud vertices (`toolkit.writers.CLOUD`): world x, y,
     the laser's height, viridis by time over `t_span`, the scan's time and index."""
-    xy, scan = world_points(ds.ranges[part], robot[part], ds.laser)
-    rows = np.empty(len(xy), CLOUD)
-    rows["x"], rows["y"], rows["z"] = xy[:, 0], xy[:, 1], ds.laser.z
-    t = ds.t[part][scan]
+    return cloud_chunk(ds, robot, part, t_span, pcd=False)[0]
+
+
+def cloud_chunk(
+    ds: Dataset, robot: np.ndarray, part: slice, t_span: tuple[float, float], pcd: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """The returns of scans `part` as PLY vertices (`cloud_rows`) and, with `pcd`, as PCD
+    points (`toolkit.writers.PCD`; else an empty array), filled in one pass by a numba kernel:
+    the positions by `world_points`' arithmetic and the colour by `viridis`' (the same
+    bytes as those numpy functions give, without their N x 2 and N x 3 temporaries)."""
+    ranges = ds.ranges[part]
+    lp = se2.laser_poses(robot[part], ds.laser)
+    n = int(np.count_nonzero(np.isfinite(ranges)))
+    ply = np.empty(n, CLOUD)
+    points = np.empty(n if pcd else 0, PCD)
     t0, t1 = t_span
-    rgb = viridis((t - t0) / (t1 - t0 if t1 > t0 else 1.0))
-    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    rows["t"] = t
-    rows["scan"] = scan + (part.start or 0)
-    return rows
+    _cloud_vertices(
+        ranges, lp, np.cos(lp[:, 2]), np.sin(lp[:, 2]), np.cos(ds.laser.angles),
+        np.sin(ds.laser.angles), float(ds.laser.z), ds.t[part], t0, t1 - t0 if t1 > t0 else 1.0,
+        VIRIDIS_LUT, part.start or 0, ply, points, pcd,
+    )  # fmt: skip
+    return ply, points
+
+
+@nb.njit(cache=True, nogil=True)
+def _cloud_vertices(
+    ranges: np.ndarray,
+    lp: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    ca: np.ndarray,
+    sa: np.ndarray,
+    z: float,
+    t: np.ndarray,
+    t0: float,
+    span: float,
+    lut: np.ndarray,
+    first: int,
+    ply: np.ndarray,
+    pcd: np.ndarray,
+    with_pcd: bool,
+) -> None:
+    """Fill `ply` (CLOUD) and, `with_pcd`, `pcd` (PCD) with the finite returns of `ranges`
+    in row order; see `cloud_chunk`."""
+    zf = np.float32(z)
+    n = 0
+    for k in range(ranges.shape[0]):
+        index = (t[k] - t0) / span * 255.0 + 0.5  # viridis: clip, then truncate
+        index = 0.0 if index < 0.0 else (255.0 if index > 255.0 else index)
+        q = int(index)
+        red, green, blue = lut[q, 0], lut[q, 1], lut[q, 2]
+        rgb = (np.uint32(red) << 16) | (np.uint32(green) << 8) | np.uint32(blue)
+        for b in range(ranges.shape[1]):
+            r = np.float64(ranges[k, b])
+            if not math.isfinite(r):
+                continue
+            x = np.float32((c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0])
+            y = np.float32((s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1])
+            v = ply[n]
+            v.x, v.y, v.z, v.t, v.scan = x, y, zf, t[k], first + k
+            v.red, v.green, v.blue = red, green, blue
+            if with_pcd:
+                p = pcd[n]
+                p.x, p.y, p.z, p.rgb, p.t, p.scan = x, y, zf, rgb, t[k], first + k
+            n += 1
 
 
 def voxel_down(rows: np.ndarray, voxel: float) -> np.ndarray:
@@ -125,9 +195,9 @@ def write_clouds(
         for f, pcd in zip(files, kinds, strict=True):
             f.write(pcd_header(total) if pcd else ply_header(total))
         for part in scan_chunks(ds.n_scans, chunk):
-            rows = cloud_rows(ds, robot, part, span)
+            rows, points = cloud_chunk(ds, robot, part, span, pcd=any(kinds))
             for f, pcd in zip(files, kinds, strict=True):
-                (pcd_rows(rows) if pcd else rows).tofile(f)
+                (points if pcd else rows).tofile(f)
     return total
 
 
@@ -232,21 +302,37 @@ def map_run(
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
     steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
     with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
-        slam = None
+        slam: SlamRun | None = None
         if loops and method != Method.ODOMETRY:
-            result, slam = slam_trajectory(ds, method, config, matcher, progress=matched)
+            # on use: loop closure and the pose graph load GTSAM and scipy.ndimage
+            slam_run = importlib.import_module("toolkit.slam.run")
+            result, slam = slam_run.slam_trajectory(ds, method, config, matcher, progress=matched)
         else:
             result = build(ds, method, config, matcher, progress=matched)
         timed |= result.timings
         step()
         robot = result.poses
         truth = truth_poses(ds)
-        with atomic_dir(out, force=force) as tmp:
+        with atomic_dir(out, force=force) as tmp, ThreadPoolExecutor(WRITER_THREADS) as pool:
+            # the outputs are written side by side in threads (the clouds, the map and the
+            # occupancy grid spend their time in numpy, zlib, file writes and a nogil numba
+            # kernel, which release the GIL); metrics are computed here meanwhile. The
+            # executor's exit waits for every writer before atomic_dir commits or cleans up.
+            writers: dict[str, Future[float]] = {}
+            t_outputs = time.perf_counter()
 
             def timing(name: str, write: Callable[[Path], object]) -> None:
-                t0 = time.perf_counter()
-                write(tmp / name)
-                timed[name] = time.perf_counter() - t0
+                def timed_write() -> float:
+                    t0 = time.perf_counter()
+                    write(tmp / name)
+                    return time.perf_counter() - t0
+
+                writers[name] = pool.submit(timed_write)
+
+            def finish(names: Collection[str]) -> None:
+                """Wait for the writers `names` (the first failure raises) and time them."""
+                for name in [n for n in writers if n in names]:
+                    timed[name] = writers[name].result()
 
             settings = {
                 "dataset": str(ds.path) if ds.path else None,
@@ -260,6 +346,22 @@ def map_run(
             }
             if "config.json" in outputs:
                 (tmp / "config.json").write_text(json.dumps(settings, indent=2) + "\n")
+            if "cloud.ply" in outputs:  # the longest writers first
+                clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
+                timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
+            name = ds.path.name if ds.path else "dataset"
+            if "map.png" in outputs:
+                title = f"{name}: {method} with loops" if slam is not None else f"{name}: {method}"
+                if slam is not None:  # odometry / before loops / after loops side by side
+                    panels = [("before loops", slam.before), ("after loops", robot)]
+                    odo = odometry_poses(ds)
+                    panels = [("odometry", odo), *panels] if odo is not None else panels
+                    timing("map.png", lambda p: write_side_by_side(p, ds, panels, truth, title))
+                else:
+                    timing("map.png", lambda p: write_map_png(p, ds, robot, truth, title))
+                timing("map.pgm+yaml", lambda _: write_occupancy(tmp, ds, robot))
+            if slam is not None:  # the graph and the loops always
+                timing("graph.g2o+loops.csv", lambda _: slam.write(tmp, ds, robot, "", False))
             if "trajectory.parquet" in outputs:
                 timing(
                     "trajectory.parquet",
@@ -269,24 +371,17 @@ def map_run(
                 timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))
             if truth is not None and "groundtruth.tum" in outputs:
                 timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
-            if "cloud.ply" in outputs:
-                clouds = [tmp / "cloud.ply", tmp / "cloud.pcd"]
-                timing("cloud.ply+pcd", lambda _: write_clouds(clouds, ds, robot, voxel))
-            step()
-            name = ds.path.name if ds.path else "dataset"
-            if slam is not None:  # the graph and the loops always; the maps if asked
-                maps = "map.png" in outputs
-                title = f"{name}: {method} with loops"
-                timing("map.png+pgm+yaml", lambda _: slam.write(tmp, ds, robot, title, maps))
-            elif "map.png" in outputs:
-                timing("map.png", lambda p: write_map_png(p, ds, robot, truth, f"{name}: {method}"))
-                timing("map.pgm+yaml", lambda _: write_occupancy(tmp, ds, robot))
-            step()
             t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
             metrics["relation_error"] = relation_metrics(ds, robot)
             metrics |= slam.metrics(ds) if slam is not None else {}
-            timed["metrics"] = time.perf_counter() - t0
+            measuring = time.perf_counter() - t0
+            finish(["trajectory.parquet", "trajectory.tum", "groundtruth.tum", "cloud.ply+pcd"])
+            step()
+            finish(["map.png", "map.pgm+yaml", "graph.g2o+loops.csv"])
+            step()
+            timed["metrics"] = measuring
+            timed["outputs"] = time.perf_counter() - t_outputs  # the writers' and metrics' wall
             timed |= metrics.get("seconds", {})  # the loop closure's stages
             metrics["seconds"] = {k: round(v, 4) for k, v in timed.items()}
             if "metrics.json" in outputs:

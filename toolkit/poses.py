@@ -12,11 +12,12 @@ steps), with keyframes one pass per scan. The trajectory starts at the odometry'
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numba as nb
 import numpy as np
@@ -27,7 +28,9 @@ from toolkit.align import scan as sc
 from toolkit.align import se2_jit
 from toolkit.dataset import Dataset, PoseStream, pose_frame
 from toolkit.errors import ToolkitError
-from toolkit.sim.odometry import OdometryModel
+
+if TYPE_CHECKING:
+    from toolkit.sim.odometry import OdometryModel
 
 
 class Method(StrEnum):
@@ -222,7 +225,11 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
     truth = truth_poses(ds)
     if truth is None:
         raise ToolkitError("adding drift needs ground truth; the dataset has none", file=ds.path)
-    model = OdometryModel(**{**REAL_LOG_DRIFT, **params})
+    # on use: importing toolkit.sim.odometry loads the whole simulator (the package)
+    odometry_model: type[OdometryModel] = importlib.import_module(
+        "toolkit.sim.odometry"
+    ).OdometryModel
+    model = odometry_model(**{**REAL_LOG_DRIFT, **params})
     odo = model.integrate(truth, np.random.default_rng(seed))
     meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
     return replace(

@@ -1,12 +1,17 @@
 """Maps as pictures: every return of a log placed in the world (`world_points`) and
-counted into a pixel grid, the trajectory drawn over it; numpy only, one pass over the
-returns, so that map.png costs about as much as reading the scans."""
+counted into a pixel grid, the trajectory drawn over it; one pass over the returns, so that
+map.png costs about as much as reading the scans. The counting is a numba kernel that places
+and counts each return in one step (no N x 2 temporaries), with the same arithmetic as
+`world_points` (the same pixels); numba is loaded by every command that draws a map anyway
+(the matcher's and the occupancy grid's kernels)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 
 from toolkit import se2
@@ -58,11 +63,12 @@ def map_image(
     chunk: memory does not grow with the log."""
     width, height = size
     counts = np.zeros(width * height, np.int64)
+    ca, sa = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
     for part in scan_chunks(ds.n_scans, chunk):
-        xy, _ = world_points(ds.ranges[part], robot[part], ds.laser)
-        i, j = np.floor((xy - lo) / cell).astype(np.int64).T
-        inside = (i >= 0) & (i < width) & (j >= 0) & (j < height)
-        counts += np.bincount(j[inside] * width + i[inside], minlength=width * height)
+        lp = se2.laser_poses(robot[part], ds.laser)
+        c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
+        origin = np.asarray(lo, np.float64)
+        _count_returns(ds.ranges[part], lp, c, s, ca, sa, origin, float(cell), width, counts)
     hit = np.flatnonzero(counts)
     shade = np.log1p(counts[hit].astype(np.float64))
     top = float(np.percentile(shade, 95)) if len(shade) else 1.0
@@ -74,6 +80,77 @@ def map_image(
         _draw_path(image, truth[:, :2], lo, cell, TRUTH_RGB, dash=8)
     _draw_path(image, robot[:, :2], lo, cell, TRAJECTORY_RGB)
     return image
+
+
+@nb.njit(cache=True, nogil=True)
+def _count_returns(
+    ranges: np.ndarray,
+    lp: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    ca: np.ndarray,
+    sa: np.ndarray,
+    lo: np.ndarray,
+    cell: float,
+    width: int,
+    counts: np.ndarray,
+) -> None:
+    """Add every finite return of `ranges` (S x B) to `counts` (height x width, flat, row =
+    y): placed as `world_points` places it (laser poses `lp`, their cosines and sines `c`,
+    `s`, the beams' `ca`, `sa`; the same operations in the same order, so the same bits), in
+    pixels of `cell` m from corner `lo`; returns outside the grid are left out."""
+    height = counts.shape[0] // width
+    for k in range(ranges.shape[0]):
+        for b in range(ranges.shape[1]):
+            r = np.float64(ranges[k, b])
+            if not math.isfinite(r):
+                continue
+            x = (c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0]
+            y = (s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1]
+            i = math.floor((x - lo[0]) / cell)
+            j = math.floor((y - lo[1]) / cell)
+            if 0 <= i < width and 0 <= j < height:
+                counts[j * width + i] += 1
+
+
+def returns_box(
+    ranges: np.ndarray, robot: np.ndarray, laser: LaserGeometry, reach: float = np.inf
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Lower and upper corner (x, y) of the returns of `ranges` (S x B) within `reach` of
+    the laser, placed as `world_points` places them (the same values, without its N x 2
+    array); None when there is none."""
+    lp = se2.laser_poses(robot, laser)
+    c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
+    box = np.array([np.inf, np.inf, -np.inf, -np.inf])
+    n = _box_returns(ranges, lp, c, s, np.cos(laser.angles), np.sin(laser.angles), reach, box)
+    return (box[:2], box[2:]) if n else None
+
+
+@nb.njit(cache=True, nogil=True)
+def _box_returns(
+    ranges: np.ndarray,
+    lp: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    ca: np.ndarray,
+    sa: np.ndarray,
+    reach: float,
+    box: np.ndarray,
+) -> int:
+    """Widen `box` (x min, y min, x max, y max) to the finite returns within `reach`; their
+    number. The arithmetic of `_count_returns`."""
+    n = 0
+    for k in range(ranges.shape[0]):
+        for b in range(ranges.shape[1]):
+            r = np.float64(ranges[k, b])
+            if not (math.isfinite(r) and r <= reach):
+                continue
+            x = (c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0]
+            y = (s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1]
+            box[0], box[1] = min(box[0], x), min(box[1], y)
+            box[2], box[3] = max(box[2], x), max(box[3], y)
+            n += 1
+    return n
 
 
 def grid_for(

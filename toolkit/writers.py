@@ -53,10 +53,11 @@ _VIRIDIS = np.array(
 def viridis(u: np.ndarray) -> np.ndarray:
     """8-bit RGB (N x 3) of values `u` in [0, 1] (clipped) on the viridis colour map."""
     index = np.clip(np.asarray(u, dtype=np.float64) * 255.0 + 0.5, 0, 255).astype(np.intp)
-    return _LUT[index]
+    return VIRIDIS_LUT[index]
 
 
-_LUT = np.round(
+#: viridis as 256 8-bit RGB entries: `viridis(u)` is VIRIDIS_LUT[int(clip(255 u + 0.5, 0, 255))]
+VIRIDIS_LUT = np.round(
     np.column_stack(
         [np.interp(np.linspace(0, 1, 256), np.linspace(0, 1, 17), _VIRIDIS[:, c]) for c in range(3)]
     )
@@ -80,14 +81,15 @@ def pcd_header(n: int) -> bytes:
     ).encode("ascii")
 
 
-_PCD = np.dtype(
+#: A PCD point: CLOUD with the colour packed into PCL's one uint32 `rgb` (0x00RRGGBB).
+PCD = np.dtype(
     [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4"), ("t", "<f8"), ("scan", "<i4")]
 )
 
 
 def pcd_rows(rows: np.ndarray) -> np.ndarray:
     """CLOUD rows in PCD's layout (colour packed into one uint32)."""
-    out = np.empty(len(rows), _PCD)
+    out = np.empty(len(rows), PCD)
     for name in ("x", "y", "z", "t", "scan"):
         out[name] = rows[name]
     out["rgb"] = (

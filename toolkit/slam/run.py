@@ -22,18 +22,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
-from toolkit.metrics import evaluate, relation_error, relation_error_motions, truth_relations
+from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.slam import graph as pg
 from toolkit.slam.localmap import sequential
 from toolkit.slam.loops import Loop, loop_truth_error
 from toolkit.slam.pipeline import SlamConfig, SlamResult, close_loops
+from toolkit.slam.relations import RELATIONS, relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
-
-RELATIONS = "relations.parquet"
 
 
 @dataclass
@@ -124,24 +122,4 @@ def slam_trajectory(
     return out, run
 
 
-def relation_metrics(ds: Dataset, poses: np.ndarray) -> dict[str, Any] | None:
-    """Relation error of `poses`: over the dataset's relations.parquet (Rawseeds' `.relations`,
-    t1, t2, x, y, yaw: pose at t2 in the frame of t1) when it has one, else over relations
-    derived from the truth; None without either."""
-    path = ds.path / RELATIONS if ds.path is not None else None
-    if path is not None and path.is_file():
-        rel = pd.read_parquet(path)
-        i = _nearest(ds.t, rel["t1"].to_numpy())
-        j = _nearest(ds.t, rel["t2"].to_numpy())
-        motion = rel[["x", "y", "yaw"]].to_numpy(np.float64)
-        out = relation_error_motions(se2.between(poses[i], poses[j]), motion)
-        return {"source": RELATIONS, **out}
-    truth = truth_poses(ds)
-    if truth is None:
-        return None
-    return {"source": "groundtruth", **relation_error(poses, truth, truth_relations(truth))}
-
-
-def _nearest(t: np.ndarray, q: np.ndarray) -> np.ndarray:
-    i = np.clip(np.searchsorted(t, q), 1, len(t) - 1)
-    return np.where(np.abs(t[i - 1] - q) <= np.abs(t[i] - q), i - 1, i)
+__all__ = ["RELATIONS", "SlamRun", "relation_metrics", "slam_trajectory"]

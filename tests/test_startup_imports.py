@@ -1,0 +1,91 @@
+"""Each command loads only the libraries it uses, checked in a new process as a user runs it:
+`map` without loops (or by odometry) needs neither GTSAM nor scipy.ndimage nor the simulator,
+`map` with loops needs GTSAM and scipy.ndimage, and nothing loads a plotting or 3D library."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import toolkit
+from toolkit.sim import simulate
+
+WATCHED = (
+    "pandas", "numba", "scipy.ndimage", "gtsam", "toolkit.sim", "toolkit.slam.pipeline",
+    "matplotlib", "open3d", "sklearn", "distributed",
+)  # fmt: skip
+
+RUN = (
+    "import json, sys\n"
+    "from toolkit.app.cli import main\n"
+    "watched = json.loads(sys.argv[1])\n"
+    "sys.argv = ['toolkit', *sys.argv[2:]]\n"
+    "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+    "print(json.dumps(sorted(m for m in watched if m in sys.modules)))\n"
+)
+
+
+def loaded(*args: object) -> set[str]:
+    """Which of WATCHED `toolkit ARGS` has imported when it ends, in a new process."""
+    env = {**os.environ, "TOOLKIT_NO_PROGRESS": "1"}
+    out = subprocess.run(
+        [sys.executable, "-c", RUN, json.dumps(WATCHED), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert out.returncode == 0, out.stderr
+    return set(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("startup") / "corridor"
+    toolkit.save(simulate("corridor", seed=2, scans=60).dataset, path)
+    return path
+
+
+@pytest.mark.parametrize("method", [["--no-loops"], ["--method", "odometry"]])
+def test_map_without_loops_loads_neither_gtsam_nor_scipy_ndimage(
+    dataset: Path, tmp_path: Path, method: list[str]
+) -> None:
+    mods = loaded("map", dataset, "--out", tmp_path / "run", "-q", *method)
+    assert (tmp_path / "run" / "map.pgm").is_file()  # it ran: every output written
+    assert mods == {"pandas", "numba"}
+
+
+def test_map_with_loops_loads_the_pose_graph_and_nothing_to_plot(
+    dataset: Path, tmp_path: Path
+) -> None:
+    mods = loaded("map", dataset, "--out", tmp_path / "run", "-q")
+    assert (tmp_path / "run" / "graph.g2o").is_file()
+    assert mods == {"pandas", "numba", "scipy.ndimage", "gtsam", "toolkit.slam.pipeline"}
+
+
+def test_info_loads_numpy_and_pyarrow_only(dataset: Path) -> None:
+    assert loaded("info", dataset) == set()
+
+
+def test_the_command_ends_with_its_output_and_exit_code_after_freezing_the_gc(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """`toolkit` freezes the garbage collector when the command is done (a fast shutdown):
+    what it printed is all there, and failures still exit 1 with one line."""
+    env = {**os.environ, "TOOLKIT_NO_PROGRESS": "1"}
+    ok = subprocess.run(
+        [sys.executable, "-m", "toolkit", "info", str(dataset), "--json"],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert json.loads(ok.stdout)["scans"] == 60
+    bad = subprocess.run(
+        [sys.executable, "-m", "toolkit", "info", str(tmp_path / "missing")],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert bad.returncode == 1 and bad.stderr.startswith("error: ")
+    assert len(bad.stderr.strip().splitlines()) == 1
