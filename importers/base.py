@@ -399,10 +399,7 @@ class RowSpill:
         self._held += block.nbytes
         if self.where is not None and self._held >= SPILL_BLOCK_BYTES:
             if self._file is None:
-                self._file = cast(
-                    "io.BufferedRandom",
-                    tempfile.TemporaryFile(dir=self.where, prefix=".spill-"),  # noqa: SIM115 - closed by close()
-                )
+                self._file = tempfile.TemporaryFile(dir=self.where, prefix=".spill-")  # noqa: SIM115 - closed by close()
             self._file.seek(0, os.SEEK_END)
             for b in self._blocks:
                 self._file.write(b.data.cast("B"))
@@ -461,7 +458,8 @@ class RowSpill:
         i -= self._on_disk
         for block in self._blocks:
             if i < len(block):
-                return block[i].copy()
+                row: np.ndarray = block[i].copy()
+                return row
             i -= len(block)
         raise IndexError(i)
 
