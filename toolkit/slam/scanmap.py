@@ -78,7 +78,7 @@ class MapConfig:
     degenerate: float = 0.02  # translation information eigenvalue ratio below which the
     # weak direction keeps the motion model (a corridor) ...
     min_information: float = 0.0  # ... or below this (in returns seen head-on; 0: off)
-    min_inliers: float = 0.4  # fewer returns within inlier_distance: correlative search
+    min_inliers: float = 0.75  # fewer returns within inlier_distance: correlative search
     search_window: float = 1.0  # its window (+-m) ...
     search_turn: float = 1.0  # ... and turn (+-rad)
 
