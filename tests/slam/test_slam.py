@@ -79,7 +79,7 @@ def test_real_intel_loops_close_with_no_false_one(real: Path) -> None:
     assert _false(slam, truth) == []
     before = evaluate(slam.before, truth)["ate"]["rmse"]
     after = evaluate(result.poses, truth)["ate"]["rmse"]
-    assert after <= 0.3 and after < 0.3 * before, (before, after)
+    assert after <= 0.3 and after < 0.5 * before, (before, after)
 
 
 def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_path: Path) -> None:

@@ -479,22 +479,23 @@ class MapMatcher:
         self._t = t
 
     def _add_key(self, pose: np.ndarray, ranges: np.ndarray) -> None:
-        """Keep the scan as a keyframe (its surface points placed in the world): stamped into
-        the grid, or the grid rebuilt around the robot once it has left the grid's centre,
-        without the keyframes that fell out of the window."""
+        """Keep the scan as a keyframe (its surfaces placed in the world), drop those that fell
+        out of the window: stamped into the grid, or the grid rebuilt around the robot from
+        the window's keyframes once the robot has left the grid's centre (keyframes that fell
+        out of the window leave the grid then)."""
         cfg = self.config
         pts = _place(pose, surfaces(ranges, self.laser, cfg))
         self._keys.append((self._path, pose.copy(), pts))
         self._key_pose = pose.copy()
         self._coarse = None
-        grid = self._grid
-        if grid is not None and math.hypot(*(pose[:2] - self._centre)) < cfg.recentre:
-            stamp_segments(grid[1], grid[0], cfg.resolution, pts, cfg.cap)
-            return
         while len(self._keys) > cfg.max_keys or (
             len(self._keys) > 1 and self._path - self._keys[0][0] > cfg.window
         ):
             self._keys.popleft()
+        grid = self._grid
+        if grid is not None and math.hypot(*(pose[:2] - self._centre)) < cfg.recentre:
+            stamp_segments(grid[1], grid[0], cfg.resolution, pts, cfg.cap)
+            return
         half = cfg.max_range + cfg.map_margin + cfg.recentre
         size = math.ceil(2 * half / cfg.resolution)
         origin = pose[:2] - half
