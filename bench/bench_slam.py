@@ -104,7 +104,7 @@ def scan_to_map(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:
     from toolkit.slam.scanmap import scan_to_map as run_front
 
     result = run_front(ds)
-    return result.poses, result.seconds, {"searches": result.config["searches"]}
+    return result.poses, result.seconds, {}
 
 
 def mapper(ds: Dataset, front_end: str = "map") -> tuple[np.ndarray, float, dict[str, Any]]:

@@ -48,6 +48,7 @@ def test_corridor_with_odometry_scan_to_map_beats_scan_to_keyframe() -> None:
     assert to_map < 0.1 * _ate(odo, ds)
     assert to_map < 0.25
     # the estimates' covariances are proper (positive definite) for the graph
+    assert result.matches is not None
     assert (np.linalg.eigvalsh(result.matches.covariance) > 0).all()
 
 

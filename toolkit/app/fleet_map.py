@@ -42,6 +42,7 @@ from toolkit.app.fleet import (
 from toolkit.dataset import META, ROW_GROUP_SCANS, SCANS, LaserGeometry, read_scan_rows, sha256
 from toolkit.errors import ToolkitError
 from toolkit.mapping import map_run
+from toolkit.slam.scanmap import settings as scan_map_settings
 
 CHUNK_PAIRS = ROW_GROUP_SCANS  # pairs per task: ~0.1 s of work, 3 MB of scans to ship or read
 
@@ -219,7 +220,8 @@ def run_is_current(run: Path, dataset: Path, method: str, voxel: float) -> bool:
             and config.get("voxel") == voxel
         )
         matcher = json.loads(json.dumps(sc.MatchConfig().to_dict()))
-        return same and (method != "gaussian" or config.get("matcher") == matcher)
+        to_map = json.loads(json.dumps(scan_map_settings()))  # the mapper's front end
+        return same and (method != "gaussian" or config.get("matcher") in (matcher, to_map))
     except (OSError, ValueError):
         return False
 

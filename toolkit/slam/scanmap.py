@@ -35,14 +35,13 @@ from typing import Any
 import numba as nb
 import numpy as np
 
+from toolkit import poses as trajectories
 from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry, pose_frame
 from toolkit.poses import Method, TrajectoryResult, odometry_poses
 from toolkit.slam.grid import LikelihoodGrid, correlative_search, stamp_segments
 from toolkit.slam.localmap import MotionMatcher
-
-STREAM_STEP = 256  # scans between two progress calls
 
 
 @dataclass(frozen=True)
@@ -520,6 +519,11 @@ class MapMatcher:
         return self._coarse
 
 
+def settings(config: MapConfig | None = None) -> dict[str, Any]:
+    """What a run records as its sequential matcher's parameters (config.json's `matcher`)."""
+    return {"front_end": "scan-to-map", **(config or MapConfig()).to_dict()}
+
+
 def scan_to_map(
     ds: Dataset,
     config: MapConfig | None = None,
@@ -534,6 +538,7 @@ def scan_to_map(
     n = ds.n_scans
     poses = np.zeros((n, 3))
     matches = sc.PairMatches.empty(max(n - 1, 0))
+    every = trajectories.PAIRS_PER_STEP  # progress as the batch matcher reports it
     t0 = time.perf_counter()
     for k in range(n):
         poses[k] = matcher.push(ds.ranges[k], None if odo is None else odo[k], float(ds.t[k]))
@@ -542,13 +547,13 @@ def scan_to_map(
             matches.covariance[k - 1] = matcher.covariance
             matches.sigma[k - 1], matches.used[k - 1] = st[3], int(st[5])
             matches.degenerate[k - 1], matches.agreement[k - 1] = int(st[6]), st[4]
-            if progress is not None and (k % STREAM_STEP == 0 or k == n - 1):
-                progress(k % STREAM_STEP or STREAM_STEP)
+            if progress is not None and (k % every == 0 or k == n - 1):
+                progress(k % every or every)
     seconds = time.perf_counter() - t0
     if n > 1:
         matches.pose[:] = se2.laser_motion(se2.between(poses[:-1], poses[1:]), ds.laser)
-    used = {"front_end": "scan-to-map", **config.to_dict(), "searches": matcher.searches}
+    used = settings(config)
     return TrajectoryResult(pose_frame(ds.t, poses), Method.GAUSSIAN, matches, seconds, used)
 
 
-__all__ = ["MapConfig", "MapMatcher", "scan_to_map", "surfaces"]
+__all__ = ["MapConfig", "MapMatcher", "scan_to_map", "settings", "surfaces"]
