@@ -118,8 +118,10 @@ def slam_trajectory(
         result = scan_to_map(ds, slam.scan_map, progress)
     elif method == "gaussian" and matcher is None:
         result = sequential(ds, config, progress)
+        slam = replace(slam, front_end="keyframe")  # no odometry: the keyframe front end
     else:
         result = build(ds, method, config, matcher, progress)
+        slam = replace(slam, front_end="keyframe")
     matching = time.perf_counter() - t0
     before = result.poses
     poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
