@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import toolkit
+from toolkit import se2
 from toolkit.dataset import LaserGeometry
 from toolkit.metrics import evaluate
 from toolkit.poses import build, odometry_poses, truth_poses, with_drift
@@ -105,3 +106,20 @@ def test_streaming_keeps_only_the_window() -> None:
         paths = [p for p, _, _ in matcher._keys]
         assert paths[-1] - paths[0] <= config.window + 0.5
     assert len(sizes) == 1  # the grid does not grow with the log
+
+
+def test_an_odometry_slip_is_recovered_by_the_correlative_search() -> None:
+    ds = simulate("building", seed=1).dataset
+    assert ds.odometry is not None
+    odo = ds.odometry.copy()
+    xyt = odo[["x", "y", "theta"]].to_numpy().copy()
+    k = int(np.searchsorted(odo["t"].to_numpy(), ds.t[ds.n_scans // 2]))
+    # from mid-log the wheels report a 23 deg turn that did not happen (a slip)
+    rel = se2.between(np.broadcast_to(xyt[k], xyt[k:].shape), xyt[k:])
+    xyt[k:] = se2.compose(np.broadcast_to(xyt[k] + [0.0, 0.0, 0.4], rel.shape), rel)
+    odo[["x", "y", "theta"]] = xyt
+    slipped = replace(ds, odometry=odo)
+    with_search = _ate(scan_to_map(slipped).poses, ds)
+    without = _ate(scan_to_map(slipped, MapConfig(min_inliers=0.0)).poses, ds)
+    assert with_search < 0.2, with_search
+    assert without > 5 * with_search  # the Gauss-Newton fit alone does not reach it
