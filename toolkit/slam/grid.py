@@ -166,34 +166,23 @@ def correlative_search(
         coarse.likelihood_t, coarse.origin, coarse.resolution, coarse_pts, prediction, thetas, half
     )
     offsets = (np.arange(2 * half + 1) - half) * coarse_step
-    values = vol.ravel()
-    # the best poses in descending order: a partial sort of the few hundred best is enough
-    # for the winner and the distinct candidates (the whole volume only if it is not)
+    flat = np.argsort(vol.ravel())[::-1]
+    a, i, j = np.unravel_index(flat, vol.shape)
+    best_a, best_i, best_j = a[0], i[0], j[0]
+    far = (np.hypot(offsets[i] - offsets[best_i], offsets[j] - offsets[best_j]) > away) | (
+        np.abs(thetas[a] - thetas[best_a]) > away_turn
+    )
+    runner_up = float(vol.ravel()[flat[far]][0]) if far.any() else 0.0
     tops: list[np.ndarray] = []
-    for many in (min(512, values.size), values.size):
-        part = np.argpartition(values, values.size - many)[values.size - many :]
-        flat = part[np.argsort(values[part], kind="stable")[::-1]]
-        a, i, j = np.unravel_index(flat, vol.shape)
-        tops = []
-        for k in range(len(flat)):
-            p = np.array([offsets[i[k]], offsets[j[k]], thetas[a[k]]])
-            if all(
-                np.hypot(*(p[:2] - q[:2])) > 1.5 * coarse_step or abs(p[2] - q[2]) > 1.5 * turn_step
-                for q in tops
-            ):
-                tops.append(p)
-            if len(tops) >= candidates:
-                break
+    for k in range(len(flat)):
+        p = np.array([offsets[i[k]], offsets[j[k]], thetas[a[k]]])
+        if all(
+            np.hypot(*(p[:2] - q[:2])) > 1.5 * coarse_step or abs(p[2] - q[2]) > 1.5 * turn_step
+            for q in tops
+        ):
+            tops.append(p)
         if len(tops) >= candidates:
             break
-    best_a, best_i, best_j = a[0], i[0], j[0]
-    ga, gi, gj = np.meshgrid(
-        np.arange(vol.shape[0]), np.arange(vol.shape[1]), np.arange(vol.shape[2]), indexing="ij"
-    )
-    far = (np.hypot(offsets[gi] - offsets[best_i], offsets[gj] - offsets[best_j]) > away) | (
-        np.abs(thetas[ga] - thetas[best_a]) > away_turn
-    )
-    runner_up = float(vol[far].max()) if far.any() else 0.0
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
     fine_thetas = np.linspace(-turn_step, turn_step, 7)
