@@ -42,9 +42,10 @@ def map_command(
         bool,
         typer.Option(
             "--loops/--no-loops",
-            help="close loops and optimise the pose graph (GTSAM); a log without odometry is "
-            "matched with a constant-velocity motion model. --method gaussian --no-loops is the "
-            "paper's scan-to-keyframe matching",
+            help="match each scan against a local map (with odometry) and close loops, "
+            "optimising the pose graph (GTSAM); a log without odometry is matched "
+            "scan-to-keyframe with a constant-velocity motion model. --method gaussian "
+            "--no-loops is the paper's scan-to-keyframe matching",
         ),
     ] = True,
     voxel: Annotated[
