@@ -1,23 +1,24 @@
 """Scan-to-map matching: each scan registered against a local map of the recent keyframes.
 
-The local map is the returns of the keyframes within `window` m of path of the current one
-(their surfaces: consecutive returns on one surface are joined by points every grid cell),
-placed by their estimated poses and held as a `toolkit.slam.grid.LikelihoodGrid` (the loop
-closer's grid): per cell, the distance to the nearest map point. A scan's fit is one bilinear
-lookup per return, O(B) per scan, no tree.
+The local map is the surfaces of the keyframes within `window` m of path of the current one
+(consecutive returns of one surface joined into segments; lone returns left out), placed by
+their estimated poses and stamped into a truncated distance grid
+(`toolkit.slam.grid.stamp_segments`): per cell, the distance to the nearest surface, capped.
+A scan's fit is one bilinear lookup per return, O(B) per scan, no tree.
 
 Each scan starts from the motion model's prediction (the odometry's motion since the previous
-scan, or the previous motion repeated when the log has none: constant velocity) and is refined
+scan; without odometry the constant-velocity scan-to-keyframe matcher's, or with
+`scan_odometry=False` the previous motion repeated) and is refined
 by Gauss-Newton on the distances, weighted as the paper's Eq. 3-6 do: every return weighs
 exp(-d^2 / 2 sigma^2), sigma^2 re-estimated each round from the weighted residuals (Eq. 4), so
 that returns that changed or see what the map has not lose their weight; the prediction is a
-prior (the odometry's spread per step), so that a direction the map cannot fix (a corridor)
-keeps the motion model. The covariance of each estimate is (H / sigma^2 + prior)^-1.
+prior (the odometry's spread, growing with the step), and a direction the map cannot fix (a
+corridor's axis) keeps the prediction. The covariance of each estimate is (H / sigma^2 + prior)^-1.
 
 When few returns fit (`min_inliers` of them within `inlier_distance` of the map: the
 prediction was off by more than the distance field reaches), a coarse-to-fine correlative
-search over a bounded window around the prediction (`toolkit.slam.grid.correlative_search`)
-gives a new start.
+search over a bounded window around the prediction (`toolkit.slam.grid.correlative_search`,
+the loop closer's, on likelihood grids of the window) gives a new start.
 
 `MapMatcher` is the streaming form (one scan at a time, memory bounded by the window);
 `scan_to_map` runs it over a log.
@@ -347,7 +348,7 @@ def _place(pose: np.ndarray, seg: np.ndarray) -> np.ndarray:
 
 class MapMatcher:
     """Scan-to-map matching one scan at a time: `push(ranges, odometry, t)` returns the robot
-    pose. Keeps the window's keyframes (their surface points, float32) and their grid."""
+    pose. Keeps the window's keyframes (their segments) and the grid."""
 
     def __init__(self, laser: LaserGeometry, config: MapConfig | None = None) -> None:
         self.laser = laser
