@@ -1,4 +1,5 @@
-"""SLAM: odometry, scan-to-keyframe, the default mapper (scan-to-map, loops) and KISS-ICP.
+"""SLAM: odometry, scan-to-keyframe, scan-to-map, the default mapper (scan-to-map, loops), the
+previous default (slam-keyframe: scan-to-keyframe, lag edges, loops) and KISS-ICP.
 
 Side by side on the same scans: the real CARMEN logs (Radish "corrected" logs, their corrected
 poses as the truth, odometry drifted with `toolkit.poses.with_drift`, seeds 0-2) and the
@@ -98,12 +99,22 @@ def scan_to_keyframe(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:
     return result.poses, result.seconds, {}
 
 
-def mapper(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:
+def scan_to_map(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:
+    """The mapper's front end alone: scan-to-map matching, no loops."""
+    from toolkit.slam.scanmap import scan_to_map as run_front
+
+    result = run_front(ds)
+    return result.poses, result.seconds, {}
+
+
+def mapper(ds: Dataset, front_end: str = "map") -> tuple[np.ndarray, float, dict[str, Any]]:
     """`toolkit map`'s default: sequential matching (odometry or constant velocity), loops,
-    pose graph; timed as metrics.json times it (matching + loops + optimisation)."""
+    pose graph; timed as metrics.json times it (matching + loops + optimisation).
+    `front_end="keyframe"`: the previous default (scan-to-keyframe, lag edges, loops)."""
+    from toolkit.slam.pipeline import SlamConfig
     from toolkit.slam.run import slam_trajectory
 
-    result, slam = slam_trajectory(ds)
+    result, slam = slam_trajectory(ds, slam=SlamConfig(front_end=front_end))
     m = slam.metrics(ds)
     extra = {"loops": m["loops"], "false_loops": m.get("false_loops")}
     extra |= {f"s_{k}": round(v, 2) for k, v in m["seconds"].items() if k != "total"}
@@ -114,7 +125,9 @@ def methods() -> dict[str, Callable[[Dataset], tuple[np.ndarray, float, dict[str
     out: dict[str, Callable[[Dataset], tuple[np.ndarray, float, dict[str, Any]]]] = {
         "scan-to-keyframe": scan_to_keyframe
     }
+    out["scan-to-map"] = scan_to_map
     out["slam"] = mapper
+    out["slam-keyframe"] = lambda ds: mapper(ds, "keyframe")
     out["kiss-icp"] = kiss_best
     wanted = [w for w in os.environ.get("BENCH_SLAM_METHODS", "").split(",") if w]
     return {k: v for k, v in out.items() if not wanted or k in wanted}

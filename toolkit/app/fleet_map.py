@@ -42,6 +42,7 @@ from toolkit.app.fleet import (
 from toolkit.dataset import META, ROW_GROUP_SCANS, SCANS, LaserGeometry, read_scan_rows, sha256
 from toolkit.errors import ToolkitError
 from toolkit.mapping import map_run
+from toolkit.slam.scanmap import settings as scan_map_settings
 
 CHUNK_PAIRS = ROW_GROUP_SCANS  # pairs per task: ~0.1 s of work, 3 MB of scans to ship or read
 
@@ -204,11 +205,11 @@ def matcher_for(
     return match
 
 
-def run_is_current(run: Path, dataset: Path, method: str, voxel: float) -> bool:
+def run_is_current(run: Path, dataset: Path, method: str, voxel: float, loops: bool = True) -> bool:
     """True when `run` is a finished run (metrics.json is written last; the run directory is
     renamed into place whole) of the same inputs: the dataset's meta.json (written last by an
-    import: its sources' sha256 and creation time), the method, the voxel size and, for
-    gaussian, the matcher's parameters."""
+    import: its sources' sha256 and creation time), the method, the voxel size, with loops
+    or not and, for gaussian, the matcher's parameters."""
     try:
         config = json.loads((run / "config.json").read_text())
         if not (run / "metrics.json").is_file():
@@ -217,9 +218,11 @@ def run_is_current(run: Path, dataset: Path, method: str, voxel: float) -> bool:
             config.get("dataset_meta_sha256") == sha256(dataset / META)
             and config.get("method") == method
             and config.get("voxel") == voxel
+            and (config.get("slam") is not None) == (loops and method != "odometry")
         )
         matcher = json.loads(json.dumps(sc.MatchConfig().to_dict()))
-        return same and (method != "gaussian" or config.get("matcher") == matcher)
+        to_map = json.loads(json.dumps(scan_map_settings()))  # the mapper's front end
+        return same and (method != "gaussian" or config.get("matcher") in (matcher, to_map))
     except (OSError, ValueError):
         return False
 
@@ -232,16 +235,17 @@ def _map_one(
     force: bool,
     threads: int | None,
     matcher: Callable[..., sc.PairMatches] | None = None,
+    loops: bool = True,
 ) -> Outcome:
     """One dataset into one run directory (on a worker: `threads` numba threads)."""
 
     def work() -> str:
-        if not force and run_is_current(run, dataset, method, voxel):
+        if not force and run_is_current(run, dataset, method, voxel, loops):
             return "skipped"
         if threads:
             _cap_threads(threads)
         replace = _may_replace(run, force, is_toolkit_run)
-        map_run(dataset, run, method, voxel, force=replace, matcher=matcher)
+        map_run(dataset, run, method, voxel, force=replace, matcher=matcher, loops=loops)
         return "written"
 
     return _attempt(dataset, run, work)
@@ -255,6 +259,7 @@ def map_many(
     voxel: float = 0.0,
     force: bool = False,
     shared_storage: bool = False,
+    loops: bool = True,
 ) -> list[Outcome]:
     """Map every (dataset, name) into out/name, mirroring the names (a fleet's
     dataset=<name> directories stay so). On `client`: one task per dataset (its whole map
@@ -262,15 +267,19 @@ def map_many(
     chunks on the cluster and its map drawn here (one long log), its workers reading their
     scans from the dataset when `shared_storage` (else the scans are shipped). Failures
     are returned by dataset and do not stop the others; current runs are skipped unless
-    `force`."""
+    `force`. `loops`: each map with loop closure and the pose graph (`toolkit map`'s
+    default) or the sequential estimate alone."""
     jobs = [(dataset.resolve(), out / name) for dataset, name in datasets]
     if client is not None and len(jobs) == 1 and method == "gaussian":
         dataset, run = jobs[0]
         matcher = matcher_for(client, scans=dataset / SCANS if shared_storage else None)
-        return [_map_one(dataset, run, method, voxel, force, None, matcher)]
+        return [_map_one(dataset, run, method, voxel, force, None, matcher, loops)]
     threads = 1 if client is not None else None
     return _each(
-        client, "map datasets", _map_one, [(*job, method, voxel, force, threads) for job in jobs]
+        client,
+        "map datasets",
+        _map_one,
+        [(*job, method, voxel, force, threads, None, loops) for job in jobs],
     )
 
 

@@ -33,6 +33,7 @@ from toolkit.slam.loops import (
     loop_truth_error,
     path_length,
 )
+from toolkit.slam.scanmap import MapConfig
 
 
 @dataclass(frozen=True)
@@ -49,9 +50,12 @@ class SlamConfig:
     reject_chi2: float = 16.0  # loops still this far off after optimising are dropped
     rounds: int = 2
     incremental: bool = False  # re-optimise as soon as a loop moves its scan (round 1)
-    local_map: int = 4  # each keyframe is also matched against this many earlier ones (0: none)
+    local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
+    # earlier ones (0: none); the scan-to-map front end has its own local map
     min_agreement: float = 0.5  # a local-map match with fewer agreeing returns is left out
     loop: LoopConfig = field(default_factory=LoopConfig)
+    front_end: str = "map"  # sequential matching: "map" (scan-to-map) or "keyframe" (the paper's)
+    scan_map: MapConfig = field(default_factory=MapConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -137,7 +141,7 @@ def local_map_edges(
     map: the recent keyframes' returns in beam order), by the Gaussian scan matcher seeded with
     the sequential estimate; all pairs of one lag at once. Matches that fell back on the seed
     or that few returns agree with are left out."""
-    if config.local_map < 2 or len(keys) < 3:
+    if config.local_map < 2 or config.front_end != "keyframe" or len(keys) < 3:
         return []
     ranges = np.ascontiguousarray(ds.ranges[keys])
     kp = poses[keys]

@@ -32,6 +32,7 @@ from toolkit.slam.loops import Loop, loop_truth_error
 from toolkit.slam.pipeline import SlamConfig, SlamResult, close_loops
 from toolkit.slam.relations import RELATIONS, relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
+from toolkit.slam.scanmap import scan_to_map
 
 
 @dataclass
@@ -106,13 +107,20 @@ def slam_trajectory(
     """The sequential trajectory by `method` (gaussian: odometry or constant velocity as the
     motion model), then loops and the pose graph; the result's frame holds the final poses.
     `progress(m)`: m more scan pairs matched (`toolkit.poses.build`)."""
+    slam = slam or SlamConfig()
     t0 = time.perf_counter()
-    if method == "gaussian" and matcher is None:
+    with_odometry = odometry_poses(ds) is not None
+    if method == "gaussian" and slam.front_end == "map" and with_odometry:
+        # sequential by nature: runs here even when a cluster `matcher` is given (which
+        # matches independent scan pairs), so a run gives the same poses on a cluster or not
+        result = scan_to_map(ds, slam.scan_map, progress)
+    elif method == "gaussian" and matcher is None:
         result = sequential(ds, config, progress)
+        slam = replace(slam, front_end="keyframe")  # no odometry: the keyframe front end
     else:
         result = build(ds, method, config, matcher, progress)
+        slam = replace(slam, front_end="keyframe")
     matching = time.perf_counter() - t0
-    slam = slam or SlamConfig()
     before = result.poses
     poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
     frame = result.frame.copy()

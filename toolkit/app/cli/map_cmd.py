@@ -42,9 +42,10 @@ def map_command(
         bool,
         typer.Option(
             "--loops/--no-loops",
-            help="close loops and optimise the pose graph (GTSAM); a log without odometry is "
-            "matched with a constant-velocity motion model. --method gaussian --no-loops is the "
-            "paper's scan-to-keyframe matching",
+            help="match each scan against a local map (with odometry) and close loops, "
+            "optimising the pose graph (GTSAM); a log without odometry is matched "
+            "scan-to-keyframe with a constant-velocity motion model. --method gaussian "
+            "--no-loops is the paper's scan-to-keyframe matching",
         ),
     ] = True,
     voxel: Annotated[
@@ -87,7 +88,7 @@ def map_command(
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
     if each or _many(datasets):
-        _map_each(datasets, out, method, voxel, force, scheduler, quiet)
+        _map_each(datasets, out, method, voxel, force, scheduler, quiet, loops)
         return
     dataset = datasets[0]
     if scheduler != "none" and method != Method.GAUSSIAN:
@@ -140,8 +141,9 @@ def _map_each(
     force: bool,
     scheduler: str,
     quiet: bool,
+    loops: bool = True,
 ) -> None:
-    """One run per dataset; a line per failure on stderr and exit 1 if any failed."""
+    """One run per dataset (with loops or not, as one dataset's run); a line per failure on stderr and exit 1 if any failed."""
     from toolkit.app.fleet import client_for, find_datasets  # Dask, on use
     from toolkit.app.fleet_map import map_many, on_shared_storage
 
@@ -149,5 +151,6 @@ def _map_each(
     if not found:
         raise ToolkitError("no dataset found in the inputs (a dataset directory has meta.json)")
     with client_for(scheduler) as client:
-        outcomes = map_many(client, found, out, method, voxel, force, on_shared_storage(scheduler))
+        shared = on_shared_storage(scheduler)
+        outcomes = map_many(client, found, out, method, voxel, force, shared, loops)
     report_outcomes(outcomes, out, "datasets", quiet)

@@ -1,0 +1,560 @@
+"""Scan-to-map matching: each scan registered against a local map of the recent keyframes.
+
+The local map is the surfaces of the keyframes within `window` m of path of the current one
+(consecutive returns of one surface joined into segments; lone returns left out), placed by
+their estimated poses and stamped into a truncated distance grid
+(`toolkit.slam.grid.stamp_segments`): per cell, the distance to the nearest surface, capped.
+A scan's fit is one bilinear lookup per return, O(B) per scan, no tree.
+
+Each scan starts from the motion model's prediction (the odometry's motion since the previous
+scan; without odometry the constant-velocity scan-to-keyframe matcher's, or with
+`scan_odometry=False` the previous motion repeated) and is refined
+by Gauss-Newton on the distances, weighted as the paper's Eq. 3-6 do: every return weighs
+exp(-d^2 / 2 sigma^2), sigma^2 re-estimated each round from the weighted residuals (Eq. 4), so
+that returns that changed or see what the map has not lose their weight; the prediction is a
+prior (the odometry's spread, growing with the step), and a direction the map cannot fix (a
+corridor's axis) keeps the prediction. The covariance of each estimate is (H / sigma^2 + prior)^-1.
+
+When few returns fit (`min_inliers` of them within `inlier_distance` of the map: the
+prediction was off by more than the distance field reaches), a coarse-to-fine correlative
+search over a bounded window around the prediction (`toolkit.slam.grid.correlative_search`,
+the loop closer's, on likelihood grids of the window) gives a new start.
+
+`MapMatcher` is the streaming form (one scan at a time, memory bounded by the window);
+`scan_to_map` runs it over a log.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numba as nb
+import numpy as np
+
+from toolkit import poses as trajectories
+from toolkit import se2
+from toolkit.align import scan as sc
+from toolkit.dataset import Dataset, LaserGeometry, pose_frame
+from toolkit.poses import Method, TrajectoryResult, odometry_poses
+from toolkit.slam.grid import LikelihoodGrid, correlative_search, stamp_segments
+from toolkit.slam.localmap import MotionMatcher
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Scan-to-map parameters; lengths in m, angles in rad."""
+
+    resolution: float = 0.05  # distance grid cell
+    cap: float = 0.5  # distances are capped here (the fit's reach)
+    recentre: float = 5.0  # the grid is rebuilt around the robot once it is this far off
+    window: float = 15.0  # keyframes within this path distance form the local map
+    max_keys: int = 60  # ... at most this many
+    max_range: float = 25.0  # a scan's returns further than this are not matched ...
+    map_margin: float = 5.0  # ... and the map holds returns up to this much further, so
+    # that where a surface leaves the map's reach (a corridor's walls) is not a feature
+    keyframe_distance: float = 0.3  # a scan becomes a keyframe after this much motion
+    keyframe_angle: float = 0.15  # ... or this much turn
+    join: float = 3.0  # consecutive returns closer than join * range * beam step (+ 5 cm)
+    # are one surface, joined in the map
+    join_angle: float = 0.15  # ... and further ones in line with a neighbouring segment
+    join_max: float = 2.0  # ... up to this long
+    lone_range: float = 0.0  # lone returns within this range are kept in the map as points
+    iterations: int = 20  # most Gauss-Newton rounds
+    gate: float = 0.5  # returns farther than this from the map carry no weight
+    sigma_min: float = 0.02  # floor of the residual spread (range noise plus grid)
+    prior: tuple[float, float] = (0.01, 0.005)  # odometry's spread per step (m, rad) ...
+    prior_growth: tuple[float, float, float] = (0.05, 0.02, 0.05)  # ... plus this per metre
+    # (m/m, rad/m) and per radian turned (rad/rad)
+    prior_velocity: tuple[float, float] = (0.3, 0.3)  # constant velocity's, per second of
+    # the scan interval (m/s, rad/s: a change of velocity), when the log has no odometry
+    scan_odometry: bool = True  # no odometry: the scan-to-keyframe matcher (constant
+    # velocity) gives it; else constant velocity on the map's own estimates
+    inlier_distance: float = 0.1
+    degenerate: float = 0.02  # translation information eigenvalue ratio below which the
+    # weak direction keeps the motion model (a corridor) ...
+    min_information: float = 0.0  # ... or below this (in returns seen head-on; 0: off)
+    min_inliers: float = 0.75  # fewer returns within inlier_distance: correlative search
+    search_window: float = 1.0  # its window (+-m) ...
+    search_turn: float = 1.0  # ... and turn (+-rad)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------- the kernel
+
+_OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
+
+
+@nb.njit(cache=True, nogil=True)
+def _weak(hm: np.ndarray, ratio: float, least: float) -> tuple[float, float]:
+    """The unit translation direction the information `hm` (3 x 3, in returns seen head-on)
+    cannot fix, or (0, 0): the small eigenvector of the translation block with the rotation
+    marginalised, when its eigenvalue is below `ratio` of the large one or below `least`."""
+    if hm[2, 2] > 1e-12:
+        t00 = hm[0, 0] - hm[0, 2] * hm[0, 2] / hm[2, 2]
+        t01 = hm[0, 1] - hm[0, 2] * hm[1, 2] / hm[2, 2]
+        t11 = hm[1, 1] - hm[1, 2] * hm[1, 2] / hm[2, 2]
+    else:
+        t00, t01, t11 = hm[0, 0], hm[0, 1], hm[1, 1]
+    half = 0.5 * (t00 + t11)
+    root = math.sqrt(max(0.25 * (t00 - t11) ** 2 + t01 * t01, 0.0))
+    small, large = half - root, half + root
+    if large <= 0.0 or (small >= ratio * large and small >= least):
+        return 0.0, 0.0
+    # eigenvector of `small`
+    if abs(t01) > 1e-12 * large:
+        vx, vy = t01, small - t00
+    elif t00 <= t11:
+        vx, vy = 1.0, 0.0
+    else:
+        vx, vy = 0.0, 1.0
+    n = math.hypot(vx, vy)
+    return vx / n, vy / n
+
+
+@nb.njit(cache=True, nogil=True)
+def _fit(
+    dist: np.ndarray,
+    origin: np.ndarray,
+    res: float,
+    pts: np.ndarray,
+    start: np.ndarray,
+    prior_pose: np.ndarray,
+    prior_info: np.ndarray,
+    iterations: int,
+    gate: float,
+    sigma_min: float,
+    inlier_distance: float,
+    degenerate_ratio: float,
+    min_information: float,
+    out: np.ndarray,
+    out_cov: np.ndarray,
+) -> None:
+    """Gauss-Newton on the bilinear distance field from `start`, Gaussian-weighted returns,
+    the prior N(prior_pose, diag(1 / prior_info)); results in `out` (slots above) and the
+    covariance in `out_cov`."""
+    h, w = dist.shape
+    inv = 1.0 / res
+    x, y, th = start[0], start[1], start[2]
+    var = gate * gate
+    var_min = sigma_min * sigma_min
+    n = pts.shape[0]
+    hm = np.zeros((3, 3))
+    rounds = 0
+    used = 0.0
+    for it in range(iterations):
+        rounds = it + 1
+        c, s = math.cos(th), math.sin(th)
+        hm[:, :] = 0.0
+        g0 = g1 = g2 = 0.0
+        sw = 0.0
+        swe = 0.0
+        used = 0.0
+        for k in range(n):
+            px, py = pts[k, 0], pts[k, 1]
+            rx = c * px - s * py
+            ry = s * px + c * py
+            fx = (x + rx - origin[0]) * inv - 0.5
+            fy = (y + ry - origin[1]) * inv - 0.5
+            i = math.floor(fx)
+            j = math.floor(fy)
+            if i < 0 or j < 0 or i + 1 >= w or j + 1 >= h:
+                continue
+            ax = fx - i
+            ay = fy - j
+            d00 = dist[j, i]
+            d10 = dist[j, i + 1]
+            d01 = dist[j + 1, i]
+            d11 = dist[j + 1, i + 1]
+            d = (1 - ax) * (1 - ay) * d00 + ax * (1 - ay) * d10 + (1 - ax) * ay * d01
+            d += ax * ay * d11
+            if d > gate:
+                continue
+            gx = ((1 - ay) * (d10 - d00) + ay * (d11 - d01)) * inv
+            gy = ((1 - ax) * (d01 - d00) + ax * (d11 - d10)) * inv
+            j2 = -gx * ry + gy * rx  # d(distance)/d(theta)
+            wk = math.exp(-d * d / (2.0 * var))
+            hm[0, 0] += wk * gx * gx
+            hm[0, 1] += wk * gx * gy
+            hm[0, 2] += wk * gx * j2
+            hm[1, 1] += wk * gy * gy
+            hm[1, 2] += wk * gy * j2
+            hm[2, 2] += wk * j2 * j2
+            g0 += wk * gx * d
+            g1 += wk * gy * d
+            g2 += wk * j2 * d
+            sw += wk
+            swe += wk * d * d
+            used += 1.0
+        if sw < 3.0:
+            break
+        # Eq. 4: the weighted spread; weights exp(-d^2/2v) shrink a Gaussian's variance s^2
+        # to s^2 v / (s^2 + v), so 2x the weighted variance settles on s^2 (not on zero)
+        var = min(max(2.0 * swe / sw, var_min), gate * gate)
+        hm[1, 0] = hm[0, 1]
+        hm[2, 0] = hm[0, 2]
+        hm[2, 1] = hm[1, 2]
+        a = hm / var
+        e0, e1 = x - prior_pose[0], y - prior_pose[1]
+        e2 = math.atan2(math.sin(th - prior_pose[2]), math.cos(th - prior_pose[2]))
+        b = np.empty(3)
+        b[0] = -(g0 / var + prior_info[0] * e0)
+        b[1] = -(g1 / var + prior_info[1] * e1)
+        b[2] = -(g2 / var + prior_info[2] * e2)
+        for r in range(3):
+            a[r, r] += prior_info[r]
+        # a direction the map cannot fix (a corridor's axis: the translation information,
+        # rotation marginalised, has a small eigenvalue) keeps the motion model's prediction
+        vx, vy = _weak(hm, degenerate_ratio, min_information)
+        if vx != 0.0 or vy != 0.0:
+            big = 1e6
+            a[0, 0] += big * vx * vx
+            a[0, 1] += big * vx * vy
+            a[1, 0] += big * vx * vy
+            a[1, 1] += big * vy * vy
+            ev = vx * e0 + vy * e1
+            b[0] -= big * vx * ev
+            b[1] -= big * vy * ev
+        step = np.linalg.solve(a, b)
+        # a step is at most a grid cap's worth: the field is flat beyond
+        norm = math.hypot(step[0], step[1])
+        if norm > 0.3:
+            step *= 0.3 / norm
+        if abs(step[2]) > 0.1:
+            step *= 0.1 / abs(step[2])
+        x += step[0]
+        y += step[1]
+        th += step[2]
+        if norm < 1e-4 and abs(step[2]) < 1e-5:
+            break
+    # final: the information at the estimate, the inlier share
+    c, s = math.cos(th), math.sin(th)
+    hm[:, :] = 0.0
+    inl = 0.0
+    valid = 0.0
+    for k in range(n):
+        px, py = pts[k, 0], pts[k, 1]
+        rx = c * px - s * py
+        ry = s * px + c * py
+        fx = (x + rx - origin[0]) * inv - 0.5
+        fy = (y + ry - origin[1]) * inv - 0.5
+        valid += 1.0
+        i = math.floor(fx)
+        j = math.floor(fy)
+        if i < 0 or j < 0 or i + 1 >= w or j + 1 >= h:
+            continue
+        ax = fx - i
+        ay = fy - j
+        d00 = dist[j, i]
+        d10 = dist[j, i + 1]
+        d01 = dist[j + 1, i]
+        d11 = dist[j + 1, i + 1]
+        d = (1 - ax) * (1 - ay) * d00 + ax * (1 - ay) * d10 + (1 - ax) * ay * d01 + ax * ay * d11
+        if d <= inlier_distance:
+            inl += 1.0
+        if d > gate:
+            continue
+        gx = ((1 - ay) * (d10 - d00) + ay * (d11 - d01)) * inv
+        gy = ((1 - ax) * (d01 - d00) + ax * (d11 - d10)) * inv
+        j2 = -gx * ry + gy * rx
+        wk = math.exp(-d * d / (2.0 * var))
+        hm[0, 0] += wk * gx * gx
+        hm[0, 1] += wk * gx * gy
+        hm[0, 2] += wk * gx * j2
+        hm[1, 1] += wk * gy * gy
+        hm[1, 2] += wk * gy * j2
+        hm[2, 2] += wk * j2 * j2
+    hm[1, 0] = hm[0, 1]
+    hm[2, 0] = hm[0, 2]
+    hm[2, 1] = hm[1, 2]
+    a = hm / var
+    vx, vy = _weak(hm, degenerate_ratio, min_information)
+    degenerate = 1.0 if vx != 0.0 or vy != 0.0 else 0.0
+    for r in range(3):
+        a[r, r] += prior_info[r]
+    out_cov[:, :] = np.linalg.inv(a)
+    out[0] = x
+    out[1] = y
+    out[2] = math.atan2(math.sin(th), math.cos(th))
+    out[3] = math.sqrt(var)
+    out[4] = inl / max(valid, 1.0)
+    out[5] = used
+    out[6] = degenerate
+    out[7] = rounds
+
+
+# ---------------------------------------------------------------- the local map
+
+
+def surfaces(ranges: np.ndarray, laser: LaserGeometry, config: MapConfig) -> np.ndarray:
+    """A scan's surfaces in the robot frame, N x 4 segments (x0, y0, x1, y1): consecutive
+    returns of one surface joined (close enough for their range, or in line with a
+    neighbouring segment: a wall seen at a grazing angle), a lone return as a point; returns
+    within `max_range` + `map_margin` only."""
+    mount = se2.mount_pose(laser)
+    a = laser.angles + mount[2]
+    r = np.asarray(ranges, dtype=np.float64)
+    x = mount[0] + r * np.cos(a)
+    y = mount[1] + r * np.sin(a)
+    ok = np.isfinite(r) & (r > 0) & (r <= config.max_range + config.map_margin)
+    p = np.column_stack([x, y])
+    seg = p[1:] - p[:-1]
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    reach = 0.05 + config.join * np.abs(laser.angle_increment) * np.fmin(r[1:], r[:-1])
+    both = ok[1:] & ok[:-1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = seg / length[:, None]
+    cos_prev = np.nan_to_num(np.abs(np.einsum("ij,ij->i", u[1:], u[:-1])))
+    limit = math.cos(config.join_angle)
+    in_line = np.zeros(len(seg), dtype=bool)
+    in_line[1:] |= cos_prev > limit
+    in_line[:-1] |= cos_prev > limit
+    join = both & ((length < reach) | (in_line & (length < config.join_max)))
+    joined = np.zeros(len(r), dtype=bool)
+    joined[1:] |= join
+    joined[:-1] |= join
+    # a lone return (no neighbour on its surface) is left out: as a point it would pull a
+    # later scan's returns of the same surface towards the place they were sampled from
+    lone = ok & ~joined & (r <= config.lone_range)
+    k = np.nonzero(join)[0]
+    return np.concatenate([np.column_stack([p[k], p[k + 1]]), np.column_stack([p[lone], p[lone]])])
+
+
+def scan_returns(ranges: np.ndarray, laser: LaserGeometry, max_range: float) -> np.ndarray:
+    """A scan's returns in the robot frame (N x 2) within `max_range`."""
+    mount = se2.mount_pose(laser)
+    a = laser.angles + mount[2]
+    r = np.asarray(ranges, dtype=np.float64)
+    ok = np.isfinite(r) & (r > 0) & (r <= max_range)
+    x = mount[0] + r[ok] * np.cos(a[ok])
+    y = mount[1] + r[ok] * np.sin(a[ok])
+    return np.ascontiguousarray(np.column_stack([x, y]))
+
+
+def _place(pose: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Segments (N x 4) or points (N x 2) moved from the robot frame at `pose` to the world."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    out = np.empty_like(seg)
+    out[:, 0::2] = pose[0] + c * seg[:, 0::2] - s * seg[:, 1::2]
+    out[:, 1::2] = pose[1] + s * seg[:, 0::2] + c * seg[:, 1::2]
+    return out
+
+
+class MapMatcher:
+    """Scan-to-map matching one scan at a time: `push(ranges, odometry, t)` returns the robot
+    pose. Keeps the window's keyframes (their segments) and the grid."""
+
+    def __init__(self, laser: LaserGeometry, config: MapConfig | None = None) -> None:
+        self.laser = laser
+        self.config = config or MapConfig()
+        self._keys: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # path, pose, points
+        self._grid: tuple[np.ndarray, np.ndarray] | None = None  # origin, distances
+        self._coarse: tuple[LikelihoodGrid, LikelihoodGrid] | None = None
+        self._centre = np.zeros(2)
+        self._last = np.zeros(3)
+        self._step = np.zeros(3)
+        self._odo: np.ndarray | None = None
+        self._t: float | None = None
+        self._dt = 0.0
+        self._path = 0.0
+        self._key_pose: np.ndarray | None = None
+        self.started = False
+        self.covariance = np.zeros((3, 3))
+        self.stats = np.zeros(_OUT)
+        self.searches = 0
+        self._motion = MotionMatcher(laser)
+
+    def _predict(self, odometry: np.ndarray | None, t: float | None) -> tuple[np.ndarray, bool]:
+        if odometry is not None and self._odo is not None:
+            step = se2.between(self._odo[None], odometry[None])[0]
+            return se2.compose(self._last[None], step[None])[0], True
+        step = self._step
+        if t is not None and self._t is not None and self._dt > 0:
+            step = step * min((t - self._t) / self._dt, 3.0)
+        return se2.compose(self._last[None], step[None])[0], False
+
+    def push(
+        self, ranges: np.ndarray, odometry: np.ndarray | None = None, t: float | None = None
+    ) -> np.ndarray:
+        """Take the next scan (with the odometry's pose at it, or None, and its time); return
+        the robot pose."""
+        cfg = self.config
+        if odometry is None and cfg.scan_odometry:
+            # no odometry: the scan-to-keyframe matcher with constant velocity stands in
+            odometry = self._motion.push_predicted(ranges, t)
+        odo = None if odometry is None else np.asarray(odometry, dtype=np.float64).reshape(3)
+        if not self.started:
+            self.started = True
+            pose = odo.copy() if odo is not None else np.zeros(3)
+            self._add_key(pose, ranges)
+            self._finish(pose, odo, t)
+            return pose
+        predicted, by_odometry = self._predict(odo, t)
+        step = se2.between(self._last[None], predicted[None])[0]
+        moved = math.hypot(step[0], step[1])
+        sig = (
+            cfg.prior[0] + cfg.prior_growth[0] * moved,
+            cfg.prior[1] + cfg.prior_growth[1] * moved + cfg.prior_growth[2] * abs(step[2]),
+        )
+        if not by_odometry:
+            dt = t - self._t if t is not None and self._t is not None else 0.1
+            dt = min(max(dt, 0.01), 1.0)
+            sig = (cfg.prior_velocity[0] * dt, cfg.prior_velocity[1] * dt)
+        info = np.array([1 / sig[0] ** 2, 1 / sig[0] ** 2, 1 / sig[1] ** 2])
+        pts = scan_returns(ranges, self.laser, cfg.max_range)
+        pose = self._match(pts, predicted, info)
+        self._finish(pose, odo, t)
+        assert self._key_pose is not None
+        moved = se2.between(self._key_pose[None], pose[None])[0]
+        if math.hypot(moved[0], moved[1]) >= cfg.keyframe_distance or abs(moved[2]) >= (
+            cfg.keyframe_angle
+        ):
+            self._add_key(pose, ranges)
+        return pose
+
+    def _match(self, pts: np.ndarray, predicted: np.ndarray, info: np.ndarray) -> np.ndarray:
+        cfg = self.config
+        grid = self._grid
+        assert grid is not None
+        out = np.zeros(_OUT)
+        cov = np.zeros((3, 3))
+
+        def fit(start: np.ndarray, prior_info: np.ndarray, res: np.ndarray, c: np.ndarray) -> None:
+            _fit(
+                grid[1],
+                grid[0],
+                cfg.resolution,
+                pts,
+                start,
+                start,
+                prior_info,
+                cfg.iterations,
+                cfg.gate,
+                cfg.sigma_min,
+                cfg.inlier_distance,
+                cfg.degenerate,
+                cfg.min_information,
+                res,
+                c,
+            )
+
+        fit(predicted, info, out, cov)
+        if out[4] < cfg.min_inliers and len(pts) >= 20:
+            coarse, fine = self._search_grids()
+            found = correlative_search(
+                coarse,
+                fine,
+                pts,
+                predicted,
+                window=cfg.search_window,
+                turn=cfg.search_turn,
+                turn_step=0.02,
+                coarse_voxel=0.2,
+            )
+            out2 = np.zeros(_OUT)
+            cov2 = np.zeros((3, 3))
+            weak = info * 1e-3  # the search's start replaces the prediction
+            fit(found.pose, weak, out2, cov2)
+            self.searches += 1
+            if out2[4] > out[4] + 0.1:
+                out, cov = out2, cov2
+        self.stats = out
+        self.covariance = cov
+        return out[:3].copy()
+
+    def _finish(self, pose: np.ndarray, odo: np.ndarray | None, t: float | None) -> None:
+        step = se2.between(self._last[None], pose[None])[0]
+        self._path += math.hypot(step[0], step[1])
+        if self.started and t is not None and self._t is not None:
+            self._dt = t - self._t
+        self._step = step
+        self._last = pose.copy()
+        self._odo = odo
+        self._t = t
+
+    def _add_key(self, pose: np.ndarray, ranges: np.ndarray) -> None:
+        """Keep the scan as a keyframe (its surfaces placed in the world), drop those that fell
+        out of the window: stamped into the grid, or the grid rebuilt around the robot from
+        the window's keyframes once the robot has left the grid's centre (keyframes that fell
+        out of the window leave the grid then)."""
+        cfg = self.config
+        pts = _place(pose, surfaces(ranges, self.laser, cfg))
+        self._keys.append((self._path, pose.copy(), pts))
+        self._key_pose = pose.copy()
+        self._coarse = None
+        while len(self._keys) > cfg.max_keys or (
+            len(self._keys) > 1 and self._path - self._keys[0][0] > cfg.window
+        ):
+            self._keys.popleft()
+        grid = self._grid
+        if grid is not None and math.hypot(*(pose[:2] - self._centre)) < cfg.recentre:
+            stamp_segments(grid[1], grid[0], cfg.resolution, pts, cfg.cap)
+            return
+        half = cfg.max_range + cfg.map_margin + cfg.recentre
+        size = math.ceil(2 * half / cfg.resolution)
+        origin = pose[:2] - half
+        dist = np.full((size, size), cfg.cap, dtype=np.float32)
+        for _, _, q in self._keys:
+            stamp_segments(dist, origin, cfg.resolution, q, cfg.cap)
+        self._grid = (origin, dist)
+        self._centre = pose[:2].copy()
+
+    def _search_grids(self) -> tuple[LikelihoodGrid, LikelihoodGrid]:
+        """Likelihood grids of the window's keyframes near the robot, for the search."""
+        if self._coarse is None:
+            cfg = self.config
+            seg = np.concatenate([q for _, _, q in self._keys])
+            world = np.concatenate([seg[:, :2], seg[:, 2:]])
+            reach = cfg.max_range + cfg.search_window + 1.0
+            world = world[np.hypot(*(world - self._last[:2]).T) <= reach]
+            self._coarse = (
+                LikelihoodGrid.build(world, 0.2, 0.25, margin=1.5),
+                LikelihoodGrid.build(world, 0.05, 0.08, margin=1.0),
+            )
+        return self._coarse
+
+
+def settings(config: MapConfig | None = None) -> dict[str, Any]:
+    """What a run records as its sequential matcher's parameters (config.json's `matcher`)."""
+    return {"front_end": "scan-to-map", **(config or MapConfig()).to_dict()}
+
+
+def scan_to_map(
+    ds: Dataset,
+    config: MapConfig | None = None,
+    progress: Callable[[int], object] | None = None,
+) -> TrajectoryResult:
+    """The sequential trajectory of `ds` by scan-to-map matching (odometry, or constant
+    velocity, as the motion model). The result's matches hold per scan k >= 1 the laser's
+    motion since scan k-1, the estimate's covariance, spread and inlier share."""
+    config = config or MapConfig()
+    odo = odometry_poses(ds)
+    matcher = MapMatcher(ds.laser, config)
+    n = ds.n_scans
+    poses = np.zeros((n, 3))
+    matches = sc.PairMatches.empty(max(n - 1, 0))
+    every = trajectories.PAIRS_PER_STEP  # progress as the batch matcher reports it
+    t0 = time.perf_counter()
+    for k in range(n):
+        poses[k] = matcher.push(ds.ranges[k], None if odo is None else odo[k], float(ds.t[k]))
+        if k > 0:
+            st = matcher.stats
+            matches.covariance[k - 1] = matcher.covariance
+            matches.sigma[k - 1], matches.used[k - 1] = st[3], int(st[5])
+            matches.degenerate[k - 1], matches.agreement[k - 1] = int(st[6]), st[4]
+            if progress is not None and (k % every == 0 or k == n - 1):
+                progress(k % every or every)
+    seconds = time.perf_counter() - t0
+    if n > 1:
+        matches.pose[:] = se2.laser_motion(se2.between(poses[:-1], poses[1:]), ds.laser)
+    used = settings(config)
+    return TrajectoryResult(pose_frame(ds.t, poses), Method.GAUSSIAN, matches, seconds, used)
+
+
+__all__ = ["MapConfig", "MapMatcher", "scan_to_map", "settings", "surfaces"]
