@@ -119,6 +119,70 @@ def _weak(hm: np.ndarray, ratio: float, least: float) -> tuple[float, float]:
 
 
 @nb.njit(cache=True, nogil=True)
+def _normal_equations(
+    dist: np.ndarray,
+    origin: np.ndarray,
+    inv: float,
+    pts: np.ndarray,
+    x: float,
+    y: float,
+    th: float,
+    var: float,
+    gate: float,
+    inlier_distance: float,
+    hm: np.ndarray,
+    g: np.ndarray,
+) -> tuple[float, float, float, float]:
+    """The Gaussian-weighted normal equations of the returns `pts` placed at (x, y, th) on the
+    bilinear distance field: the information in `hm` (upper triangle), the gradient in `g`.
+    Returns the sum of weights, the weighted squared distances, the returns used (within
+    `gate`) and the inliers (within `inlier_distance`)."""
+    h, w = dist.shape
+    hm[:, :] = 0.0
+    g[:] = 0.0
+    c, s = math.cos(th), math.sin(th)
+    sw = swe = used = inl = 0.0
+    for k in range(pts.shape[0]):
+        px, py = pts[k, 0], pts[k, 1]
+        rx = c * px - s * py
+        ry = s * px + c * py
+        fx = (x + rx - origin[0]) * inv - 0.5
+        fy = (y + ry - origin[1]) * inv - 0.5
+        i = math.floor(fx)
+        j = math.floor(fy)
+        if i < 0 or j < 0 or i + 1 >= w or j + 1 >= h:
+            continue
+        ax = fx - i
+        ay = fy - j
+        d00 = dist[j, i]
+        d10 = dist[j, i + 1]
+        d01 = dist[j + 1, i]
+        d11 = dist[j + 1, i + 1]
+        d = (1 - ax) * (1 - ay) * d00 + ax * (1 - ay) * d10 + (1 - ax) * ay * d01 + ax * ay * d11
+        if d <= inlier_distance:
+            inl += 1.0
+        if d > gate:
+            continue
+        gx = ((1 - ay) * (d10 - d00) + ay * (d11 - d01)) * inv
+        gy = ((1 - ax) * (d01 - d00) + ax * (d11 - d10)) * inv
+        j2 = -gx * ry + gy * rx  # d(distance)/d(theta)
+        wk = math.exp(-d * d / (2.0 * var))
+        hm[0, 0] += wk * gx * gx
+        hm[0, 1] += wk * gx * gy
+        hm[0, 2] += wk * gx * j2
+        hm[1, 1] += wk * gy * gy
+        hm[1, 2] += wk * gy * j2
+        hm[2, 2] += wk * j2 * j2
+        g[0] += wk * gx * d
+        g[1] += wk * gy * d
+        g[2] += wk * j2 * d
+        sw += wk
+        swe += wk * d * d
+        used += 1.0
+    return sw, swe, used, inl
+
+
+@nb.njit(cache=True, nogil=True)
 def _fit(
     dist: np.ndarray,
     origin: np.ndarray,
@@ -139,59 +203,20 @@ def _fit(
     """Gauss-Newton on the bilinear distance field from `start`, Gaussian-weighted returns,
     the prior N(prior_pose, diag(1 / prior_info)); results in `out` (slots above) and the
     covariance in `out_cov`."""
-    h, w = dist.shape
     inv = 1.0 / res
     x, y, th = start[0], start[1], start[2]
     var = gate * gate
     var_min = sigma_min * sigma_min
     n = pts.shape[0]
     hm = np.zeros((3, 3))
+    g = np.zeros(3)
     rounds = 0
     used = 0.0
     for it in range(iterations):
         rounds = it + 1
-        c, s = math.cos(th), math.sin(th)
-        hm[:, :] = 0.0
-        g0 = g1 = g2 = 0.0
-        sw = 0.0
-        swe = 0.0
-        used = 0.0
-        for k in range(n):
-            px, py = pts[k, 0], pts[k, 1]
-            rx = c * px - s * py
-            ry = s * px + c * py
-            fx = (x + rx - origin[0]) * inv - 0.5
-            fy = (y + ry - origin[1]) * inv - 0.5
-            i = math.floor(fx)
-            j = math.floor(fy)
-            if i < 0 or j < 0 or i + 1 >= w or j + 1 >= h:
-                continue
-            ax = fx - i
-            ay = fy - j
-            d00 = dist[j, i]
-            d10 = dist[j, i + 1]
-            d01 = dist[j + 1, i]
-            d11 = dist[j + 1, i + 1]
-            d = (1 - ax) * (1 - ay) * d00 + ax * (1 - ay) * d10 + (1 - ax) * ay * d01
-            d += ax * ay * d11
-            if d > gate:
-                continue
-            gx = ((1 - ay) * (d10 - d00) + ay * (d11 - d01)) * inv
-            gy = ((1 - ax) * (d01 - d00) + ax * (d11 - d10)) * inv
-            j2 = -gx * ry + gy * rx  # d(distance)/d(theta)
-            wk = math.exp(-d * d / (2.0 * var))
-            hm[0, 0] += wk * gx * gx
-            hm[0, 1] += wk * gx * gy
-            hm[0, 2] += wk * gx * j2
-            hm[1, 1] += wk * gy * gy
-            hm[1, 2] += wk * gy * j2
-            hm[2, 2] += wk * j2 * j2
-            g0 += wk * gx * d
-            g1 += wk * gy * d
-            g2 += wk * j2 * d
-            sw += wk
-            swe += wk * d * d
-            used += 1.0
+        sw, swe, used, _ = _normal_equations(
+            dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
+        )
         if sw < 3.0:
             break
         # Eq. 4: the weighted spread; weights exp(-d^2/2v) shrink a Gaussian's variance s^2
@@ -204,9 +229,9 @@ def _fit(
         e0, e1 = x - prior_pose[0], y - prior_pose[1]
         e2 = math.atan2(math.sin(th - prior_pose[2]), math.cos(th - prior_pose[2]))
         b = np.empty(3)
-        b[0] = -(g0 / var + prior_info[0] * e0)
-        b[1] = -(g1 / var + prior_info[1] * e1)
-        b[2] = -(g2 / var + prior_info[2] * e2)
+        b[0] = -(g[0] / var + prior_info[0] * e0)
+        b[1] = -(g[1] / var + prior_info[1] * e1)
+        b[2] = -(g[2] / var + prior_info[2] * e2)
         for r in range(3):
             a[r, r] += prior_info[r]
         # a direction the map cannot fix (a corridor's axis: the translation information,
@@ -234,42 +259,9 @@ def _fit(
         if norm < 1e-4 and abs(step[2]) < 1e-5:
             break
     # final: the information at the estimate, the inlier share
-    c, s = math.cos(th), math.sin(th)
-    hm[:, :] = 0.0
-    inl = 0.0
-    valid = 0.0
-    for k in range(n):
-        px, py = pts[k, 0], pts[k, 1]
-        rx = c * px - s * py
-        ry = s * px + c * py
-        fx = (x + rx - origin[0]) * inv - 0.5
-        fy = (y + ry - origin[1]) * inv - 0.5
-        valid += 1.0
-        i = math.floor(fx)
-        j = math.floor(fy)
-        if i < 0 or j < 0 or i + 1 >= w or j + 1 >= h:
-            continue
-        ax = fx - i
-        ay = fy - j
-        d00 = dist[j, i]
-        d10 = dist[j, i + 1]
-        d01 = dist[j + 1, i]
-        d11 = dist[j + 1, i + 1]
-        d = (1 - ax) * (1 - ay) * d00 + ax * (1 - ay) * d10 + (1 - ax) * ay * d01 + ax * ay * d11
-        if d <= inlier_distance:
-            inl += 1.0
-        if d > gate:
-            continue
-        gx = ((1 - ay) * (d10 - d00) + ay * (d11 - d01)) * inv
-        gy = ((1 - ax) * (d01 - d00) + ax * (d11 - d10)) * inv
-        j2 = -gx * ry + gy * rx
-        wk = math.exp(-d * d / (2.0 * var))
-        hm[0, 0] += wk * gx * gx
-        hm[0, 1] += wk * gx * gy
-        hm[0, 2] += wk * gx * j2
-        hm[1, 1] += wk * gy * gy
-        hm[1, 2] += wk * gy * j2
-        hm[2, 2] += wk * j2 * j2
+    _, _, _, inl = _normal_equations(
+        dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
+    )
     hm[1, 0] = hm[0, 1]
     hm[2, 0] = hm[0, 2]
     hm[2, 1] = hm[1, 2]
@@ -283,7 +275,7 @@ def _fit(
     out[1] = y
     out[2] = math.atan2(math.sin(th), math.cos(th))
     out[3] = math.sqrt(var)
-    out[4] = inl / max(valid, 1.0)
+    out[4] = inl / max(n, 1)
     out[5] = used
     out[6] = degenerate
     out[7] = rounds
