@@ -49,11 +49,9 @@ def test_map_counts_equal_numpys_histogram_of_world_points(
         lo, size = lo + 4 * cell, (size[0] - 8, size[1] - 8)
     expected = _numpy_counts(ds, robot, lo, cell, size)
     counts = np.zeros(size[0] * size[1], np.int64)
-    ca, sa = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
     for part in raster.scan_chunks(ds.n_scans, 40):
-        lp = toolkit.se2.laser_poses(robot[part], ds.laser)
-        c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
-        raster._count_returns(ds.ranges[part], lp, c, s, ca, sa, lo, cell, size[0], counts)
+        frame = raster.beam_frame(robot[part], ds.laser)
+        raster._count_returns(ds.ranges[part], frame, lo, cell, size[0], counts)
     returns = np.isfinite(ds.ranges).sum()
     assert np.array_equal(counts, expected)
     if cells == 90:

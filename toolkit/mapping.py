@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING, Any
 import numba as nb
 import numpy as np
 
-from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output
 from toolkit.dataset import META, Dataset, load, sha256, write_described
@@ -46,7 +45,7 @@ from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.progress import counted
-from toolkit.raster import scan_chunks, write_map_png
+from toolkit.raster import BeamFrame, beam_frame, return_xy, scan_chunks, write_map_png
 from toolkit.raster import world_points as world_points  # re-exported: the cloud's arithmetic
 from toolkit.slam.relations import relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
@@ -88,15 +87,13 @@ def cloud_chunk(
     the positions by `world_points`' arithmetic and the colour by `viridis`' (the same
     bytes as those numpy functions give, without their N x 2 and N x 3 temporaries)."""
     ranges = ds.ranges[part]
-    lp = se2.laser_poses(robot[part], ds.laser)
     n = int(np.count_nonzero(np.isfinite(ranges)))
     ply = np.empty(n, CLOUD)
     points = np.empty(n if pcd else 0, PCD)
     t0, t1 = t_span
     _cloud_vertices(
-        ranges, lp, np.cos(lp[:, 2]), np.sin(lp[:, 2]), np.cos(ds.laser.angles),
-        np.sin(ds.laser.angles), float(ds.laser.z), ds.t[part], t0, t1 - t0 if t1 > t0 else 1.0,
-        VIRIDIS_LUT, part.start or 0, ply, points, pcd,
+        ranges, beam_frame(robot[part], ds.laser), float(ds.laser.z), ds.t[part], t0,
+        t1 - t0 if t1 > t0 else 1.0, VIRIDIS_LUT, part.start or 0, ply, points, pcd,
     )  # fmt: skip
     return ply, points
 
@@ -104,11 +101,7 @@ def cloud_chunk(
 @nb.njit(cache=True, nogil=True)
 def _cloud_vertices(
     ranges: np.ndarray,
-    lp: np.ndarray,
-    c: np.ndarray,
-    s: np.ndarray,
-    ca: np.ndarray,
-    sa: np.ndarray,
+    frame: BeamFrame,
     z: float,
     t: np.ndarray,
     t0: float,
@@ -133,8 +126,8 @@ def _cloud_vertices(
             r = np.float64(ranges[k, b])
             if not math.isfinite(r):
                 continue
-            x = np.float32((c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0])
-            y = np.float32((s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1])
+            wx, wy = return_xy(frame, k, b, r)
+            x, y = np.float32(wx), np.float32(wy)
             v = ply[n]
             v.x, v.y, v.z, v.t, v.scan = x, y, zf, t[k], first + k
             v.red, v.green, v.blue = red, green, blue

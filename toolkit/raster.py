@@ -39,6 +39,26 @@ def world_points(
     return xy, scan
 
 
+BeamFrame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def beam_frame(robot: np.ndarray, laser: LaserGeometry) -> BeamFrame:
+    """What `return_xy` needs to place the returns of scans at `robot` (S x 3): the laser
+    poses, their headings' cosines and sines, and the beams' cosines and sines."""
+    lp = se2.laser_poses(robot, laser)
+    return lp, np.cos(lp[:, 2]), np.sin(lp[:, 2]), np.cos(laser.angles), np.sin(laser.angles)
+
+
+@nb.njit(inline="always")
+def return_xy(frame: BeamFrame, k: int, b: int, r: float) -> tuple[float, float]:
+    """Return `r` of beam `b` of scan `k` in world x, y, in compiled kernels: `world_points`'
+    operations in the same order, so the same bits."""
+    lp, c, s, ca, sa = frame
+    x = (c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0]
+    y = (s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1]
+    return x, y
+
+
 def scan_chunks(n: int, chunk: int) -> Iterator[slice]:
     for lo in range(0, n, chunk):
         yield slice(lo, min(lo + chunk, n))
@@ -63,12 +83,10 @@ def map_image(
     chunk: memory does not grow with the log."""
     width, height = size
     counts = np.zeros(width * height, np.int64)
-    ca, sa = np.cos(ds.laser.angles), np.sin(ds.laser.angles)
+    origin = np.asarray(lo, np.float64)
     for part in scan_chunks(ds.n_scans, chunk):
-        lp = se2.laser_poses(robot[part], ds.laser)
-        c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
-        origin = np.asarray(lo, np.float64)
-        _count_returns(ds.ranges[part], lp, c, s, ca, sa, origin, float(cell), width, counts)
+        frame = beam_frame(robot[part], ds.laser)
+        _count_returns(ds.ranges[part], frame, origin, float(cell), width, counts)
     hit = np.flatnonzero(counts)
     shade = np.log1p(counts[hit].astype(np.float64))
     top = float(np.percentile(shade, 95)) if len(shade) else 1.0
@@ -85,28 +103,22 @@ def map_image(
 @nb.njit(cache=True, nogil=True)
 def _count_returns(
     ranges: np.ndarray,
-    lp: np.ndarray,
-    c: np.ndarray,
-    s: np.ndarray,
-    ca: np.ndarray,
-    sa: np.ndarray,
+    frame: BeamFrame,
     lo: np.ndarray,
     cell: float,
     width: int,
     counts: np.ndarray,
 ) -> None:
     """Add every finite return of `ranges` (S x B) to `counts` (height x width, flat, row =
-    y): placed as `world_points` places it (laser poses `lp`, their cosines and sines `c`,
-    `s`, the beams' `ca`, `sa`; the same operations in the same order, so the same bits), in
-    pixels of `cell` m from corner `lo`; returns outside the grid are left out."""
+    y): placed by `return_xy` (as `world_points` places it), in pixels of `cell` m from
+    corner `lo`; returns outside the grid are left out."""
     height = counts.shape[0] // width
     for k in range(ranges.shape[0]):
         for b in range(ranges.shape[1]):
             r = np.float64(ranges[k, b])
             if not math.isfinite(r):
                 continue
-            x = (c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0]
-            y = (s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1]
+            x, y = return_xy(frame, k, b, r)
             i = math.floor((x - lo[0]) / cell)
             j = math.floor((y - lo[1]) / cell)
             if 0 <= i < width and 0 <= j < height:
@@ -119,34 +131,27 @@ def returns_box(
     """Lower and upper corner (x, y) of the returns of `ranges` (S x B) within `reach` of
     the laser, placed as `world_points` places them (the same values, without its N x 2
     array); None when there is none."""
-    lp = se2.laser_poses(robot, laser)
-    c, s = np.cos(lp[:, 2]), np.sin(lp[:, 2])
     box = np.array([np.inf, np.inf, -np.inf, -np.inf])
-    n = _box_returns(ranges, lp, c, s, np.cos(laser.angles), np.sin(laser.angles), reach, box)
+    n = _box_returns(ranges, beam_frame(robot, laser), reach, box)
     return (box[:2], box[2:]) if n else None
 
 
 @nb.njit(cache=True, nogil=True)
 def _box_returns(
     ranges: np.ndarray,
-    lp: np.ndarray,
-    c: np.ndarray,
-    s: np.ndarray,
-    ca: np.ndarray,
-    sa: np.ndarray,
+    frame: BeamFrame,
     reach: float,
     box: np.ndarray,
 ) -> int:
     """Widen `box` (x min, y min, x max, y max) to the finite returns within `reach`; their
-    number. The arithmetic of `_count_returns`."""
+    number."""
     n = 0
     for k in range(ranges.shape[0]):
         for b in range(ranges.shape[1]):
             r = np.float64(ranges[k, b])
             if not (math.isfinite(r) and r <= reach):
                 continue
-            x = (c[k] * ca[b] - s[k] * sa[b]) * r + lp[k, 0]
-            y = (s[k] * ca[b] + c[k] * sa[b]) * r + lp[k, 1]
+            x, y = return_xy(frame, k, b, r)
             box[0], box[1] = min(box[0], x), min(box[1], y)
             box[2], box[3] = max(box[2], x), max(box[3], y)
             n += 1
