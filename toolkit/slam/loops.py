@@ -64,6 +64,8 @@ class Loop:
     inliers: float
     ambiguity: float
     accepted: bool
+    fit: bool = True  # passed the fitness test (`accepted` may still be withdrawn later)
+    reason: str = ""  # why it is not accepted: fitness, consistency or the graph's residual
 
 
 def path_length(poses: np.ndarray) -> np.ndarray:
@@ -188,8 +190,14 @@ class LoopCloser:
             coarse_voxel=cfg.coarse_voxel,
         )
         ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
-        ok = found.inliers >= cfg.min_inliers and ambiguity <= cfg.max_ambiguity
-        return Loop(a, b, found.pose, found.score, found.inliers, ambiguity, bool(ok))
+        why = []
+        if found.inliers < cfg.min_inliers:
+            why.append(f"inliers {found.inliers:.2f} < {cfg.min_inliers}")
+        if ambiguity > cfg.max_ambiguity:
+            why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
+        ok = not why
+        pose = found.pose
+        return Loop(a, b, pose, found.score, found.inliers, ambiguity, ok, ok, "; ".join(why))
 
     def find(
         self,

@@ -57,7 +57,18 @@ class SlamRun:
         table = SlamResult(
             poses, self.before, self.keys, self.edges, self.loops, 0.0, {}, {}
         ).loop_table(truth)
-        columns = ["a", "b", "x", "y", "theta", "score", "inliers", "ambiguity", "accepted"]
+        columns = [
+            "a",
+            "b",
+            "x",
+            "y",
+            "theta",
+            "score",
+            "inliers",
+            "ambiguity",
+            "accepted",
+            "reason",
+        ]
         pd.DataFrame(table, columns=None if table else columns).to_csv(
             out / "loops.csv", index=False
         )
