@@ -48,6 +48,7 @@ class LoopConfig:
     min_inliers: float = 0.65  # share of query points within 0.1 m of the map
     max_ambiguity: float = 0.85  # runner-up / winner of the coarse search
     min_points: int = 60  # fewer query points: no test
+    seen_only: bool = True  # inliers among the query points the reference's scans could see
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -141,6 +142,7 @@ class LoopCloser:
         self._mount = mount
         self._cos = np.cos(laser.angles + mount[2])
         self._sin = np.sin(laser.angles + mount[2])
+        self._fov = (float(laser.angles.min()), float(laser.angles.max()))
 
     def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -190,14 +192,40 @@ class LoopCloser:
             coarse_voxel=cfg.coarse_voxel,
         )
         ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
+        inliers = found.inliers
         why = []
-        if found.inliers < cfg.min_inliers:
-            why.append(f"inliers {found.inliers:.2f} < {cfg.min_inliers}")
+        if cfg.seen_only:
+            seen = self.seen(query, found.pose, a, near_a, poses)
+            inliers = float(np.mean(fine.distances(query[seen], found.pose) <= 0.1))
+            if seen.sum() < cfg.min_points:
+                why.append(f"overlap {int(seen.sum())} points < {cfg.min_points}")
+        if inliers < cfg.min_inliers:
+            why.append(f"inliers {inliers:.2f} < {cfg.min_inliers}")
         if ambiguity > cfg.max_ambiguity:
             why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
         ok = not why
         pose = found.pose
-        return Loop(a, b, pose, found.score, found.inliers, ambiguity, ok, ok, "; ".join(why))
+        return Loop(a, b, pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
+
+    def seen(
+        self, query: np.ndarray, pose: np.ndarray, a: int, refs: np.ndarray, poses: np.ndarray
+    ) -> np.ndarray:
+        """Which `query` points (b's frame), placed at `pose` in scan `a`'s frame, lie where
+        one of the reference scans `refs` could have seen them (within the laser's field of
+        view and `max_range`): a revisit in the opposite direction sees, behind it, what the
+        reference never looked at, and those points can neither confirm nor contradict."""
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        pts = pose[:2] + query @ np.array([[c, s], [-s, c]])
+        lasers = compose(
+            between(np.broadcast_to(poses[a], (len(refs), 3)), poses[refs]),
+            np.broadcast_to(self._mount, (len(refs), 3)),
+        )
+        dx = pts[:, None, 0] - lasers[None, :, 0]
+        dy = pts[:, None, 1] - lasers[None, :, 1]
+        bearing = (np.arctan2(dy, dx) - lasers[None, :, 2] + np.pi) % (2 * np.pi) - np.pi
+        inside = (bearing >= self._fov[0]) & (bearing <= self._fov[1])
+        out: np.ndarray = (inside & (np.hypot(dx, dy) <= self.config.max_range)).any(axis=1)
+        return out
 
     def find(
         self,
