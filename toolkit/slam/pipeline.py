@@ -6,9 +6,11 @@
    graph has one node per keyframe and a sequential edge between consecutive ones (the
    matcher's covariance, floored).
 3. Loops: candidates from the trajectory, verified by a correlative search
-   (`toolkit.slam.loops`); each accepted loop is an edge with a Cauchy kernel. The graph is
-   optimised (GTSAM); loops that the optimum still contradicts (Mahalanobis distance beyond
-   `reject_chi2`) are dropped and the graph optimised again. A second round searches again
+   (`toolkit.slam.loops`); loops that the loops nearby contradict through the sequential
+   chain between them, or that no loop nearby confirms, are dropped
+   (`toolkit.slam.consistency`); each remaining loop is an edge with a Cauchy kernel. The
+   graph is optimised (GTSAM); loops that the optimum still contradicts (Mahalanobis distance
+   beyond `reject_chi2`) are dropped and the graph optimised again. A second round searches again
    from the optimised trajectory, where the windows can be smaller.
 4. Every scan's pose: its keyframe's optimised pose composed with its sequential offset.
 """
