@@ -6,12 +6,13 @@ loop confirms; the true loops are kept."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import toolkit
-from toolkit.poses import truth_poses
+from toolkit.poses import truth_poses, with_drift
 from toolkit.se2 import compose
 from toolkit.sim import simulate
 from toolkit.slam import consistency
@@ -103,3 +104,23 @@ def test_a_single_unconfirmed_match_is_dropped_a_confirmed_group_kept(
     # the true loops that have a neighbour keep it; their cycles agree
     grouped = [m for m in range(len(true_loops)) if m not in drops]
     assert len(grouped) >= len(true_loops) - 2
+
+
+@pytest.mark.real
+def test_real_corridor_alias_is_not_accepted_the_true_loops_are(real: Path) -> None:
+    """infinite-corridor (1.9 km of corridor), drifted with seed 0: a match 5.4 m along the
+    corridor passed the fitness test alone (71% inliers, ambiguity 0.84); no loop nearby
+    confirms it, so it stays out, while the building's true loops are kept."""
+    from importers.carmen import Carmen, CarmenOptions
+
+    path = real / "carmen_radish_corrected" / "infinite-corridor-corrected.log.gz"
+    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=0)
+    _, slam = slam_trajectory(ds)
+    truth = truth_poses(ds)
+    assert truth is not None
+    accepted = [lp for lp in slam.loops if lp.accepted]
+    assert len(accepted) >= 20
+    assert not any(_is_false(lp, truth) for lp in accepted)
+    aliases = [lp for lp in slam.loops if lp.fit and _is_false(lp, truth)]
+    assert aliases, "the corridor gave no alias that passed the fitness test alone"
+    assert all(lp.reason.split(":")[0] in {"unconfirmed", "inconsistent"} for lp in aliases)
