@@ -74,9 +74,7 @@ def cycle_chi2(
     err = total.copy()
     err[2] = (err[2] + np.pi) % (2 * np.pi) - np.pi
 
-    def moved(cov: np.ndarray, suffix: np.ndarray | None) -> np.ndarray:
-        if suffix is None:
-            return cov
+    def moved(cov: np.ndarray, suffix: np.ndarray) -> np.ndarray:
         ad = adjoint(se2.inverse(suffix))
         out: np.ndarray = ad @ cov @ ad.T
         return out

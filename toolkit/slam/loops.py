@@ -7,9 +7,12 @@ candidate. Verification: a local map around the earlier keyframe (its neighbours
 `reference_path` m of path, placed by the trajectory, which is locally right) as likelihood
 grids, and the later keyframe's local scans (within `query_path` m) matched against it by a
 coarse-to-fine correlative search over the whole window (`toolkit.slam.grid`): no seed needed.
-The fitness test: enough of the query's points close to the map (`min_inliers`) and a clear
-winner: the best pose elsewhere in the window (0.6 m or 0.15 rad away) scores at most
-`max_ambiguity` of the winner (a corridor, where a shift along it scores alike, fails it).
+The fitness test: enough of the query's points close to the map (`min_inliers`), counted among
+those a reference scan could have seen (`seen_only`: a revisit the other way sees behind it
+what the reference never looked at), and a clear winner: the best pose elsewhere in the
+window (0.6 m or 0.15 rad away) scores at most `max_ambiguity` of the winner (a corridor,
+where a shift along it scores alike, fails it). Whether the loops agree with each other is
+`toolkit.slam.consistency`'s test.
 """
 
 from __future__ import annotations
@@ -221,7 +224,8 @@ class LoopCloser:
         why = []
         if cfg.seen_only:
             seen = self.seen(query, found.pose, a, near_a, poses)
-            inliers = float(np.mean(fine.distances(query[seen], found.pose) <= 0.1))
+            near = fine.distances(query[seen], found.pose) <= 0.1
+            inliers = float(near.mean()) if len(near) else 0.0
             if seen.sum() < cfg.min_points:
                 why.append(f"overlap {int(seen.sum())} points < {cfg.min_points}")
         if inliers < cfg.min_inliers:
@@ -229,8 +233,7 @@ class LoopCloser:
         if ambiguity > cfg.max_ambiguity:
             why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
         ok = not why
-        pose = found.pose
-        return Loop(a, b, pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
+        return Loop(a, b, found.pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
 
     def seen(
         self, query: np.ndarray, pose: np.ndarray, a: int, refs: np.ndarray, poses: np.ndarray
