@@ -10,6 +10,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+import pandas as pd
 import pytest
 
 import toolkit
@@ -113,6 +114,8 @@ def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_pat
     # compilation kept out of the matching's speed: pairs/s is the matching's own
     assert metrics["seconds_aligning"] <= metrics["seconds"]["matching"]
     assert (run / "loops.csv").is_file() and (run / "map.png").stat().st_size > 10_000
+    loops = pd.read_csv(run / "loops.csv", keep_default_na=False)
+    assert (loops["reason"][~loops["accepted"]] != "").all()  # why each one was not kept
 
 
 def test_relation_error_is_zero_on_the_truth_and_grows_with_drift(

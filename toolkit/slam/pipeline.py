@@ -6,9 +6,11 @@
    graph has one node per keyframe and a sequential edge between consecutive ones (the
    matcher's covariance, floored).
 3. Loops: candidates from the trajectory, verified by a correlative search
-   (`toolkit.slam.loops`); each accepted loop is an edge with a Cauchy kernel. The graph is
-   optimised (GTSAM); loops that the optimum still contradicts (Mahalanobis distance beyond
-   `reject_chi2`) are dropped and the graph optimised again. A second round searches again
+   (`toolkit.slam.loops`); loops that the loops nearby contradict through the sequential
+   chain between them, or that no loop nearby confirms, are dropped
+   (`toolkit.slam.consistency`); each remaining loop is an edge with a Cauchy kernel. The
+   graph is optimised (GTSAM); loops that the optimum still contradicts (Mahalanobis distance
+   beyond `reject_chi2`) are dropped and the graph optimised again. A second round searches again
    from the optimised trajectory, where the windows can be smaller.
 4. Every scan's pose: its keyframe's optimised pose composed with its sequential offset.
 """
@@ -24,7 +26,9 @@ import numpy as np
 from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
+from toolkit.slam import consistency
 from toolkit.slam import graph as pg
+from toolkit.slam.consistency import CHI2_3DOF_99
 from toolkit.slam.loops import (
     Loop,
     LoopCloser,
@@ -48,6 +52,9 @@ class SlamConfig:
     loop_sigma: tuple[float, float] = (0.05, 0.01)  # m, rad: a loop edge's spread
     robust: float = 1.0  # Cauchy kernel width, in sigmas
     reject_chi2: float = 16.0  # loops still this far off after optimising are dropped
+    consistency_path: float = 10.0  # loops whose ends lie this close along the path are compared
+    consistency_chi2: float = CHI2_3DOF_99  # ... and agree when their cycle is within this
+    confirm: bool = True  # a loop that no loop nearby agrees with is dropped
     rounds: int = 2
     incremental: bool = False  # re-optimise as soon as a loop moves its scan (round 1)
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
@@ -93,6 +100,7 @@ class SlamResult:
                 "inliers": lp.inliers,
                 "ambiguity": lp.ambiguity,
                 "accepted": lp.accepted,
+                "reason": lp.reason,
             }
             if truth is not None:
                 et, er = loop_truth_error(lp, truth)
@@ -183,6 +191,7 @@ def close_loops(
     timings = {"loops": 0.0, "optimisation": 0.0}
     keys = keyframes_of(before, config.keyframe_distance, config.keyframe_angle)
     edges = sequential_edges(keys, before, config)
+    sequential_only = list(edges)
     if not config.loops or len(keys) < 3:
         return before.copy(), keys, edges, [], timings, before
     t0 = time.perf_counter()
@@ -200,9 +209,26 @@ def close_loops(
     along = path_length(before)
 
     def solve() -> np.ndarray:
-        """Optimise with the accepted loops; drop those the optimum contradicts."""
+        """Optimise with the loops that passed the fitness test and agree with the loops
+        nearby (`consistency.check`); drop those the optimum still contradicts."""
         t0 = time.perf_counter()
-        accepted = [lp for lp in found.values() if lp.accepted]
+        fit = [lp for lp in found.values() if lp.fit and not lp.reason.startswith("residual")]
+        for lp in fit:
+            lp.accepted, lp.reason = True, ""
+        drops = consistency.check(
+            fit,
+            keys,
+            before,
+            along,
+            sequential_only,
+            loop_cov,
+            config.consistency_path,
+            config.consistency_chi2,
+            config.confirm,
+        )
+        for m, why in drops.items():
+            fit[m].accepted, fit[m].reason = False, why
+        accepted = [lp for lp in fit if lp.accepted]
         current = before[keys]
         for _ in range(3):
             loop_edges = [pg.Edge(lp.a, lp.b, lp.pose, loop_cov, loop=True) for lp in accepted]
@@ -210,11 +236,14 @@ def close_loops(
             current = pg.optimise(graph, values, keys)
             if not loop_edges:
                 break
-            bad = pg.residuals(current, keys, loop_edges)[:, 2] > config.reject_chi2
+            chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
+            bad = chi2 > config.reject_chi2
             if not bad.any():
                 break
-            for lp, drop in zip(accepted, bad, strict=True):
-                lp.accepted = lp.accepted and not drop
+            for lp, drop, c in zip(accepted, bad, chi2, strict=True):
+                if drop:
+                    lp.accepted = False
+                    lp.reason = f"residual: chi2 {c:.1f} > {config.reject_chi2:g} after optimising"
             accepted = [lp for lp in accepted if lp.accepted]
         timings["optimisation"] += time.perf_counter() - t0
         return hang(keys, before, current)

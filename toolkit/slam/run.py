@@ -4,7 +4,8 @@ RUN/ gains:
     graph.g2o     the pose graph (VERTEX_SE2 per keyframe, its scan index as id; EDGE_SE2
                   sequential and loop edges with their information), optimised poses
     loops.csv     every verified loop candidate: scans a, b, relative pose, score, inliers,
-                  ambiguity, accepted (and, with ground truth, its residual and `false`)
+                  ambiguity, accepted, reason (why not kept; with ground truth, its
+                  residual and `false`)
     map.png       odometry / before loops / after loops side by side
     map.pgm/.yaml the occupancy grid (ROS map_server)
 and metrics.json the loops, the time of each stage, the sequential estimate's errors and the
@@ -57,7 +58,18 @@ class SlamRun:
         table = SlamResult(
             poses, self.before, self.keys, self.edges, self.loops, 0.0, {}, {}
         ).loop_table(truth)
-        columns = ["a", "b", "x", "y", "theta", "score", "inliers", "ambiguity", "accepted"]
+        columns = [
+            "a",
+            "b",
+            "x",
+            "y",
+            "theta",
+            "score",
+            "inliers",
+            "ambiguity",
+            "accepted",
+            "reason",
+        ]
         pd.DataFrame(table, columns=None if table else columns).to_csv(
             out / "loops.csv", index=False
         )

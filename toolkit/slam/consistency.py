@@ -1,0 +1,139 @@
+"""Group consistency of loop closures: loops that the sequential chain between them contradicts.
+
+Two loops a->b and c->d whose ends lie close along the path (|a - c| and |b - d| within
+`path` m) close a cycle a -> b (loop) -> d (sequential) -> c (loop, inverted) -> a
+(sequential); if both are right the cycle is the identity, within the loops' spreads and the
+sequential chains' (propagated from the pose graph's sequential edges, first order). A loop is
+dropped when more of its neighbours disagree with it than agree (the worst first, counts
+updated, until none is left; Olson 2009's pairwise consistency, decided by majority rather
+than spectrally, as the groups are small). With `confirm`, a loop that no neighbour agrees
+with (a single match) is dropped too: one match in a repetitive place can be wrong in a way
+no test on it alone can tell (a corridor whose true pose lies outside the search window), as
+ORB-SLAM requires consecutive consistent detections.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from toolkit import se2
+from toolkit.slam.graph import Edge
+from toolkit.slam.loops import Loop
+
+#: chi-square with 3 degrees of freedom, 99%: a cycle this far off is inconsistent
+CHI2_3DOF_99 = 11.34
+
+
+def adjoint(p: np.ndarray) -> np.ndarray:
+    """SE(2) adjoint of pose (x, y, theta) in GTSAM's tangent order (x, y, theta)."""
+    c, s = np.cos(p[2]), np.sin(p[2])
+    return np.array([[c, -s, p[1]], [s, c, -p[0]], [0.0, 0.0, 1.0]])
+
+
+def chain_prefix(keys: np.ndarray, poses: np.ndarray, sequential: Sequence[Edge]) -> np.ndarray:
+    """(K, 3, 3): the sequential edges' covariances moved to the world frame and summed up to
+    each keyframe; the spread of the chain from keyframe i to j is the difference, moved to
+    j's frame (`chain_covariance`)."""
+    out = np.zeros((len(keys), 3, 3))
+    for k, e in enumerate(sequential[: len(keys) - 1]):
+        ad = adjoint(poses[e.b])
+        out[k + 1] = out[k] + ad @ e.covariance @ ad.T
+    return out
+
+
+def chain_covariance(prefix: np.ndarray, i: int, j: int, end: np.ndarray) -> np.ndarray:
+    """Covariance of the sequential relative pose between keyframe numbers i and j, in the
+    frame of `end` (the pose at j)."""
+    ad = adjoint(se2.inverse(end))
+    diff = prefix[max(i, j)] - prefix[min(i, j)]
+    out: np.ndarray = ad @ diff @ ad.T
+    return out
+
+
+def cycle_chi2(
+    first: Loop,
+    second: Loop,
+    poses: np.ndarray,
+    index: dict[int, int],
+    prefix: np.ndarray,
+    loop_cov: np.ndarray,
+) -> float:
+    """Mahalanobis distance squared of the cycle first.a -> first.b -> second.b -> second.a ->
+    first.a from the identity (loops measured, chains from the sequential `poses`)."""
+    pa, pb, qa, qb = (poses[x] for x in (first.a, first.b, second.a, second.b))
+    s_b = se2.between(pb, qb)
+    s_a = se2.between(qa, pa)
+    z_j_inv = se2.inverse(second.pose)
+    # cycle = Z_i * S_b * Z_j^-1 * S_a; each factor's spread moved to the cycle's end frame
+    suffix3 = s_a
+    suffix2 = se2.compose(z_j_inv, s_a)
+    suffix1 = se2.compose(s_b, suffix2)
+    total = se2.compose(first.pose, suffix1)
+    err = total.copy()
+    err[2] = (err[2] + np.pi) % (2 * np.pi) - np.pi
+
+    def moved(cov: np.ndarray, suffix: np.ndarray) -> np.ndarray:
+        ad = adjoint(se2.inverse(suffix))
+        out: np.ndarray = ad @ cov @ ad.T
+        return out
+
+    ad_z = adjoint(second.pose)
+    cov = (
+        moved(loop_cov, suffix1)
+        + moved(chain_covariance(prefix, index[first.b], index[second.b], qb), suffix2)
+        + moved(ad_z @ loop_cov @ ad_z.T, suffix3)
+        + chain_covariance(prefix, index[second.a], index[first.a], pa)
+    )
+    return float(err @ np.linalg.solve(cov, err))
+
+
+def check(
+    loops: Sequence[Loop],
+    keys: np.ndarray,
+    poses: np.ndarray,
+    along: np.ndarray,
+    sequential: Sequence[Edge],
+    loop_cov: np.ndarray,
+    path: float = 10.0,
+    chi2: float = CHI2_3DOF_99,
+    confirm: bool = True,
+) -> dict[int, str]:
+    """Reasons to drop, by position in `loops` (the loops to check: those that passed the
+    fitness test); loops not in the answer are consistent. `poses` is the sequential estimate
+    the `sequential` edges were taken from (keyframes `keys`), `along` its path length."""
+    n = len(loops)
+    if n == 0:
+        return {}
+    index = {int(k): m for m, k in enumerate(keys)}
+    prefix = chain_prefix(keys, poses, sequential)
+    la = np.array([along[lp.a] for lp in loops])
+    lb = np.array([along[lp.b] for lp in loops])
+    near = (np.abs(la[:, None] - la[None, :]) <= path) & (np.abs(lb[:, None] - lb[None, :]) <= path)
+    np.fill_diagonal(near, False)
+    agree = np.zeros((n, n), dtype=bool)
+    for i, j in zip(*np.nonzero(np.triu(near)), strict=True):
+        ok = cycle_chi2(loops[i], loops[j], poses, index, prefix, loop_cov) <= chi2
+        agree[i, j] = agree[j, i] = ok
+    disagree = near & ~agree
+    alive = np.ones(n, dtype=bool)
+    out: dict[int, str] = {}
+    while True:
+        n_ok = (agree & alive[None, :]).sum(axis=1)
+        n_bad = (disagree & alive[None, :]).sum(axis=1)
+        margin = np.where(alive, n_bad - n_ok, -1)
+        if margin.max() <= 0:
+            break
+        worst = np.nonzero(margin == margin.max())[0]
+        drop = int(worst[np.argmax([loops[int(w)].ambiguity for w in worst])])
+        alive[drop] = False
+        out[int(drop)] = f"inconsistent: {n_bad[drop]} loops nearby disagree, {n_ok[drop]} agree"
+    if confirm:
+        n_ok = (agree & alive[None, :]).sum(axis=1)
+        for i in np.nonzero(alive & (n_ok == 0))[0]:
+            out[int(i)] = f"unconfirmed: no loop within {path:g} m agrees"
+    return out
+
+
+__all__ = ["CHI2_3DOF_99", "adjoint", "check", "cycle_chi2"]
