@@ -199,6 +199,7 @@ def _fit_places(
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=len(columns),
+        open_set=config.open_set if config.none_class else "never",
     )  # fmt: skip
 
 

@@ -39,6 +39,7 @@ NONE_DISTANCE = 40.0  # "none" beyond this many times the training scans' own di
 NONE_SLOPE = 4.0  # nats per unit of log-distance ratio: how sharp the "none" edge is
 TREES = 100  # extremely randomised trees in the forest (100 and 200 alike on seeds 0-19)
 LEAF = 2  # training scans at least in a leaf
+NONE = "\x00none"  # the forest's class of the training log's scans no taught place explains
 PROBA_FLOOR = 1e-4  # a forest's probability is at least this (log of 0 is no evidence)
 
 
@@ -158,6 +159,9 @@ class PlaceClassifier:
     def log_proba(self, x: np.ndarray, none: bool = True) -> np.ndarray:
         """Log-probabilities (S, K + 1 with `none`) of descriptors (S, D)."""
         logits = self.logits(x)
+        k = len(self.classes)
+        if not none:
+            logits = logits[:, :k]
         logits -= logits.max(axis=1, keepdims=True)
         logp = logits - np.log(np.exp(logits).sum(axis=1, keepdims=True))
         if not none:
@@ -165,6 +169,11 @@ class PlaceClassifier:
         edge = NONE_SLOPE * (self.log_distance(x) - self.reach - np.log(NONE_DISTANCE))
         log_none = -np.logaddexp(0.0, -edge)  # log sigmoid
         log_known = -np.logaddexp(0.0, edge)
+        if logp.shape[1] > k:  # the forest's own "none": either says none
+            # p_none + (1 - p_none) g; the known places keep (1 - g) of their shares
+            log_rest = np.logaddexp.reduce(logp[:, :k], axis=1)
+            log_none = np.logaddexp(logp[:, k], log_rest + log_none)
+            return np.concatenate([logp[:, :k] + log_known[:, None], log_none[:, None]], axis=1)
         return np.concatenate([logp + log_known[:, None], log_none[:, None]], axis=1)
 
     def to_dict(self) -> dict[str, Any]:
@@ -213,6 +222,7 @@ def fit_places(
     priors: bool = False,
     forest: bool = True,
     gate: int | None = None,
+    open_set: str = "auto",
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -252,19 +262,34 @@ def fit_places(
             return ExtraTreesClassifier(TREES, min_samples_leaf=LEAF, random_state=0)
         return LogisticRegression(C=c, max_iter=2000)
 
-    est = learner().fit(z, y)
-    if unlabelled is not None and rounds > 0:
+    zu = np.zeros((0, z.shape[1]))
+    if unlabelled is not None:
         zu = (unlabelled[:, columns] - scaler.mean_) / scale
+    g = gate or z.shape[1]
+    # the open-set test on the rest of the log: which scans some taught place claims
+    claimed = np.ones(len(zu), dtype=bool)
+    if forest and open_set != "never" and len(zu):
+        claimed = log_claims(z[:, :g], y, groups, zu[:, :g])
+    if open_set == "auto" and claimed.mean() >= BACKGROUND_SHARE:
+        claimed[:] = True  # the taught places are most of the log: no background to learn
+    learn_none = open_set != "never" and not claimed.all()
+    est = learner().fit(z, y)
+    if len(zu) and rounds > 0:
         for _ in range(rounds):
             prob = est.predict_proba(zu)
             label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
             zs, ys, ws = [z], [y], [np.ones(len(y))]
-            for k in est.classes_:
-                pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE))
+            for k in classes:
+                pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE) & claimed)
                 if len(pick):
                     zs.append(zu[pick])
                     ys.append(label[pick])
                     ws.append(np.full(len(pick), (y == k).sum() / len(pick)))
+            rest = np.flatnonzero(~claimed & (sure <= SELF_TRAINING_CONFIDENCE))
+            if learn_none and len(rest):  # unclaimed and unsure: examples of "none", together
+                zs.append(zu[rest])  # weighing as much as a taught place
+                ys.append(np.full(len(rest), NONE))
+                ws.append(np.full(len(rest), len(y) / len(classes) / len(rest)))
             est = learner().fit(
                 np.concatenate(zs), np.concatenate(ys), sample_weight=np.concatenate(ws)
             )
@@ -272,6 +297,8 @@ def fit_places(
     trees = None
     if forest:
         trees = Forest.from_sklearn(est)
+        if NONE in est.classes_:
+            order.append(list(est.classes_).index(NONE))
         trees.value = trees.value[:, order]
         coef, intercept = np.zeros((len(classes), 0)), np.zeros(len(classes))
     else:
@@ -295,6 +322,44 @@ def fit_places(
     if not forest:  # the forest's shares are not over-confident (measured: docs/places.md)
         model.temperature = calibrate(model, x, y, groups, c)
     return model
+
+
+CLAIM_C = 0.01  # inverse L2 strength of each place's regression against the log
+CLAIM_QUANTILE = 0.1  # share of a place's held-out training scans its claim may miss
+CLAIM_LOG_SCANS = 5000  # scans of the log the claims' regressions are fitted against
+BACKGROUND_SHARE = 0.3  # open set "auto": on when the places claim less of the log (seeds 0-7)
+
+
+def log_claims(z: np.ndarray, y: np.ndarray, groups: np.ndarray, zu: np.ndarray) -> np.ndarray:
+    """Per scan of the rest of the log `zu`, whether some taught place claims it: per place,
+    a logistic regression tells its training scans from the log (the log holds the place
+    too, but mostly everything else: what it learns is what sets the place apart), and its
+    threshold is the `CLAIM_QUANTILE` of its held-out training spans' scores (each span
+    left out in turn; a place taught by one span: each half). A scan no place's
+    regression scores as high as its own held-out spans is unclaimed."""
+    from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
+
+    spread = np.vstack([z, zu]).std(axis=0)
+    spread = np.where(spread > 1e-9, spread, 1.0)
+    z, zu = z / spread, zu / spread
+    claimed = np.zeros(len(zu), dtype=bool)
+    log = zu[:: max(1, len(zu) // CLAIM_LOG_SCANS)]  # a long log: every n-th scan
+
+    def against_log(pos: np.ndarray) -> LogisticRegression:
+        x = np.vstack([pos, log])
+        t = np.r_[np.ones(len(pos)), np.zeros(len(log))]
+        return LogisticRegression(C=CLAIM_C, class_weight="balanced", max_iter=500).fit(x, t)
+
+    for k in dict.fromkeys(y):
+        own = np.flatnonzero(y == k)
+        parts = [own[groups[own] == g] for g in np.unique(groups[own])]
+        if len(parts) == 1:
+            parts = [parts[0][: len(own) // 2], parts[0][len(own) // 2 :]]
+        rest = [np.concatenate(parts[:j] + parts[j + 1 :]) for j in range(len(parts))]
+        held = [against_log(z[r]).decision_function(z[p]) for r, p in zip(rest, parts, strict=True)]
+        edge = float(np.quantile(np.concatenate(held), CLAIM_QUANTILE))
+        claimed |= against_log(z[own]).decision_function(zu) >= edge
+    return claimed
 
 
 def log_priors(logits: np.ndarray, rounds: int = 50) -> np.ndarray:
