@@ -268,12 +268,16 @@ def fit_places(
     g = gate or z.shape[1]
     # the open-set test on the rest of the log: which scans some taught place claims
     claimed = np.ones(len(zu), dtype=bool)
+    est = learner().fit(z, y)
     if forest and open_set != "never" and len(zu):
-        claimed = log_claims(z[:, :g], y, groups, zu[:, :g])
+        claimed, testable = log_claims(z[:, :g], y, groups, zu[:, :g])
+        # a place taught by one span has no new spot to calibrate its claim by (its halves
+        # look alike): the scans the trees give it are its own
+        top = est.predict_proba(zu)[:, [list(est.classes_).index(k) for k in classes]]
+        claimed |= ~np.array([k in testable for k in classes])[top.argmax(axis=1)]
     if open_set == "auto" and claimed.mean() >= BACKGROUND_SHARE:
         claimed[:] = True  # the taught places are most of the log: no background to learn
     learn_none = open_set != "never" and not claimed.all()
-    est = learner().fit(z, y)
     if len(zu) and rounds > 0:
         for _ in range(rounds):
             prob = est.predict_proba(zu)
@@ -330,19 +334,23 @@ CLAIM_LOG_SCANS = 5000  # scans of the log the claims' regressions are fitted ag
 BACKGROUND_SHARE = 0.3  # open set "auto": on when the places claim less of the log (seeds 0-7)
 
 
-def log_claims(z: np.ndarray, y: np.ndarray, groups: np.ndarray, zu: np.ndarray) -> np.ndarray:
+def log_claims(
+    z: np.ndarray, y: np.ndarray, groups: np.ndarray, zu: np.ndarray
+) -> tuple[np.ndarray, set[str]]:
     """Per scan of the rest of the log `zu`, whether some taught place claims it: per place,
     a logistic regression tells its training scans from the log (the log holds the place
     too, but mostly everything else: what it learns is what sets the place apart), and its
     threshold is the `CLAIM_QUANTILE` of its held-out training spans' scores (each span
-    left out in turn; a place taught by one span: each half). A scan no place's
-    regression scores as high as its own held-out spans is unclaimed."""
+    left out in turn). A scan no place's regression scores as high as its own held-out
+    spans is unclaimed. Only places taught by two spans or more are tested (returned as the
+    second value): one span's halves look alike, and its claim would be too narrow."""
     from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
 
     spread = np.vstack([z, zu]).std(axis=0)
     spread = np.where(spread > 1e-9, spread, 1.0)
     z, zu = z / spread, zu / spread
     claimed = np.zeros(len(zu), dtype=bool)
+    testable: set[str] = set()
     log = zu[:: max(1, len(zu) // CLAIM_LOG_SCANS)]  # a long log: every n-th scan
 
     def against_log(pos: np.ndarray) -> LogisticRegression:
@@ -353,13 +361,14 @@ def log_claims(z: np.ndarray, y: np.ndarray, groups: np.ndarray, zu: np.ndarray)
     for k in dict.fromkeys(y):
         own = np.flatnonzero(y == k)
         parts = [own[groups[own] == g] for g in np.unique(groups[own])]
-        if len(parts) == 1:
-            parts = [parts[0][: len(own) // 2], parts[0][len(own) // 2 :]]
+        if len(parts) < 2:
+            continue
+        testable.add(str(k))
         rest = [np.concatenate(parts[:j] + parts[j + 1 :]) for j in range(len(parts))]
         held = [against_log(z[r]).decision_function(z[p]) for r, p in zip(rest, parts, strict=True)]
         edge = float(np.quantile(np.concatenate(held), CLAIM_QUANTILE))
         claimed |= against_log(z[own]).decision_function(zu) >= edge
-    return claimed
+    return claimed, testable
 
 
 def log_priors(logits: np.ndarray, rounds: int = 50) -> np.ndarray:
