@@ -80,12 +80,27 @@ class Forest:
             np.concatenate(value).astype(np.float64),
         )
 
-    def predict_proba(self, z: np.ndarray) -> np.ndarray:
-        """The mean over the trees of the class shares of the leaf each row falls in."""
+    def predict_proba(
+        self,
+        z: np.ndarray,
+        columns: np.ndarray | None = None,
+        mean: np.ndarray | None = None,
+        scale: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The mean over the trees of the class shares of the leaf each row falls in. With
+        `columns`, `mean` and `scale`, `z` holds raw descriptors and the trees (fitted on
+        (x[:, columns] - mean) / scale) test x[:, columns[f]] <= threshold * scale + mean:
+        the same leaves, without a standardised copy of a million scans' descriptors."""
+        feature, threshold = self.feature, self.threshold
+        if columns is not None and mean is not None and scale is not None:
+            leaf = self.left < 0
+            f = np.where(leaf, 0, feature)
+            feature = np.where(leaf, 0, np.asarray(columns)[f])
+            threshold = np.where(leaf, 0.0, threshold * scale[f] + mean[f])
         out = np.zeros((len(z), self.value.shape[1]))
         _forest_proba(
             np.ascontiguousarray(z, dtype=np.float64), self.roots, self.left, self.right,
-            self.feature, self.threshold, self.value, out,
+            feature, threshold, self.value, out,
         )  # fmt: skip
         return out
 
@@ -142,9 +157,10 @@ class PlaceClassifier:
 
     def logits(self, x: np.ndarray) -> np.ndarray:
         """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities)."""
+        if self.forest is not None:  # the trees test the raw descriptors: no standardised copy
+            proba = self.forest.predict_proba(x, self.columns, self.mean, self.scale)
+            return np.asarray(np.log(np.maximum(proba, PROBA_FLOOR)))
         z = (x[:, self.columns] - self.mean) / self.scale
-        if self.forest is not None:
-            return np.asarray(np.log(np.maximum(self.forest.predict_proba(z), PROBA_FLOOR)))
         return np.asarray((z @ self.coef.T + self.intercept) * self.temperature)
 
     def log_distance(self, x: np.ndarray) -> np.ndarray:
