@@ -8,11 +8,15 @@ fitted trees as arrays and applies them in a compiled kernel. The alternative
 L2-regularised with `C`, with a temperature (`calibrate`, fitted by leave-one-span-out on
 the training spans).
 
-"None of these": a scan far from every taught place in the descriptor space (Mahalanobis
-distance to the nearest class centre under a shrunk pooled covariance, Ledoit-Wolf, on the
-scan's own descriptors) is "none". Its probability is a logistic function of that distance,
-beyond `NONE_DISTANCE` times the farthest held-out training scan's distance (a place the
-user never taught, not a taught place seen from a new spot).
+"None of these", twice. The open set (`log_claims`, `open_set`): per taught place, a
+logistic regression against the rest of the training log, its threshold set by held-out
+training spans, claims the log's scans that look like the place; when the places claim
+less than `BACKGROUND_SHARE` of the log (taught spots in an untaught background), the
+unclaimed scans the trees are unsure of become the trees' own "none" class. And a scan far
+from every taught place in the descriptor space (Mahalanobis distance to the nearest class
+centre under a shrunk pooled covariance, Ledoit-Wolf, on the scan's own descriptors) is
+"none": a logistic function of that distance, beyond `NONE_DISTANCE` times the farthest
+held-out training scan's distance.
 
 Only numbers are kept (the scaler, the trees' nodes or the weights, the centres and the
 precision matrix), so a model is plain JSON.
@@ -256,7 +260,10 @@ def fit_places(
     are probabilities that need no temperature (measured on the random worlds). The "none"
     gate measures distances on the first `gate` columns (default all): a scan's own
     descriptors, not their context (ten scans' context is too narrow a cloud to measure
-    "far" by)."""
+    "far" by). `open_set` ("auto", "always", "never"; trees only): whether the unclaimed
+    scans of the log (`log_claims`, on the gate's columns) become a "none" class of the
+    trees and stay out of the self-training ("auto": when the places claim less than
+    `BACKGROUND_SHARE` of the log)."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
