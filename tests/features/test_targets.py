@@ -47,9 +47,11 @@ def test_open_set_stays_off_where_every_place_is_taught() -> None:
     spans = spans_from_frame(run.regions, ds.t)
     training = training_indices(spans)
     poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
-    labels = [
-        classify(fit(ds.ranges, ds.laser, training, config, spans, poses), ds.ranges, poses)
+    models = [
+        fit(ds.ranges, ds.laser, training, config, spans, poses)
         for config in (Config(), Config(open_set="never"))
     ]
+    labels = [classify(model, ds.ranges, poses) for model in models]
+    assert "no 'none' learnt" in models[0].fit_report["open_set"]
     assert not np.any(labels[0].label == "none")
     assert np.array_equal(labels[0].label, labels[1].label)

@@ -24,7 +24,7 @@ precision matrix), so a model is plain JSON.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numba
@@ -158,6 +158,8 @@ class PlaceClassifier:
     reach: float  # the training scans' largest held-out log-distance to their class centre
     temperature: float = 1.0
     forest: Forest | None = None  # the forest, instead of the regression's coef / intercept
+    report: dict[str, Any] = field(default_factory=dict)  # how it was learnt (not saved here:
+    # the model's fit_report holds it)
 
     def logits(self, x: np.ndarray) -> np.ndarray:
         """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities)."""
@@ -298,15 +300,16 @@ def fit_places(
         # look alike): the scans the trees give it are its own
         top = est.predict_proba(zu)[:, [list(est.classes_).index(k) for k in classes]]
         claimed |= ~np.array([k in testable for k in classes])[top.argmax(axis=1)]
-    if open_set == "auto" and claimed.mean() >= BACKGROUND_SHARE:
+    claimed_share = float(claimed.mean()) if len(zu) else 1.0
+    if open_set == "auto" and claimed_share >= BACKGROUND_SHARE:
         claimed[:] = True  # the taught places are most of the log: no background to learn
     learn_none = open_set != "never" and not claimed.all()
-    if len(zu) and rounds > 0:
-        for _ in range(rounds):
+    if len(zu):
+        for _ in range(max(rounds, int(learn_none))):  # "none" is learnt even without rounds
             prob = est.predict_proba(zu)
             label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
             zs, ys, ws = [z], [y], [np.ones(len(y))]
-            for k in classes:
+            for k in classes if rounds > 0 else ():
                 pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE) & claimed)
                 if len(pick):
                     zs.append(zu[pick])
@@ -346,6 +349,11 @@ def fit_places(
         forest=trees,
     )  # fmt: skip
     model.reach = _reach(model, zg, y, classes)
+    if forest and open_set != "never" and len(zu):
+        model.report["open_set"] = (
+            f"{open_set}: the places claim {claimed_share:.3f} of the rest of the log; "
+            + ("'none' learnt from the unclaimed scans" if learn_none else "no 'none' learnt")
+        )
     if not forest:  # the forest's shares are not over-confident (measured: docs/places.md)
         model.temperature = calibrate(model, x, y, groups, c)
     return model
