@@ -63,6 +63,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: without the none gate", dataclasses.replace(FULL, none_class=False)),
     ("alternative: + per-beam term weight 0.3", dataclasses.replace(FULL, beam_term=0.3)),
     ("alternative: context 0.5 m", dataclasses.replace(FULL, context=0.5)),
+    ("alternative: closed set, no learnt none (--open-set never)", dataclasses.replace(FULL, open_set="never")),
+    ("alternative: open set always (--open-set always)", dataclasses.replace(FULL, open_set="always")),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -159,6 +159,7 @@ def fit(
     if config.descriptors:
         model.places = _fit_places(ranges, laser, components, config, poses)
         model.fit_report["descriptor_temperature"] = round(model.places.temperature, 4)
+        model.fit_report.update(model.places.report)
     if sparse:
         model.fit_report["context"] = (
             f"off: fewer than {MIN_CONTEXT_SCANS} scans within the context's path on the "
@@ -199,6 +200,7 @@ def _fit_places(
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=len(columns),
+        open_set=config.open_set if config.none_class else "never",
     )  # fmt: skip
 
 

@@ -74,6 +74,7 @@ NoneModel = Literal["world", "surroundings"]
 Smoothing = Literal["none", "forward", "forward-backward"]
 Temperature = Literal["loo", "none"]
 Classifier = Literal["trees", "logistic"]
+OpenSet = Literal["auto", "always", "never"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,9 @@ class Config:
     # spread join its own (0: the scan alone)
     priors: bool = False  # the places' shares of the training log in the regression
     self_training: int = 3  # rounds of self-training on the rest of the training log
+    open_set: OpenSet = "auto"  # the trees' own "none" class, learnt from the training
+    # log's scans no taught place claims (places.log_claims): "auto" when those are most
+    # of the log (taught spots in an untaught background), "always", "never"
     beam_term: float = 0.0  # weight of the per-beam model's log-posterior added to the
     # descriptors' (0: not used)
 
@@ -118,6 +122,7 @@ class Config:
             ("smoothing", Smoothing),
             ("temperature", Temperature),
             ("classifier", Classifier),
+            ("open_set", OpenSet),
         ):
             value, allowed = getattr(self, name), get_args(kind)
             if value not in allowed:

@@ -8,11 +8,15 @@ fitted trees as arrays and applies them in a compiled kernel. The alternative
 L2-regularised with `C`, with a temperature (`calibrate`, fitted by leave-one-span-out on
 the training spans).
 
-"None of these": a scan far from every taught place in the descriptor space (Mahalanobis
-distance to the nearest class centre under a shrunk pooled covariance, Ledoit-Wolf, on the
-scan's own descriptors) is "none". Its probability is a logistic function of that distance,
-beyond `NONE_DISTANCE` times the farthest held-out training scan's distance (a place the
-user never taught, not a taught place seen from a new spot).
+"None of these", twice. The open set (`log_claims`, `open_set`): per taught place, a
+logistic regression against the rest of the training log, its threshold set by held-out
+training spans, claims the log's scans that look like the place; when the places claim
+less than `BACKGROUND_SHARE` of the log (taught spots in an untaught background), the
+unclaimed scans the trees are unsure of become the trees' own "none" class. And a scan far
+from every taught place in the descriptor space (Mahalanobis distance to the nearest class
+centre under a shrunk pooled covariance, Ledoit-Wolf, on the scan's own descriptors) is
+"none": a logistic function of that distance, beyond `NONE_DISTANCE` times the farthest
+held-out training scan's distance.
 
 Only numbers are kept (the scaler, the trees' nodes or the weights, the centres and the
 precision matrix), so a model is plain JSON.
@@ -20,7 +24,7 @@ precision matrix), so a model is plain JSON.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numba
@@ -38,7 +42,8 @@ SELF_TRAINING_CONFIDENCE = 0.8
 NONE_DISTANCE = 40.0  # "none" beyond this many times the training scans' own distance (seeds 0-9)
 NONE_SLOPE = 4.0  # nats per unit of log-distance ratio: how sharp the "none" edge is
 TREES = 100  # extremely randomised trees in the forest (100 and 200 alike on seeds 0-19)
-LEAF = 2  # training scans at least in a leaf
+LEAF = 4  # training scans at least in a leaf (2-5 alike within 0.01 on seeds 0-19; 4: ECE 0.068 vs 0.082 with 2)
+NONE = "\x00none"  # the forest's class of the training log's scans no taught place explains
 PROBA_FLOOR = 1e-4  # a forest's probability is at least this (log of 0 is no evidence)
 
 
@@ -79,12 +84,27 @@ class Forest:
             np.concatenate(value).astype(np.float64),
         )
 
-    def predict_proba(self, z: np.ndarray) -> np.ndarray:
-        """The mean over the trees of the class shares of the leaf each row falls in."""
+    def predict_proba(
+        self,
+        z: np.ndarray,
+        columns: np.ndarray | None = None,
+        mean: np.ndarray | None = None,
+        scale: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The mean over the trees of the class shares of the leaf each row falls in. With
+        `columns`, `mean` and `scale`, `z` holds raw descriptors and the trees (fitted on
+        (x[:, columns] - mean) / scale) test x[:, columns[f]] <= threshold * scale + mean:
+        the same leaves, without a standardised copy of a million scans' descriptors."""
+        feature, threshold = self.feature, self.threshold
+        if columns is not None and mean is not None and scale is not None:
+            leaf = self.left < 0
+            f = np.where(leaf, 0, feature)
+            feature = np.where(leaf, 0, np.asarray(columns)[f])
+            threshold = np.where(leaf, 0.0, threshold * scale[f] + mean[f])
         out = np.zeros((len(z), self.value.shape[1]))
         _forest_proba(
             np.ascontiguousarray(z, dtype=np.float64), self.roots, self.left, self.right,
-            self.feature, self.threshold, self.value, out,
+            feature, threshold, self.value, out,
         )  # fmt: skip
         return out
 
@@ -138,12 +158,15 @@ class PlaceClassifier:
     reach: float  # the training scans' largest held-out log-distance to their class centre
     temperature: float = 1.0
     forest: Forest | None = None  # the forest, instead of the regression's coef / intercept
+    report: dict[str, Any] = field(default_factory=dict)  # how it was learnt (not saved here:
+    # the model's fit_report holds it)
 
     def logits(self, x: np.ndarray) -> np.ndarray:
         """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities)."""
+        if self.forest is not None:  # the trees test the raw descriptors: no standardised copy
+            proba = self.forest.predict_proba(x, self.columns, self.mean, self.scale)
+            return np.asarray(np.log(np.maximum(proba, PROBA_FLOOR)))
         z = (x[:, self.columns] - self.mean) / self.scale
-        if self.forest is not None:
-            return np.asarray(np.log(np.maximum(self.forest.predict_proba(z), PROBA_FLOOR)))
         return np.asarray((z @ self.coef.T + self.intercept) * self.temperature)
 
     def log_distance(self, x: np.ndarray) -> np.ndarray:
@@ -158,6 +181,9 @@ class PlaceClassifier:
     def log_proba(self, x: np.ndarray, none: bool = True) -> np.ndarray:
         """Log-probabilities (S, K + 1 with `none`) of descriptors (S, D)."""
         logits = self.logits(x)
+        k = len(self.classes)
+        if not none:
+            logits = logits[:, :k]
         logits -= logits.max(axis=1, keepdims=True)
         logp = logits - np.log(np.exp(logits).sum(axis=1, keepdims=True))
         if not none:
@@ -165,6 +191,11 @@ class PlaceClassifier:
         edge = NONE_SLOPE * (self.log_distance(x) - self.reach - np.log(NONE_DISTANCE))
         log_none = -np.logaddexp(0.0, -edge)  # log sigmoid
         log_known = -np.logaddexp(0.0, edge)
+        if logp.shape[1] > k:  # the forest's own "none": either says none
+            # p_none + (1 - p_none) g; the known places keep (1 - g) of their shares
+            log_rest = np.logaddexp.reduce(logp[:, :k], axis=1)
+            log_none = np.logaddexp(logp[:, k], log_rest + log_none)
+            return np.concatenate([logp[:, :k] + log_known[:, None], log_none[:, None]], axis=1)
         return np.concatenate([logp + log_known[:, None], log_none[:, None]], axis=1)
 
     def to_dict(self) -> dict[str, Any]:
@@ -213,6 +244,7 @@ def fit_places(
     priors: bool = False,
     forest: bool = True,
     gate: int | None = None,
+    open_set: str = "auto",
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -230,7 +262,10 @@ def fit_places(
     are probabilities that need no temperature (measured on the random worlds). The "none"
     gate measures distances on the first `gate` columns (default all): a scan's own
     descriptors, not their context (ten scans' context is too narrow a cloud to measure
-    "far" by)."""
+    "far" by). `open_set` ("auto", "always", "never"; trees only): whether the unclaimed
+    scans of the log (`log_claims`, on the gate's columns) become a "none" class of the
+    trees and stay out of the self-training ("auto": when the places claim less than
+    `BACKGROUND_SHARE` of the log)."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
@@ -252,19 +287,39 @@ def fit_places(
             return ExtraTreesClassifier(TREES, min_samples_leaf=LEAF, random_state=0)
         return LogisticRegression(C=c, max_iter=2000)
 
-    est = learner().fit(z, y)
-    if unlabelled is not None and rounds > 0:
+    zu = np.zeros((0, z.shape[1]))
+    if unlabelled is not None:
         zu = (unlabelled[:, columns] - scaler.mean_) / scale
-        for _ in range(rounds):
+    g = gate or z.shape[1]
+    # the open-set test on the rest of the log: which scans some taught place claims
+    claimed = np.ones(len(zu), dtype=bool)
+    est = learner().fit(z, y)
+    if forest and open_set != "never" and len(zu):
+        claimed, testable = log_claims(z[:, :g], y, groups, zu[:, :g])
+        # a place taught by one span has no new spot to calibrate its claim by (its halves
+        # look alike): the scans the trees give it are its own
+        top = est.predict_proba(zu)[:, [list(est.classes_).index(k) for k in classes]]
+        claimed |= ~np.array([k in testable for k in classes])[top.argmax(axis=1)]
+    claimed_share = float(claimed.mean()) if len(zu) else 1.0
+    if open_set == "auto" and claimed_share >= BACKGROUND_SHARE:
+        claimed[:] = True  # the taught places are most of the log: no background to learn
+    learn_none = open_set != "never" and not claimed.all()
+    if len(zu):
+        for _ in range(max(rounds, int(learn_none))):  # "none" is learnt even without rounds
             prob = est.predict_proba(zu)
             label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
             zs, ys, ws = [z], [y], [np.ones(len(y))]
-            for k in est.classes_:
-                pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE))
+            for k in classes if rounds > 0 else ():
+                pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE) & claimed)
                 if len(pick):
                     zs.append(zu[pick])
                     ys.append(label[pick])
                     ws.append(np.full(len(pick), (y == k).sum() / len(pick)))
+            rest = np.flatnonzero(~claimed & (sure <= SELF_TRAINING_CONFIDENCE))
+            if learn_none and len(rest):  # unclaimed and unsure: examples of "none", together
+                zs.append(zu[rest])  # weighing as much as a taught place
+                ys.append(np.full(len(rest), NONE))
+                ws.append(np.full(len(rest), len(y) / len(classes) / len(rest)))
             est = learner().fit(
                 np.concatenate(zs), np.concatenate(ys), sample_weight=np.concatenate(ws)
             )
@@ -272,6 +327,8 @@ def fit_places(
     trees = None
     if forest:
         trees = Forest.from_sklearn(est)
+        if NONE in est.classes_:
+            order.append(list(est.classes_).index(NONE))
         trees.value = trees.value[:, order]
         coef, intercept = np.zeros((len(classes), 0)), np.zeros(len(classes))
     else:
@@ -292,9 +349,57 @@ def fit_places(
         forest=trees,
     )  # fmt: skip
     model.reach = _reach(model, zg, y, classes)
+    if forest and open_set != "never" and len(zu):
+        model.report["open_set"] = (
+            f"{open_set}: the places claim {claimed_share:.3f} of the rest of the log; "
+            + ("'none' learnt from the unclaimed scans" if learn_none else "no 'none' learnt")
+        )
     if not forest:  # the forest's shares are not over-confident (measured: docs/places.md)
         model.temperature = calibrate(model, x, y, groups, c)
     return model
+
+
+CLAIM_C = 0.01  # inverse L2 strength of each place's regression against the log
+CLAIM_QUANTILE = 0.1  # share of a place's held-out training scans its claim may miss
+CLAIM_LOG_SCANS = 5000  # scans of the log the claims' regressions are fitted against
+BACKGROUND_SHARE = 0.3  # open set "auto": on when the places claim less of the log (seeds 0-7)
+
+
+def log_claims(
+    z: np.ndarray, y: np.ndarray, groups: np.ndarray, zu: np.ndarray
+) -> tuple[np.ndarray, set[str]]:
+    """Per scan of the rest of the log `zu`, whether some taught place claims it: per place,
+    a logistic regression tells its training scans from the log (the log holds the place
+    too, but mostly everything else: what it learns is what sets the place apart), and its
+    threshold is the `CLAIM_QUANTILE` of its held-out training spans' scores (each span
+    left out in turn). A scan no place's regression scores as high as its own held-out
+    spans is unclaimed. Only places taught by two spans or more are tested (returned as the
+    second value): one span's halves look alike, and its claim would be too narrow."""
+    from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
+
+    spread = np.vstack([z, zu]).std(axis=0)
+    spread = np.where(spread > 1e-9, spread, 1.0)
+    z, zu = z / spread, zu / spread
+    claimed = np.zeros(len(zu), dtype=bool)
+    testable: set[str] = set()
+    log = zu[:: max(1, len(zu) // CLAIM_LOG_SCANS)]  # a long log: every n-th scan
+
+    def against_log(pos: np.ndarray) -> LogisticRegression:
+        x = np.vstack([pos, log])
+        t = np.r_[np.ones(len(pos)), np.zeros(len(log))]
+        return LogisticRegression(C=CLAIM_C, class_weight="balanced", max_iter=500).fit(x, t)
+
+    for k in dict.fromkeys(y):
+        own = np.flatnonzero(y == k)
+        parts = [own[groups[own] == g] for g in np.unique(groups[own])]
+        if len(parts) < 2:
+            continue
+        testable.add(str(k))
+        rest = [np.concatenate(parts[:j] + parts[j + 1 :]) for j in range(len(parts))]
+        held = [against_log(z[r]).decision_function(z[p]) for r, p in zip(rest, parts, strict=True)]
+        edge = float(np.quantile(np.concatenate(held), CLAIM_QUANTILE))
+        claimed |= against_log(z[own]).decision_function(zu) >= edge
+    return claimed, testable
 
 
 def log_priors(logits: np.ndarray, rounds: int = 50) -> np.ndarray:

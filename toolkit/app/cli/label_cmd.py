@@ -112,6 +112,16 @@ def label_command(
             "regularised logistic regression with a temperature); when learning",
         ),
     ] = None,
+    open_set: Annotated[
+        str | None,
+        typer.Option(
+            "--open-set",
+            metavar="MODE",
+            help="expert: 'none' learnt from the training log's scans no taught place claims: "
+            "auto (the default: when the places claim under 0.3 of the log, taught spots in "
+            "an untaught background), always or never; docs/places.md; when learning",
+        ),
+    ] = None,
     paper: Annotated[
         bool,
         typer.Option(
@@ -160,6 +170,8 @@ def label_command(
         base = replace(base, context=context)
     if classifier is not None:
         base = replace(base, classifier=classifier)  # type: ignore[arg-type]  # Config checks
+    if open_set is not None:
+        base = replace(base, open_set=open_set)  # type: ignore[arg-type]  # Config checks
     config: Config | None = base
     if smoothing is not None:
         if smoothing not in SMOOTHINGS:
@@ -181,6 +193,7 @@ def label_command(
         (beam_term, "--beam-term"),
         (context, "--context"),
         (classifier, "--classifier"),
+        (open_set, "--open-set"),
     ):
         if model is not None and given is not None:
             raise ToolkitError(f"{flag} is a learning setting; a --model keeps its own")
