@@ -52,6 +52,39 @@ class LikelihoodGrid:
         like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
         return cls(lo, resolution, like, np.ascontiguousarray(like.T), dist)
 
+    @classmethod
+    def from_distance(
+        cls, distance: np.ndarray, origin: np.ndarray, resolution: float, sigma: float, cap: float
+    ) -> LikelihoodGrid:
+        """The grid of a distance field already at hand (H x W, row = y, capped at `cap`: a
+        scan-to-map matcher's); cells at the cap (beyond the field's reach) have likelihood 0.
+        No distance transform: one pass over the cells."""
+        d = np.asarray(distance, dtype=np.float32)
+        like_t = _likelihood_t(d, sigma, cap)
+        return cls(np.asarray(origin, dtype=np.float64), resolution, like_t.T, like_t, d)
+
+    @classmethod
+    def pooled(
+        cls,
+        distance: np.ndarray,
+        origin: np.ndarray,
+        resolution: float,
+        pool: int,
+        sigma: float,
+        cap: float = 2.0,
+    ) -> LikelihoodGrid:
+        """A coarse grid (`pool` x `pool` cells of a distance field at hand to one) as `build`
+        makes it: a coarse cell a surface passes through (a cell of it within `resolution` of
+        one) is occupied, the rest get their distance to the nearest occupied one (a distance
+        transform of the coarse cells only)."""
+        occupied = _pool_min(np.asarray(distance, dtype=np.float32), pool) <= resolution
+        step = resolution * pool
+        dist = np.minimum(distance_transform_edt(~occupied) * step, cap).astype(np.float32)
+        like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
+        return cls(
+            np.asarray(origin, dtype=np.float64), step, like, np.ascontiguousarray(like.T), dist
+        )
+
     def score(self, points: np.ndarray, pose: np.ndarray) -> float:
         """Mean likelihood of `points` (N x 2, query frame) placed at `pose` in the grid frame."""
         return float(_score(self.likelihood, self.origin, self.resolution, points, pose))
@@ -69,6 +102,32 @@ class LikelihoodGrid:
         out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
         out[inside] = self.distance[j[inside], i[inside]]
         return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _pool_min(dist: np.ndarray, pool: int) -> np.ndarray:
+    """The least of each `pool` x `pool` block of `dist` (partial blocks at the edge left out)."""
+    h, w = dist.shape[0] // pool, dist.shape[1] // pool
+    out = np.full((h, w), np.inf, dtype=np.float32)
+    for j in range(h * pool):
+        for i in range(w * pool):
+            d = dist[j, i]
+            if d < out[j // pool, i // pool]:
+                out[j // pool, i // pool] = d
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _likelihood_t(dist: np.ndarray, sigma: float, cap: float) -> np.ndarray:
+    """exp(-d^2 / 2 sigma^2) of the distances `dist` (H x W), 0 at `cap`, transposed (W x H)."""
+    h, w = dist.shape
+    out = np.empty((w, h), dtype=np.float32)
+    k = -0.5 / (sigma * sigma)
+    for j in range(h):
+        for i in range(w):
+            d = dist[j, i]
+            out[i, j] = math.exp(k * d * d) if d < cap else 0.0
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
