@@ -417,8 +417,8 @@ class MapMatcher:
         pose = self._match(pts, predicted, info)
         self._finish(pose, odo, t)
         assert self._key_pose is not None
-        moved = _between(self._key_pose, pose)
-        if math.hypot(moved[0], moved[1]) >= cfg.keyframe_distance or abs(moved[2]) >= (
+        since = _between(self._key_pose, pose)
+        if math.hypot(since[0], since[1]) >= cfg.keyframe_distance or abs(since[2]) >= (
             cfg.keyframe_angle
         ):
             self._add_key(pose, ranges)
