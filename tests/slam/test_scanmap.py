@@ -16,8 +16,9 @@ from toolkit.dataset import LaserGeometry
 from toolkit.metrics import evaluate
 from toolkit.poses import build, odometry_poses, truth_poses, with_drift
 from toolkit.sim import simulate
+from toolkit.slam.grid import stamp_segments
 from toolkit.slam.run import slam_trajectory
-from toolkit.slam.scanmap import MapConfig, MapMatcher, scan_to_map, surfaces
+from toolkit.slam.scanmap import MapConfig, MapMatcher, _place, scan_to_map, surfaces
 
 
 def _ate(poses: np.ndarray, ds: toolkit.Dataset) -> float:
@@ -88,6 +89,36 @@ def test_a_wall_seen_at_a_grazing_angle_is_one_surface_a_depth_edge_is_not() -> 
     assert covered[:, 0].min() < 0.1
     assert (covered[1:, 0] <= covered[:-1, 1] + 1e-9).all()
     assert covered[:, 1].max() > 10.0
+
+
+def test_stamped_distances_are_the_exact_truncated_distances_to_the_surfaces() -> None:
+    """The stamping visits only the cells a segment can be nearest to; every cell must still
+    hold the exact (capped) distance to the nearest surface of all the scans stamped."""
+    sim = simulate("building", seed=3, scans=60, beams=361)
+    ds, truth = sim.dataset, truth_poses(sim.dataset)
+    assert truth is not None
+    config = MapConfig()
+    res, cap = 0.05, 0.5
+    origin = truth[30, :2] - 6.0
+    dist = np.full((240, 240), cap, dtype=np.float32)
+    placed = [_place(truth[k], surfaces(ds.ranges[k], ds.laser, config)) for k in (0, 30, 59)]
+    for seg in placed:
+        stamp_segments(dist, origin, res, seg, cap)
+    seg = np.concatenate(placed)
+    assert len(seg) > 500 and (seg[:, :2] == seg[:, 2:]).all(axis=1).sum() < len(seg)
+    centres = origin + (np.indices(dist.shape)[::-1].reshape(2, -1).T + 0.5) * res
+    a, d = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    ll = np.einsum("ij,ij->i", d, d)
+    exact = np.full(len(centres), cap)
+    for part in np.array_split(np.arange(len(centres)), 20):
+        rel = centres[part, None, :] - a[None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.nan_to_num(np.clip(np.einsum("ijk,jk->ij", rel, d) / ll, 0.0, 1.0))
+        gap = rel - t[..., None] * d[None]
+        exact[part] = np.fmin(np.hypot(gap[..., 0], gap[..., 1]).min(axis=1), cap)
+    near = exact < cap
+    assert near.mean() > 0.03  # the grid holds surfaces
+    assert np.abs(dist.ravel() - exact).max() < 1e-6
 
 
 def test_streaming_keeps_only_the_window() -> None:

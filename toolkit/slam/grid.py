@@ -52,6 +52,39 @@ class LikelihoodGrid:
         like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
         return cls(lo, resolution, like, np.ascontiguousarray(like.T), dist)
 
+    @classmethod
+    def from_distance(
+        cls, distance: np.ndarray, origin: np.ndarray, resolution: float, sigma: float, cap: float
+    ) -> LikelihoodGrid:
+        """The grid of a distance field already at hand (H x W, row = y, capped at `cap`: a
+        scan-to-map matcher's); cells at the cap (beyond the field's reach) have likelihood 0.
+        No distance transform: one pass over the cells."""
+        d = np.asarray(distance, dtype=np.float32)
+        like_t = _likelihood_t(d, sigma, cap)
+        return cls(np.asarray(origin, dtype=np.float64), resolution, like_t.T, like_t, d)
+
+    @classmethod
+    def pooled(
+        cls,
+        distance: np.ndarray,
+        origin: np.ndarray,
+        resolution: float,
+        pool: int,
+        sigma: float,
+        cap: float = 2.0,
+    ) -> LikelihoodGrid:
+        """A coarse grid (`pool` x `pool` cells of a distance field at hand to one) as `build`
+        makes it: a coarse cell a surface passes through (a cell of it within `resolution` of
+        one) is occupied, the rest get their distance to the nearest occupied one (a distance
+        transform of the coarse cells only)."""
+        occupied = _pool_min(np.asarray(distance, dtype=np.float32), pool) <= resolution
+        step = resolution * pool
+        dist = np.minimum(distance_transform_edt(~occupied) * step, cap).astype(np.float32)
+        like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
+        return cls(
+            np.asarray(origin, dtype=np.float64), step, like, np.ascontiguousarray(like.T), dist
+        )
+
     def score(self, points: np.ndarray, pose: np.ndarray) -> float:
         """Mean likelihood of `points` (N x 2, query frame) placed at `pose` in the grid frame."""
         return float(_score(self.likelihood, self.origin, self.resolution, points, pose))
@@ -69,6 +102,32 @@ class LikelihoodGrid:
         out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
         out[inside] = self.distance[j[inside], i[inside]]
         return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _pool_min(dist: np.ndarray, pool: int) -> np.ndarray:
+    """The least of each `pool` x `pool` block of `dist` (partial blocks at the edge left out)."""
+    h, w = dist.shape[0] // pool, dist.shape[1] // pool
+    out = np.full((h, w), np.inf, dtype=np.float32)
+    for j in range(h * pool):
+        for i in range(w * pool):
+            d = dist[j, i]
+            if d < out[j // pool, i // pool]:
+                out[j // pool, i // pool] = d
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _likelihood_t(dist: np.ndarray, sigma: float, cap: float) -> np.ndarray:
+    """exp(-d^2 / 2 sigma^2) of the distances `dist` (H x W), 0 at `cap`, transposed (W x H)."""
+    h, w = dist.shape
+    out = np.empty((w, h), dtype=np.float32)
+    k = -0.5 / (sigma * sigma)
+    for j in range(h):
+        for i in range(w):
+            d = dist[j, i]
+            out[i, j] = math.exp(k * d * d) if d < cap else 0.0
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
@@ -213,6 +272,153 @@ def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
     return points[np.sort(first)]
 
 
+_EPS = 1e-6  # slack (m) of the stamped regions' bounds: a cell on a bound is stamped
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _cut(
+    lo: float, hi: float, nx: float, ny: float, vx: float, vy: float, y: float, c: float
+) -> tuple[float, float]:
+    """The interval [lo, hi] of x on the row at y, cut by nx (x - vx) + ny (y - vy) <= c."""
+    r = c - ny * (y - vy)
+    if nx > 0.0:
+        hi = min(hi, vx + r / nx)
+    elif nx < 0.0:
+        lo = max(lo, vx + r / nx)
+    elif r < 0.0:
+        lo = math.inf
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _disc(vx: float, vy: float, y: float, cap: float) -> tuple[float, float]:
+    """The interval of x on the row at y within `cap` of (vx, vy) (empty: inf, -inf)."""
+    e = y - vy
+    if abs(e) > cap:
+        return math.inf, -math.inf
+    r = math.sqrt(cap * cap - e * e)
+    return vx - r, vx + r
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _cells(
+    dist: np.ndarray,
+    j: int,
+    lo: float,
+    hi: float,
+    ox: float,
+    cy: float,
+    res: float,
+    inv: float,
+    ax: float,
+    ay: float,
+    dx: float,
+    dy: float,
+    ll: float,
+) -> None:
+    """Lower row `j` (centre height cy) of `dist` between x = lo and hi to the distance of
+    each cell centre to the segment (ax, ay) + t (dx, dy), t in [0, 1]."""
+    if lo > hi:
+        return
+    i0 = max(math.ceil((lo - ox) * inv - 0.5), 0)
+    i1 = min(math.floor((hi - ox) * inv - 0.5) + 1, dist.shape[1])
+    for i in range(i0, i1):
+        cx = ox + (i + 0.5) * res
+        t = 0.0
+        if ll > 0.0:
+            t = min(max(((cx - ax) * dx + (cy - ay) * dy) / ll, 0.0), 1.0)
+        ex = cx - ax - t * dx
+        ey = cy - ay - t * dy
+        d = math.sqrt(ex * ex + ey * ey)
+        if d < dist[j, i]:
+            dist[j, i] = d
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _rows(y0: float, y1: float, oy: float, inv: float, h: int) -> tuple[int, int]:
+    """The rows whose centres lie in [y0, y1]."""
+    return max(math.ceil((y0 - oy) * inv - 0.5), 0), min(math.floor((y1 - oy) * inv - 0.5) + 1, h)
+
+
+@nb.njit(cache=True, nogil=True)
+def _one(
+    dist: np.ndarray,
+    ox: float,
+    oy: float,
+    res: float,
+    c: float,
+    ax: float,
+    ay: float,
+    bx: float,
+    by: float,
+    start: int,
+    wx: float,
+    wy: float,
+    end: bool,
+) -> None:
+    """One segment a-b (in the frame of `dist`, rows = y): the cells whose nearest point of
+    it is inside it (its band), around a (`start`: 0 none, 1 half a disc, 2 the wedge outside
+    the band and the previous segment's, whose direction from a is w) and around b (`end`:
+    half a disc). A point (a = b): a disc."""
+    h = dist.shape[0]
+    inv = 1.0 / res
+    dx, dy = bx - ax, by - ay
+    ll = dx * dx + dy * dy
+    if ll == 0.0:
+        j0, j1 = _rows(ay - c, ay + c, oy, inv, h)
+        for j in range(j0, j1):
+            y = oy + (j + 0.5) * res
+            lo, hi = _disc(ax, ay, y, c)
+            _cells(dist, j, lo, hi, ox, y, res, inv, ax, ay, dx, dy, ll)
+        return
+    length = math.sqrt(ll)
+    ux, uy = dx / length, dy / length
+    ext = c * abs(ux)
+    j0, j1 = _rows(min(ay, by) - ext - _EPS, max(ay, by) + ext + _EPS, oy, inv, h)
+    for j in range(j0, j1):
+        y = oy + (j + 0.5) * res
+        lo, hi = -math.inf, math.inf
+        lo, hi = _cut(lo, hi, -ux, -uy, ax, ay, y, _EPS)
+        lo, hi = _cut(lo, hi, ux, uy, bx, by, y, _EPS)
+        lo, hi = _cut(lo, hi, -uy, ux, ax, ay, y, c)
+        lo, hi = _cut(lo, hi, uy, -ux, ax, ay, y, c)
+        _cells(dist, j, lo, hi, ox, y, res, inv, ax, ay, dx, dy, ll)
+    if start == 2:
+        r1x, r1y = -uy, ux
+        if r1x * wx + r1y * wy > 0.0:
+            r1x, r1y = uy, -ux
+        r2x, r2y = -wy, wx
+        if r2x * ux + r2y * uy > 0.0:
+            r2x, r2y = wy, -wx
+        y0 = min(0.0, r1y, r2y)
+        y1 = max(0.0, r1y, r2y)
+        if uy <= 0.0 and wy <= 0.0:
+            y1 = 1.0
+        if uy >= 0.0 and wy >= 0.0:
+            y0 = -1.0
+    else:
+        y0 = -1.0 if uy >= 0.0 else -abs(ux)
+        y1 = 1.0 if uy <= 0.0 else abs(ux)
+    if start > 0:
+        j0, j1 = _rows(ay + c * y0 - _EPS, ay + c * y1 + _EPS, oy, inv, h)
+        for j in range(j0, j1):
+            y = oy + (j + 0.5) * res
+            lo, hi = _disc(ax, ay, y, c)
+            lo, hi = _cut(lo, hi, ux, uy, ax, ay, y, _EPS)
+            if start == 2:
+                lo, hi = _cut(lo, hi, wx, wy, ax, ay, y, _EPS)
+            _cells(dist, j, lo, hi, ox, y, res, inv, ax, ay, dx, dy, ll)
+    if end:
+        y0 = -1.0 if uy <= 0.0 else -abs(ux)
+        y1 = 1.0 if uy >= 0.0 else abs(ux)
+        j0, j1 = _rows(by + c * y0 - _EPS, by + c * y1 + _EPS, oy, inv, h)
+        for j in range(j0, j1):
+            y = oy + (j + 0.5) * res
+            lo, hi = _disc(bx, by, y, c)
+            lo, hi = _cut(lo, hi, -ux, -uy, bx, by, y, _EPS)
+            _cells(dist, j, lo, hi, ox, y, res, inv, ax, ay, dx, dy, ll)
+
+
 @nb.njit(cache=True, nogil=True)
 def stamp_segments(
     dist: np.ndarray, origin: np.ndarray, res: float, seg: np.ndarray, cap: float
@@ -221,26 +427,33 @@ def stamp_segments(
     `seg` (N x 4: x0, y0, x1, y1; a point when both ends coincide) to the exact distance to
     it: a truncated Euclidean distance field of surfaces, built segment by segment (each
     touches only the cells around it), so that a map grows by one scan without a rebuild and
-    its distances have no ripple between a surface's samples."""
-    h, w = dist.shape
-    inv = 1.0 / res
-    for k in range(seg.shape[0]):
+    its distances have no ripple between a surface's samples.
+
+    Each cell is stamped only by the segments that can be nearest to it: a segment's band
+    (the cells whose nearest point of it lies inside it), and around a vertex only the wedge
+    outside the bands of both segments that meet there (half a disc at a surface's ends, a
+    disc for a point). Consecutive returns of one surface are centimetres apart, so a disc of
+    `cap` around every segment stamped each cell dozens of times; the result is the same to
+    the bit (every cell's nearest segment still stamps it, with the same arithmetic)."""
+    n = seg.shape[0]
+    c = cap + _EPS
+    dist_t = dist.T
+    for k in range(n):
         ax, ay, bx, by = seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3]
-        dx, dy = bx - ax, by - ay
-        ll = dx * dx + dy * dy
-        i0 = max(math.floor((min(ax, bx) - cap - origin[0]) * inv), 0)
-        i1 = min(math.floor((max(ax, bx) + cap - origin[0]) * inv) + 1, w)
-        j0 = max(math.floor((min(ay, by) - cap - origin[1]) * inv), 0)
-        j1 = min(math.floor((max(ay, by) + cap - origin[1]) * inv) + 1, h)
-        for j in range(j0, j1):
-            cy = origin[1] + (j + 0.5) * res
-            for i in range(i0, i1):
-                cx = origin[0] + (i + 0.5) * res
-                t = 0.0
-                if ll > 0.0:
-                    t = min(max(((cx - ax) * dx + (cy - ay) * dy) / ll, 0.0), 1.0)
-                ex = cx - ax - t * dx
-                ey = cy - ay - t * dy
-                d = math.sqrt(ex * ex + ey * ey)
-                if d < dist[j, i]:
-                    dist[j, i] = d
+        start, wx, wy = 1, 0.0, 0.0
+        if k > 0 and seg[k - 1, 2] == ax and seg[k - 1, 3] == ay:
+            px, py = seg[k - 1, 0] - ax, seg[k - 1, 1] - ay
+            lp = math.sqrt(px * px + py * py)
+            if lp > 0.0:
+                start, wx, wy = 2, px / lp, py / lp
+        end = not (
+            k + 1 < n
+            and seg[k + 1, 0] == bx
+            and seg[k + 1, 1] == by
+            and (seg[k + 1, 2] != bx or seg[k + 1, 3] != by)
+        )
+        # rows along the band: a band across the rows (a segment along x) runs by columns
+        if abs(bx - ax) > abs(by - ay):
+            _one(dist_t, origin[1], origin[0], res, c, ay, ax, by, bx, start, wy, wx, end)
+        else:
+            _one(dist, origin[0], origin[1], res, c, ax, ay, bx, by, start, wx, wy, end)

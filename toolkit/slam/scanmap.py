@@ -318,15 +318,22 @@ def surfaces(ranges: np.ndarray, laser: LaserGeometry, config: MapConfig) -> np.
     return np.concatenate([np.column_stack([p[k], p[k + 1]]), np.column_stack([p[lone], p[lone]])])
 
 
-def scan_returns(ranges: np.ndarray, laser: LaserGeometry, max_range: float) -> np.ndarray:
-    """A scan's returns in the robot frame (N x 2) within `max_range`."""
-    mount = se2.mount_pose(laser)
-    a = laser.angles + mount[2]
-    r = np.asarray(ranges, dtype=np.float64)
-    ok = np.isfinite(r) & (r > 0) & (r <= max_range)
-    x = mount[0] + r[ok] * np.cos(a[ok])
-    y = mount[1] + r[ok] * np.sin(a[ok])
-    return np.ascontiguousarray(np.column_stack([x, y]))
+def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`se2.compose` of two poses (3,), in scalar arithmetic: the per-scan path calls it a few
+    times per scan, where numpy's call overhead was a fifth of the matching time."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    th = a[2] + b[2]
+    th = math.atan2(math.sin(th), math.cos(th))
+    if th == -math.pi:
+        th = math.pi
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], th])
+
+
+def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`se2.between` of two poses (3,): b seen from a."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    inv = np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]])
+    return _compose(inv, b)
 
 
 def _place(pose: np.ndarray, seg: np.ndarray) -> np.ndarray:
@@ -361,15 +368,18 @@ class MapMatcher:
         self.stats = np.zeros(_OUT)
         self.searches = 0
         self._motion = MotionMatcher(laser)
+        self._mount = se2.mount_pose(laser)
+        self._cos = np.cos(laser.angles + self._mount[2])  # the beams' directions, once
+        self._sin = np.sin(laser.angles + self._mount[2])
 
     def _predict(self, odometry: np.ndarray | None, t: float | None) -> tuple[np.ndarray, bool]:
         if odometry is not None and self._odo is not None:
-            step = se2.between(self._odo[None], odometry[None])[0]
-            return se2.compose(self._last[None], step[None])[0], True
+            step = _between(self._odo, odometry)
+            return _compose(self._last, step), True
         step = self._step
         if t is not None and self._t is not None and self._dt > 0:
             step = step * min((t - self._t) / self._dt, 3.0)
-        return se2.compose(self._last[None], step[None])[0], False
+        return _compose(self._last, step), False
 
     def push(
         self, ranges: np.ndarray, odometry: np.ndarray | None = None, t: float | None = None
@@ -388,7 +398,7 @@ class MapMatcher:
             self._finish(pose, odo, t)
             return pose
         predicted, by_odometry = self._predict(odo, t)
-        step = se2.between(self._last[None], predicted[None])[0]
+        step = _between(self._last, predicted)
         moved = math.hypot(step[0], step[1])
         sig = (
             cfg.prior[0] + cfg.prior_growth[0] * moved,
@@ -399,12 +409,16 @@ class MapMatcher:
             dt = min(max(dt, 0.01), 1.0)
             sig = (cfg.prior_velocity[0] * dt, cfg.prior_velocity[1] * dt)
         info = np.array([1 / sig[0] ** 2, 1 / sig[0] ** 2, 1 / sig[1] ** 2])
-        pts = scan_returns(ranges, self.laser, cfg.max_range)
+        r = np.asarray(ranges, dtype=np.float64)
+        ok = np.isfinite(r) & (r > 0) & (r <= cfg.max_range)
+        pts = np.empty((int(ok.sum()), 2))
+        pts[:, 0] = self._mount[0] + r[ok] * self._cos[ok]
+        pts[:, 1] = self._mount[1] + r[ok] * self._sin[ok]
         pose = self._match(pts, predicted, info)
         self._finish(pose, odo, t)
         assert self._key_pose is not None
-        moved = se2.between(self._key_pose[None], pose[None])[0]
-        if math.hypot(moved[0], moved[1]) >= cfg.keyframe_distance or abs(moved[2]) >= (
+        since = _between(self._key_pose, pose)
+        if math.hypot(since[0], since[1]) >= cfg.keyframe_distance or abs(since[2]) >= (
             cfg.keyframe_angle
         ):
             self._add_key(pose, ranges)
@@ -461,7 +475,7 @@ class MapMatcher:
         return out[:3].copy()
 
     def _finish(self, pose: np.ndarray, odo: np.ndarray | None, t: float | None) -> None:
-        step = se2.between(self._last[None], pose[None])[0]
+        step = _between(self._last, pose)
         self._path += math.hypot(step[0], step[1])
         if self.started and t is not None and self._t is not None:
             self._dt = t - self._t
@@ -498,16 +512,29 @@ class MapMatcher:
         self._centre = pose[:2].copy()
 
     def _search_grids(self) -> tuple[LikelihoodGrid, LikelihoodGrid]:
-        """Likelihood grids of the window's keyframes near the robot, for the search."""
+        """Likelihood grids of the window's keyframes near the robot, for the search: the
+        coarse one from their returns (a distance transform of 0.2 m cells), the fine one
+        cut from the distance grid (no distance transform of 5 cm cells: it was most of a
+        search's time)."""
         if self._coarse is None:
             cfg = self.config
+            assert self._grid is not None
+            origin, dist = self._grid
             seg = np.concatenate([q for _, _, q in self._keys])
             world = np.concatenate([seg[:, :2], seg[:, 2:]])
             reach = cfg.max_range + cfg.search_window + 1.0
             world = world[np.hypot(*(world - self._last[:2]).T) <= reach]
+            if len(world) == 0:
+                world = self._last[None, :2]
+            lo = np.floor((world.min(axis=0) - 1.0 - origin) / cfg.resolution).astype(np.int64)
+            hi = np.ceil((world.max(axis=0) + 1.0 - origin) / cfg.resolution).astype(np.int64)
+            lo = np.maximum(lo, 0)
+            hi = np.maximum(np.minimum(hi, (dist.shape[1], dist.shape[0])), lo + 1)
+            crop = dist[lo[1] : hi[1], lo[0] : hi[0]]
+            corner = origin + lo * cfg.resolution
             self._coarse = (
                 LikelihoodGrid.build(world, 0.2, 0.25, margin=1.5),
-                LikelihoodGrid.build(world, 0.05, 0.08, margin=1.0),
+                LikelihoodGrid.from_distance(crop, corner, cfg.resolution, 0.08, cfg.cap),
             )
         return self._coarse
 
