@@ -71,8 +71,7 @@ def cycle_chi2(
     suffix2 = se2.compose(z_j_inv, s_a)
     suffix1 = se2.compose(s_b, suffix2)
     total = se2.compose(first.pose, suffix1)
-    err = total.copy()
-    err[2] = (err[2] + np.pi) % (2 * np.pi) - np.pi
+    err = np.array([total[0], total[1], se2.wrap(total[2])])
 
     def moved(cov: np.ndarray, suffix: np.ndarray) -> np.ndarray:
         ad = adjoint(se2.inverse(suffix))

@@ -23,9 +23,8 @@ from typing import Any
 import numpy as np
 
 from toolkit.dataset import LaserGeometry
-from toolkit.se2 import between, compose, mount_pose
+from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import LikelihoodGrid, correlative_search, voxel_subsample
-from toolkit.slam.scanmap import MapConfig, surfaces
 
 
 @dataclass(frozen=True)
@@ -53,8 +52,6 @@ class LoopConfig:
     max_ambiguity: float = 0.85  # runner-up / winner of the coarse search
     min_points: int = 60  # fewer query points: no test
     seen_only: bool = True  # inliers among the query points the reference's scans could see
-    surfaces: bool = False  # reference map: its scans' surfaces every `fine` m (off: no gain on
-    # the tuning logs, intel 0.060 fhw 0.183 seattle 0.043 m, fewer loops, 2x slower)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -149,7 +146,6 @@ class LoopCloser:
         self._cos = np.cos(laser.angles + mount[2])
         self._sin = np.sin(laser.angles + mount[2])
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
-        self._laser = laser
 
     def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -164,27 +160,6 @@ class LoopCloser:
         wy = rel[:, 1:2] + s * x + c * y
         return np.column_stack([wx[ok], wy[ok]])
 
-    def _surfaces(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        """The surfaces of `scans` (consecutive returns of one surface joined, as the
-        scan-to-map front end joins them) sampled every `fine` m, in scan `centre`'s frame: a
-        far wall is a line, not returns 0.2-0.4 m apart that a right match falls between."""
-        cfg = self.config
-        shape = MapConfig(max_range=cfg.max_range, map_margin=0.0)
-        rel = between(np.broadcast_to(poses[centre], (len(scans), 3)), poses[scans])
-        out = []
-        for k, scan in enumerate(scans):
-            seg = surfaces(self.ranges[scan], self._laser, shape)
-            length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
-            n = np.ceil(length / cfg.fine).astype(np.int64) + 1
-            t = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-            t = t / np.repeat(np.maximum(n - 1, 1), n)
-            rep = np.repeat(seg, n, axis=0)
-            x = rep[:, 0] + t * (rep[:, 2] - rep[:, 0])
-            y = rep[:, 1] + t * (rep[:, 3] - rep[:, 1])
-            c, s = np.cos(rel[k, 2]), np.sin(rel[k, 2])
-            out.append(np.column_stack([rel[k, 0] + c * x - s * y, rel[k, 1] + s * x + c * y]))
-        return np.concatenate(out) if out else np.zeros((0, 2))
-
     def verify(
         self, a: int, b: int, radius: float, poses: np.ndarray, along: np.ndarray, keys: np.ndarray
     ) -> Loop | None:
@@ -198,7 +173,7 @@ class LoopCloser:
         if len(query) > cfg.max_points:
             query = query[np.linspace(0, len(query) - 1, cfg.max_points).astype(np.int64)]
         near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
-        ref = self._surfaces(a, near_a, poses) if cfg.surfaces else self._local(a, near_a, poses)
+        ref = self._local(a, near_a, poses)
         prediction = between(poses[a], poses[b])
         c, sn = np.cos(prediction[2]), np.sin(prediction[2])
         landed = prediction[:2] + query @ np.array([[c, sn], [-sn, c]])
@@ -250,7 +225,7 @@ class LoopCloser:
         )
         dx = pts[:, None, 0] - lasers[None, :, 0]
         dy = pts[:, None, 1] - lasers[None, :, 1]
-        bearing = (np.arctan2(dy, dx) - lasers[None, :, 2] + np.pi) % (2 * np.pi) - np.pi
+        bearing = wrap(np.arctan2(dy, dx) - lasers[None, :, 2])
         inside = (bearing >= self._fov[0]) & (bearing <= self._fov[1])
         out: np.ndarray = (inside & (np.hypot(dx, dy) <= self.config.max_range)).any(axis=1)
         return out
