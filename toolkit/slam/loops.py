@@ -183,17 +183,26 @@ class LoopCloser:
         if len(ref) < cfg.min_points:
             return None
         coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-        fine = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        grids: list[LikelihoodGrid] = []
+
+        def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
+            grids.append(
+                LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
+            )
+            return grids[-1]
+
         found = correlative_search(
             coarse,
-            fine,
+            fine_over,
             query,
             prediction,
             window=radius,
             turn=cfg.turn,
             turn_step=cfg.turn_step,
             coarse_voxel=cfg.coarse_voxel,
+            fine_resolution=cfg.fine,
         )
+        fine = grids[0]
         ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
         inliers = found.inliers
         why = []
