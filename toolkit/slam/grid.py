@@ -66,11 +66,13 @@ class LikelihoodGrid:
         pad: float = 0.6,
     ) -> LikelihoodGrid:
         """The part of `build(points, resolution, sigma, margin, cap)`'s grid that covers the
-        box `lo`-`hi`, the same cells (same origin and rasterisation): its distance transform
-        sees only the points within `pad` m of the box, so a cell's distance is exact up to
-        `pad` and beyond it at least `pad` (its likelihood then below exp(-pad^2/2 sigma^2),
-        nil). A correlative search's fine level needs only where the query lands; the whole
-        map at the fine resolution was most of a loop test's time."""
+        box `lo`-`hi`, the same cells (same origin and rasterisation) and, within `pad` m of
+        a point, the same values to the bit (the distance transform's: cell to nearest
+        occupied cell); farther cells get the cap (likelihood 0, where `build`'s is below
+        exp(-pad^2/2 sigma^2), nil). Each occupied cell stamps the disc of cells within `pad`
+        (numba) instead of a distance transform of the whole map: a correlative search's fine
+        level needs only where the query lands, and the whole map at the fine resolution was
+        most of a loop test's time."""
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         if len(pts) == 0:
             pts = np.zeros((1, 2))
@@ -86,16 +88,19 @@ class LikelihoodGrid:
         i1 = np.maximum(i1, i0 + 1)
         ij = np.floor((pts - full_lo) / resolution).astype(np.int64)
         keep = ((ij >= i0) & (ij < i1)).all(axis=1)
+        cells = np.ascontiguousarray(ij[keep] - i0)
+        r = math.floor(pad / resolution)
+        # the values a distance transform gives at r^2 = 0 .. r*r cells squared, and beyond
+        dist_of = np.minimum(np.sqrt(np.arange(r * r + 2, dtype=np.float64)) * resolution, cap)
+        dist_of = dist_of.astype(np.float32)
+        dist_of[-1] = cap
+        like_of = np.exp(-(dist_of.astype(np.float64) ** 2) / (2 * sigma * sigma))
+        like_of = like_of.astype(np.float32)
+        like_of[-1] = 0.0
         sub = i1 - i0
-        free = np.ones((sub[1], sub[0]), dtype=bool)
-        free[ij[keep, 1] - i0[1], ij[keep, 0] - i0[0]] = False
-        if free.all():
-            dist = np.full(free.shape, cap, dtype=np.float32)
-        else:
-            dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
-        like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
+        dist, like_t = _disc_field(cells, int(sub[1]), int(sub[0]), r, dist_of, like_of)
         origin = full_lo + i0 * resolution
-        return cls(origin, resolution, like, np.ascontiguousarray(like.T), dist)
+        return cls(origin, resolution, like_t.T, like_t, dist)
 
     @classmethod
     def from_distance(
@@ -147,6 +152,41 @@ class LikelihoodGrid:
         out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
         out[inside] = self.distance[j[inside], i[inside]]
         return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _disc_field(
+    cells: np.ndarray, h: int, w: int, r: int, dist_of: np.ndarray, like_of: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (H x W) and likelihood transposed (W x H) of the occupied `cells` (N x 2:
+    column, row) within `r` cells, from the tables `dist_of` / `like_of` indexed by the squared
+    cell distance (their last entry: beyond `r`)."""
+    far = r * r + 1
+    d2 = np.full((h, w), far, dtype=np.int32)
+    for k in range(cells.shape[0]):
+        ci, cj = cells[k, 0], cells[k, 1]
+        if d2[cj, ci] == 0:
+            continue
+        for dj in range(-r, r + 1):
+            j = cj + dj
+            if j < 0 or j >= h:
+                continue
+            m = r
+            while m * m + dj * dj > r * r:
+                m -= 1
+            row = d2[j]
+            for i in range(max(ci - m, 0), min(ci + m + 1, w)):
+                d = (i - ci) * (i - ci) + dj * dj
+                if d < row[i]:
+                    row[i] = d
+    dist = np.empty((h, w), dtype=np.float32)
+    like_t = np.empty((w, h), dtype=np.float32)
+    for j in range(h):
+        for i in range(w):
+            d = d2[j, i]
+            dist[j, i] = dist_of[d]
+            like_t[i, j] = like_of[d]
+    return dist, like_t
 
 
 @nb.njit(cache=True, nogil=True)
