@@ -381,8 +381,11 @@ def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
     if len(points) == 0:
         return points
     cells = np.floor(points / size).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
-    return points[np.sort(first)]
+    cells -= cells.min(axis=0)
+    code = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # one int per cell
+    _, first = np.unique(code, return_index=True)
+    out: np.ndarray = points[np.sort(first)]
+    return out
 
 
 _EPS = 1e-6  # slack (m) of the stamped regions' bounds: a cell on a bound is stamped
