@@ -17,6 +17,7 @@ where a shift along it scores alike, fails it). Whether the loops agree with eac
 
 from __future__ import annotations
 
+from collections.abc import Container
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -276,12 +277,16 @@ class LoopCloser:
         poses: np.ndarray,
         config: LoopConfig | None = None,
         skip: np.ndarray | None = None,
+        known: Container[tuple[int, int]] = (),
     ) -> list[Loop]:
-        """Every candidate of the trajectory `poses` (S x 3), verified; rejected ones too."""
+        """Every candidate of the trajectory `poses` (S x 3), verified; rejected ones too.
+        Candidate pairs (a, b) in `known` (verified before) are not verified again."""
         cfg = config or self.config
         along = path_length(poses)
         out = []
         for a, b, radius in candidates(keys, poses, along, cfg, skip):
+            if (a, b) in known:
+                continue
             loop = self.verify(a, b, radius, poses, along, keys)
             if loop is not None:
                 out.append(loop)

@@ -279,7 +279,8 @@ def close_loops(
     for _ in range(config.rounds - 1):
         t0 = time.perf_counter()
         closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
-        for lp in closer.find(keys, poses, loop_cfg, closed):
+        # a pair verified before keeps its first verdict: not verified again
+        for lp in closer.find(keys, poses, loop_cfg, closed, known=found.keys()):
             found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
