@@ -281,6 +281,64 @@ class SearchResult:
     inliers: float  # share of query points within `inlier_distance` of a map point
 
 
+def _starts(
+    vol: np.ndarray,
+    offsets: np.ndarray,
+    thetas: np.ndarray,
+    step: float,
+    turn_step: float,
+    count: int,
+) -> list[tuple[int, int, int]] | None:
+    """The fine search's starts (heading, x, y indices into `vol`), best first, each the best pose not
+    next to one picked before (within 1.5 steps and 1.5 heading steps): what a walk down the
+    sorted scores picks, without sorting them all (a full sort was a quarter of a search's
+    time). None when a pick has equal scores elsewhere: a sort's order of equal scores is
+    its own, so the caller walks the sorted scores then (`_starts_sorted`), and the result
+    is the same either way."""
+    tops: list[tuple[int, int, int]] = []
+    free = np.ones(vol.shape, dtype=bool)
+    for _ in range(min(count, vol.size)):
+        masked = np.where(free, vol, -np.inf).ravel()
+        k = int(np.argmax(masked))
+        if not np.isfinite(masked[k]):
+            break
+        if np.count_nonzero(masked == masked[k]) > 1:
+            return None
+        a, i, j = (int(x) for x in np.unravel_index(k, vol.shape))
+        p = np.array([offsets[i], offsets[j], thetas[a]])
+        tops.append((a, i, j))
+        near_xy = np.hypot((offsets - p[0])[:, None], (offsets - p[1])[None, :]) <= 1.5 * step
+        near_t = np.abs(thetas - p[2]) <= 1.5 * turn_step
+        free &= ~(near_t[:, None, None] & near_xy[None])
+    return tops
+
+
+def _starts_sorted(
+    vol: np.ndarray,
+    offsets: np.ndarray,
+    thetas: np.ndarray,
+    step: float,
+    turn_step: float,
+    count: int,
+) -> list[tuple[int, int, int]]:
+    """`_starts` by a walk down the sorted scores (equal scores in the sort's order)."""
+    flat = np.argsort(vol.ravel())[::-1]
+    a, i, j = np.unravel_index(flat, vol.shape)
+    tops: list[tuple[int, int, int]] = []
+    picked: list[np.ndarray] = []
+    for k in range(len(flat)):
+        p = np.array([offsets[i[k]], offsets[j[k]], thetas[a[k]]])
+        if all(
+            np.hypot(*(p[:2] - q[:2])) > 1.5 * step or abs(p[2] - q[2]) > 1.5 * turn_step
+            for q in picked
+        ):
+            picked.append(p)
+            tops.append((int(a[k]), int(i[k]), int(j[k])))
+        if len(tops) >= count:
+            break
+    return tops
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
     fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
@@ -313,33 +371,17 @@ def correlative_search(
         coarse.likelihood_t, coarse.origin, coarse.resolution, coarse_pts, prediction, thetas, half
     )
     offsets = (np.arange(2 * half + 1) - half) * coarse_step
-    # no full sort (it was a quarter of the search's time): the winner is the maximum, the
-    # runner-up the maximum over the poses far from it, and the fine search's starts are
-    # picked greedily, each the best pose not next to one picked before (as a walk down the
-    # sorted scores picks them)
-    flat_vol = vol.ravel()
-    best_a, best_i, best_j = np.unravel_index(int(np.argmax(flat_vol)), vol.shape)
+    starts = _starts(vol, offsets, thetas, coarse_step, turn_step, candidates)
+    if starts is None:  # equal scores among the picks: as the sorted walk orders them
+        starts = _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
+    best_a, best_i, best_j = starts[0]  # the winner
+    tops = [np.array([offsets[i], offsets[j], thetas[a]]) for a, i, j in starts]
     d_theta = np.abs(thetas - thetas[best_a])[:, None, None]
     d_xy = np.hypot((offsets - offsets[best_i])[:, None], (offsets - offsets[best_j])[None, :])[
         None
     ]
     far = (d_xy > away) | (d_theta > away_turn)
     runner_up = float(vol[far].max()) if far.any() else 0.0
-    tops: list[np.ndarray] = []
-    free = np.ones(vol.shape, dtype=bool)
-    for _ in range(min(candidates, vol.size)):
-        masked = np.where(free, vol, -np.inf).ravel()
-        k = int(np.argmax(masked))
-        if not np.isfinite(masked[k]):
-            break
-        a, i, j = np.unravel_index(k, vol.shape)
-        p = np.array([offsets[i], offsets[j], thetas[a]])
-        tops.append(p)
-        near_xy = (
-            np.hypot((offsets - p[0])[:, None], (offsets - p[1])[None, :]) <= 1.5 * coarse_step
-        )
-        near_t = np.abs(thetas - p[2]) <= 1.5 * turn_step
-        free &= ~(near_t[:, None, None] & near_xy[None])
     if callable(fine):
         fine_res = fine_resolution
         fine_half = math.ceil(coarse_step / fine_res)
