@@ -13,6 +13,7 @@ window, then a fine grid around the coarse maxima. It needs no good seed, only t
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba as nb
@@ -51,6 +52,55 @@ class LikelihoodGrid:
         dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
         like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
         return cls(lo, resolution, like, np.ascontiguousarray(like.T), dist)
+
+    @classmethod
+    def window(
+        cls,
+        points: np.ndarray,
+        resolution: float,
+        sigma: float,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        margin: float = 1.0,
+        cap: float = 2.0,
+        pad: float = 0.6,
+    ) -> LikelihoodGrid:
+        """The part of `build(points, resolution, sigma, margin, cap)`'s grid that covers the
+        box `lo`-`hi`, the same cells (same origin and rasterisation) and, within `pad` m of
+        a point, the same values to the bit (the distance transform's: cell to nearest
+        occupied cell); farther cells get the cap (likelihood 0, where `build`'s is below
+        exp(-pad^2/2 sigma^2), nil). Each occupied cell stamps the disc of cells within `pad`
+        (numba) instead of a distance transform of the whole map: a correlative search's fine
+        level needs only where the query lands, and the whole map at the fine resolution was
+        most of a loop test's time."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            pts = np.zeros((1, 2))
+        full_lo = pts.min(axis=0) - margin
+        shape = np.ceil((pts.max(axis=0) + margin - full_lo) / resolution).astype(np.int64) + 1
+        n_pad = math.ceil(pad / resolution) + 1
+        i0 = np.maximum(
+            np.floor((np.asarray(lo) - full_lo) / resolution).astype(np.int64) - n_pad, 0
+        )
+        i1 = np.minimum(
+            np.ceil((np.asarray(hi) - full_lo) / resolution).astype(np.int64) + n_pad + 1, shape
+        )
+        i1 = np.maximum(i1, i0 + 1)
+        ij = np.floor((pts - full_lo) / resolution).astype(np.int64)
+        keep = ((ij >= i0) & (ij < i1)).all(axis=1)
+        cells = np.ascontiguousarray(ij[keep] - i0)
+        r = math.floor(pad / resolution)
+        # the values a distance transform gives at r^2 = 0 .. r*r cells squared, and beyond
+        dist_of = np.minimum(np.sqrt(np.arange(r * r + 2, dtype=np.float64)) * resolution, cap)
+        dist_of = dist_of.astype(np.float32)
+        dist_of[-1] = cap
+        like_of = np.exp(-(dist_of.astype(np.float64) ** 2) / (2 * sigma * sigma))
+        like_of = like_of.astype(np.float32)
+        like_of[-1] = 0.0
+        sub = i1 - i0
+        dist, like_t = _disc_field(cells, int(sub[1]), int(sub[0]), r, dist_of, like_of)
+        origin = full_lo + i0 * resolution
+        return cls(origin, resolution, like_t.T, like_t, dist)
 
     @classmethod
     def from_distance(
@@ -102,6 +152,41 @@ class LikelihoodGrid:
         out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
         out[inside] = self.distance[j[inside], i[inside]]
         return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _disc_field(
+    cells: np.ndarray, h: int, w: int, r: int, dist_of: np.ndarray, like_of: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (H x W) and likelihood transposed (W x H) of the occupied `cells` (N x 2:
+    column, row) within `r` cells, from the tables `dist_of` / `like_of` indexed by the squared
+    cell distance (their last entry: beyond `r`)."""
+    far = r * r + 1
+    d2 = np.full((h, w), far, dtype=np.int32)
+    for k in range(cells.shape[0]):
+        ci, cj = cells[k, 0], cells[k, 1]
+        if d2[cj, ci] == 0:
+            continue
+        for dj in range(-r, r + 1):
+            j = cj + dj
+            if j < 0 or j >= h:
+                continue
+            m = r
+            while m * m + dj * dj > r * r:
+                m -= 1
+            row = d2[j]
+            for i in range(max(ci - m, 0), min(ci + m + 1, w)):
+                d = (i - ci) * (i - ci) + dj * dj
+                if d < row[i]:
+                    row[i] = d
+    dist = np.empty((h, w), dtype=np.float32)
+    like_t = np.empty((w, h), dtype=np.float32)
+    for j in range(h):
+        for i in range(w):
+            d = d2[j, i]
+            dist[j, i] = dist_of[d]
+            like_t[i, j] = like_of[d]
+    return dist, like_t
 
 
 @nb.njit(cache=True, nogil=True)
@@ -196,9 +281,67 @@ class SearchResult:
     inliers: float  # share of query points within `inlier_distance` of a map point
 
 
+def _starts(
+    vol: np.ndarray,
+    offsets: np.ndarray,
+    thetas: np.ndarray,
+    step: float,
+    turn_step: float,
+    count: int,
+) -> list[tuple[int, int, int]] | None:
+    """The fine search's starts (heading, x, y indices into `vol`), best first, each the best pose not
+    next to one picked before (within 1.5 steps and 1.5 heading steps): what a walk down the
+    sorted scores picks, without sorting them all (a full sort was a quarter of a search's
+    time). None when a pick has equal scores elsewhere: a sort's order of equal scores is
+    its own, so the caller walks the sorted scores then (`_starts_sorted`), and the result
+    is the same either way."""
+    tops: list[tuple[int, int, int]] = []
+    free = np.ones(vol.shape, dtype=bool)
+    for _ in range(min(count, vol.size)):
+        masked = np.where(free, vol, -np.inf).ravel()
+        k = int(np.argmax(masked))
+        if not np.isfinite(masked[k]):
+            break
+        if np.count_nonzero(masked == masked[k]) > 1:
+            return None
+        a, i, j = (int(x) for x in np.unravel_index(k, vol.shape))
+        p = np.array([offsets[i], offsets[j], thetas[a]])
+        tops.append((a, i, j))
+        near_xy = np.hypot((offsets - p[0])[:, None], (offsets - p[1])[None, :]) <= 1.5 * step
+        near_t = np.abs(thetas - p[2]) <= 1.5 * turn_step
+        free &= ~(near_t[:, None, None] & near_xy[None])
+    return tops
+
+
+def _starts_sorted(
+    vol: np.ndarray,
+    offsets: np.ndarray,
+    thetas: np.ndarray,
+    step: float,
+    turn_step: float,
+    count: int,
+) -> list[tuple[int, int, int]]:
+    """`_starts` by a walk down the sorted scores (equal scores in the sort's order)."""
+    flat = np.argsort(vol.ravel())[::-1]
+    a, i, j = np.unravel_index(flat, vol.shape)
+    tops: list[tuple[int, int, int]] = []
+    picked: list[np.ndarray] = []
+    for k in range(len(flat)):
+        p = np.array([offsets[i[k]], offsets[j[k]], thetas[a[k]]])
+        if all(
+            np.hypot(*(p[:2] - q[:2])) > 1.5 * step or abs(p[2] - q[2]) > 1.5 * turn_step
+            for q in picked
+        ):
+            picked.append(p)
+            tops.append((int(a[k]), int(i[k]), int(j[k])))
+        if len(tops) >= count:
+            break
+    return tops
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
-    fine: LikelihoodGrid,
+    fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
     points: np.ndarray,
     prediction: np.ndarray,
     window: float,
@@ -209,11 +352,14 @@ def correlative_search(
     away_turn: float = 0.15,
     inlier_distance: float = 0.1,
     candidates: int = 3,
+    fine_resolution: float = 0.0,
 ) -> SearchResult:
     """Exhaustive coarse search of the window (+-`window` m, +-`turn` rad around
     `prediction`), then a fine search around the `candidates` best coarse poses. The runner-up
     is the best coarse score at least `away` m or `away_turn` rad from the winner: a
-    repetitive place (a corridor) has one close to the winner's."""
+    repetitive place (a corridor) has one close to the winner's. `fine` may be a function of
+    a box (lo, hi) that gives the fine grid over it (`LikelihoodGrid.window`): it is asked for
+    the box where the points land in the fine search, once the coarse poses are known."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     coarse_pts = (
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
@@ -225,23 +371,32 @@ def correlative_search(
         coarse.likelihood_t, coarse.origin, coarse.resolution, coarse_pts, prediction, thetas, half
     )
     offsets = (np.arange(2 * half + 1) - half) * coarse_step
-    flat = np.argsort(vol.ravel())[::-1]
-    a, i, j = np.unravel_index(flat, vol.shape)
-    best_a, best_i, best_j = a[0], i[0], j[0]
-    far = (np.hypot(offsets[i] - offsets[best_i], offsets[j] - offsets[best_j]) > away) | (
-        np.abs(thetas[a] - thetas[best_a]) > away_turn
-    )
-    runner_up = float(vol.ravel()[flat[far]][0]) if far.any() else 0.0
-    tops: list[np.ndarray] = []
-    for k in range(len(flat)):
-        p = np.array([offsets[i[k]], offsets[j[k]], thetas[a[k]]])
-        if all(
-            np.hypot(*(p[:2] - q[:2])) > 1.5 * coarse_step or abs(p[2] - q[2]) > 1.5 * turn_step
-            for q in tops
-        ):
-            tops.append(p)
-        if len(tops) >= candidates:
-            break
+    starts = _starts(vol, offsets, thetas, coarse_step, turn_step, candidates)
+    if starts is None:  # equal scores among the picks: as the sorted walk orders them
+        starts = _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
+    best_a, best_i, best_j = starts[0]  # the winner
+    tops = [np.array([offsets[i], offsets[j], thetas[a]]) for a, i, j in starts]
+    d_theta = np.abs(thetas - thetas[best_a])[:, None, None]
+    d_xy = np.hypot((offsets - offsets[best_i])[:, None], (offsets - offsets[best_j])[None, :])[
+        None
+    ]
+    far = (d_xy > away) | (d_theta > away_turn)
+    runner_up = float(vol[far].max()) if far.any() else 0.0
+    if callable(fine):
+        fine_res = fine_resolution
+        fine_half = math.ceil(coarse_step / fine_res)
+        reach = (
+            fine_half * fine_res + turn_step * float(np.hypot(pts[:, 0], pts[:, 1]).max()) + 0.05
+        )
+        boxes = []
+        for p in tops:
+            th = prediction[2] + p[2]
+            c, s = math.cos(th), math.sin(th)
+            x = prediction[0] + p[0] + c * pts[:, 0] - s * pts[:, 1]
+            y = prediction[1] + p[1] + s * pts[:, 0] + c * pts[:, 1]
+            boxes.append([x.min(), y.min(), x.max(), y.max()])
+        box = np.array(boxes)
+        fine = fine(box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach)
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
     fine_thetas = np.linspace(-turn_step, turn_step, 7)
@@ -268,8 +423,11 @@ def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
     if len(points) == 0:
         return points
     cells = np.floor(points / size).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
-    return points[np.sort(first)]
+    cells -= cells.min(axis=0)
+    code = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # one int per cell
+    _, first = np.unique(code, return_index=True)
+    out: np.ndarray = points[np.sort(first)]
+    return out
 
 
 _EPS = 1e-6  # slack (m) of the stamped regions' bounds: a cell on a bound is stamped

@@ -17,6 +17,7 @@ where a shift along it scores alike, fails it). Whether the loops agree with eac
 
 from __future__ import annotations
 
+from collections.abc import Container
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -78,6 +79,54 @@ def path_length(poses: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(step)])
 
 
+class KeyIndex:
+    """The keyframes' positions hashed into square cells of the search window's size, so that
+    a query's candidates are looked up among the keyframes of the 3 x 3 cells around it
+    instead of every earlier keyframe: the candidate search no longer grows with the square
+    of the log's length (a 1,000,000-scan log has some 100,000 keyframes)."""
+
+    def __init__(
+        self, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, config: LoopConfig
+    ) -> None:
+        self.config = config
+        self.kp = poses[keys, :2]
+        self.ka = along[keys]
+        self.keys = keys
+        self.cell = max(config.window, config.radius, 1e-3)
+        ij = np.floor(self.kp / self.cell).astype(np.int64)
+        order = np.lexsort((np.arange(len(keys)), ij[:, 1], ij[:, 0]))
+        cells, first = np.unique(ij[order], axis=0, return_index=True)
+        groups = np.split(order, first[1:])
+        self.members = {(int(c[0]), int(c[1])): g for c, g in zip(cells, groups, strict=True)}
+        self._ij = ij
+
+    def candidate(self, q: int) -> tuple[int, int, float] | None:
+        """The candidate of key number `q` (earlier scan, its scan, search radius), or None:
+        the nearest earlier keyframe more than `gap` back along the path within the
+        uncertainty (`radius` + `growth` per metre of path between, at most `window`)."""
+        cfg = self.config
+        ci, cj = self._ij[q]
+        near = [
+            g
+            for di in (-1, 0, 1)
+            for dj in (-1, 0, 1)
+            if (g := self.members.get((int(ci + di), int(cj + dj)))) is not None
+        ]
+        if not near:
+            return None
+        idx = np.sort(np.concatenate(near))
+        idx = idx[self.ka[q] - self.ka[idx] > cfg.gap]
+        if len(idx) == 0:
+            return None
+        d = np.hypot(*(self.kp[idx] - self.kp[q]).T)
+        reach = np.minimum(cfg.radius + cfg.growth * (self.ka[q] - self.ka[idx]), cfg.window)
+        ok = np.nonzero(d < reach)[0]
+        if len(ok) == 0:
+            return None
+        best = ok[np.argmin(d[ok])]
+        return int(self.keys[idx[best]]), int(self.keys[q]), float(reach[best])
+
+
 def candidates(
     keys: np.ndarray,
     poses: np.ndarray,
@@ -85,10 +134,12 @@ def candidates(
     config: LoopConfig,
     skip: np.ndarray | None = None,
 ) -> list[tuple[int, int, float]]:
-    """(earlier key, later key, search radius) pairs, as scan indices; no query within
-    `config.every` of path of a scan in `skip` (already closed)."""
-    kp, ka = poses[keys], along[keys]
+    """(earlier key, later key, search radius) pairs, as scan indices, a query every
+    `config.every` of path that has a candidate; no query within `config.every` of path of a
+    scan in `skip` (already closed)."""
+    ka = along[keys]
     closed = np.sort(along[skip]) if skip is not None and len(skip) else np.zeros(0)
+    index = KeyIndex(keys, poses, along, config)
     out: list[tuple[int, int, float]] = []
     next_at = 0.0
     for q in range(len(keys)):
@@ -99,16 +150,9 @@ def candidates(
             near = closed[max(at - 1, 0) : at + 1]
             if (np.abs(near - ka[q]) < config.every).any():
                 continue
-        earlier = ka[q] - ka > config.gap
-        if not earlier.any():
-            continue
-        idx = np.nonzero(earlier)[0]
-        d = np.hypot(*(kp[idx, :2] - kp[q, :2]).T)
-        reach = np.minimum(config.radius + config.growth * (ka[q] - ka[idx]), config.window)
-        ok = d < reach
-        if ok.any():
-            c = idx[ok][np.argmin(d[ok])]
-            out.append((int(keys[c]), int(keys[q]), float(reach[ok][np.argmin(d[ok])])))
+        found = index.candidate(q)
+        if found is not None:
+            out.append(found)
             next_at = ka[q] + config.every
     return out
 
@@ -116,20 +160,8 @@ def candidates(
 def candidate_for(
     q: int, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, config: LoopConfig
 ) -> tuple[int, int, float] | None:
-    """The candidate of key number `q` (earlier scan, its scan, search radius), or None: the
-    nearest earlier keyframe more than `gap` back along the path within the uncertainty."""
-    ka = along[keys]
-    idx = np.nonzero(ka[q] - ka[:q] > config.gap)[0]
-    if len(idx) == 0:
-        return None
-    kp = poses[keys]
-    d = np.hypot(*(kp[idx, :2] - kp[q, :2]).T)
-    reach = np.minimum(config.radius + config.growth * (ka[q] - ka[idx]), config.window)
-    ok = np.nonzero(d < reach)[0]
-    if len(ok) == 0:
-        return None
-    best = ok[np.argmin(d[ok])]
-    return int(keys[idx[best]]), int(keys[q]), float(reach[best])
+    """The candidate of key number `q` (`KeyIndex.candidate`; an index of one query's)."""
+    return KeyIndex(keys, poses, along, config).candidate(q)
 
 
 class LoopCloser:
@@ -183,17 +215,26 @@ class LoopCloser:
         if len(ref) < cfg.min_points:
             return None
         coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-        fine = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        grids: list[LikelihoodGrid] = []
+
+        def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
+            grids.append(
+                LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
+            )
+            return grids[-1]
+
         found = correlative_search(
             coarse,
-            fine,
+            fine_over,
             query,
             prediction,
             window=radius,
             turn=cfg.turn,
             turn_step=cfg.turn_step,
             coarse_voxel=cfg.coarse_voxel,
+            fine_resolution=cfg.fine,
         )
+        fine = grids[0]
         ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
         inliers = found.inliers
         why = []
@@ -236,12 +277,16 @@ class LoopCloser:
         poses: np.ndarray,
         config: LoopConfig | None = None,
         skip: np.ndarray | None = None,
+        known: Container[tuple[int, int]] = (),
     ) -> list[Loop]:
-        """Every candidate of the trajectory `poses` (S x 3), verified; rejected ones too."""
+        """Every candidate of the trajectory `poses` (S x 3), verified; rejected ones too.
+        Candidate pairs (a, b) in `known` (verified before) are not verified again."""
         cfg = config or self.config
         along = path_length(poses)
         out = []
         for a, b, radius in candidates(keys, poses, along, cfg, skip):
+            if (a, b) in known:
+                continue
             loop = self.verify(a, b, radius, poses, along, keys)
             if loop is not None:
                 out.append(loop)
@@ -256,4 +301,13 @@ def loop_truth_error(loop: Loop, truth: np.ndarray) -> tuple[float, float]:
     )
 
 
-__all__ = ["Loop", "LoopCloser", "LoopConfig", "candidates", "compose", "loop_truth_error"]
+__all__ = [
+    "KeyIndex",
+    "Loop",
+    "LoopCloser",
+    "LoopConfig",
+    "candidate_for",
+    "candidates",
+    "compose",
+    "loop_truth_error",
+]

@@ -30,10 +30,10 @@ from toolkit.slam import consistency
 from toolkit.slam import graph as pg
 from toolkit.slam.consistency import CHI2_3DOF_99
 from toolkit.slam.loops import (
+    KeyIndex,
     Loop,
     LoopCloser,
     LoopConfig,
-    candidate_for,
     loop_truth_error,
     path_length,
 )
@@ -253,12 +253,13 @@ def close_loops(
     # (measured: no better on fhw seeds 0-1, intel, seattle seed 0, and slower: off)
     poses = before
     loop_cfg = config.loop
+    index = KeyIndex(keys, poses, along, loop_cfg)
     next_at = 0.0
     for q in range(len(keys)):
         if along[keys[q]] < next_at:
             continue
         t0 = time.perf_counter()
-        cand = candidate_for(q, keys, poses, along, loop_cfg)
+        cand = index.candidate(q)
         lp = closer.verify(*cand, poses, along, keys) if cand is not None else None
         timings["loops"] += time.perf_counter() - t0
         if cand is None:
@@ -271,13 +272,15 @@ def close_loops(
             moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
             if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
                 poses = solve()
+                index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
     # further rounds from the optimised trajectory, smaller windows, where no loop closed yet
     loop_cfg = replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)
     for _ in range(config.rounds - 1):
         t0 = time.perf_counter()
         closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
-        for lp in closer.find(keys, poses, loop_cfg, closed):
+        # a pair verified before keeps its first verdict: not verified again
+        for lp in closer.find(keys, poses, loop_cfg, closed, known=found.keys()):
             found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()

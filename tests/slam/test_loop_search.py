@@ -1,0 +1,156 @@
+"""The loop closer's shortcuts give what the long way gave: the fine grid over the query's
+landing box has the whole grid's values where they matter, the correlative search with it
+finds the same poses, the keyframe hash finds the candidates a scan of every earlier keyframe
+finds, and the second round verifies no pair twice while the building's loops still close
+with no false one."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from toolkit.dataset import Dataset
+from toolkit.poses import odometry_poses, truth_poses, with_drift
+from toolkit.se2 import between
+from toolkit.sim import Simulation
+from toolkit.slam import loops as lp_mod
+from toolkit.slam.grid import LikelihoodGrid, correlative_search
+from toolkit.slam.loops import KeyIndex, LoopCloser, LoopConfig, candidates, path_length
+from toolkit.slam.pipeline import SlamConfig, close_loops, keyframes_of
+
+
+@pytest.fixture(scope="module")
+def drifted(building_sim: Simulation) -> tuple[Dataset, np.ndarray]:
+    ds = with_drift(building_sim.dataset, 0)
+    odo = odometry_poses(ds)
+    assert odo is not None
+    return ds, odo
+
+
+def _brute_candidate(
+    q: int, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, cfg: LoopConfig
+) -> tuple[int, int, float] | None:
+    """The candidate as the loop closer found it before the hash: every earlier keyframe."""
+    ka = along[keys]
+    idx = np.nonzero(ka[q] - ka[:q] > cfg.gap)[0]
+    if len(idx) == 0:
+        return None
+    kp = poses[keys]
+    d = np.hypot(*(kp[idx, :2] - kp[q, :2]).T)
+    reach = np.minimum(cfg.radius + cfg.growth * (ka[q] - ka[idx]), cfg.window)
+    ok = np.nonzero(d < reach)[0]
+    if len(ok) == 0:
+        return None
+    best = ok[np.argmin(d[ok])]
+    return int(keys[idx[best]]), int(keys[q]), float(reach[best])
+
+
+def test_key_index_finds_what_every_earlier_keyframe_gives(
+    drifted: tuple[Dataset, np.ndarray],
+) -> None:
+    _, odo = drifted
+    laps = np.concatenate(
+        [odo, odo + np.array([0.3, -0.2, 0.0]), odo + np.array([-0.5, 0.4, 0.0])]
+    )  # revisits
+    keys = keyframes_of(laps, 0.5, 0.3)
+    along = path_length(laps)
+    for cfg in (LoopConfig(), LoopConfig(radius=0.5, growth=0.01, window=1.5)):
+        index = KeyIndex(keys, laps, along, cfg)
+        got = [index.candidate(q) for q in range(len(keys))]
+        want = [_brute_candidate(q, keys, laps, along, cfg) for q in range(len(keys))]
+        assert got == want
+        assert sum(c is not None for c in got) > len(keys) // 2  # the laps revisit
+
+
+def test_fine_window_has_the_whole_grids_values_where_the_query_lands(
+    drifted: tuple[Dataset, np.ndarray],
+) -> None:
+    ds, odo = drifted
+    closer = LoopCloser(ds.ranges, ds.laser)
+    ref = closer._local(1000, np.arange(950, 1050, 5), odo)
+    whole = LikelihoodGrid.build(ref, 0.04, 0.08, margin=0.5)
+    lo, hi = np.array([-4.0, -3.0]), np.array([5.0, 2.5])
+    part = LikelihoodGrid.window(ref, 0.04, 0.08, lo, hi, margin=0.5)
+    off = np.round((part.origin - whole.origin) / 0.04).astype(np.int64)
+    h, w = part.distance.shape
+    d_whole = whole.distance[off[1] : off[1] + h, off[0] : off[0] + w]
+    l_whole = whole.likelihood[off[1] : off[1] + h, off[0] : off[0] + w]
+    ys = part.origin[1] + (np.arange(h) + 0.5) * 0.04
+    xs = part.origin[0] + (np.arange(w) + 0.5) * 0.04
+    box = ((ys >= lo[1]) & (ys <= hi[1]))[:, None] & ((xs >= lo[0]) & (xs <= hi[0]))[None]
+    near = box & (d_whole <= 0.6)
+    assert near.sum() > 1000
+    np.testing.assert_array_equal(part.distance[near], d_whole[near])
+    np.testing.assert_array_equal(part.likelihood[near], l_whole[near])
+    assert (part.likelihood[box & ~near] == 0).all()
+    assert (l_whole[box & ~near] < 1e-9).all()
+
+
+def test_search_over_the_window_finds_what_the_whole_grid_finds(
+    drifted: tuple[Dataset, np.ndarray],
+) -> None:
+    ds, odo = drifted
+    closer = LoopCloser(ds.ranges, ds.laser)
+    cfg = closer.config
+    keys = keyframes_of(odo, 0.5, 0.3)
+    along = path_length(odo)
+    pairs = candidates(keys, odo, along, cfg)
+    assert len(pairs) >= 5
+    for a, b, radius in pairs:
+        query = closer._local(b, np.array([b]), odo)
+        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
+        ref = closer._local(a, near_a, odo)
+        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+        whole = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        prediction = between(odo[a], odo[b])
+        found = [
+            correlative_search(
+                coarse,
+                fine,
+                query,
+                prediction,
+                window=radius,
+                turn=cfg.turn,
+                turn_step=cfg.turn_step,
+                coarse_voxel=cfg.coarse_voxel,
+                fine_resolution=cfg.fine,
+            )
+            for fine in (
+                whole,
+                lambda lo, hi, ref=ref: LikelihoodGrid.window(
+                    ref, cfg.fine, cfg.fine_sigma, lo, hi, margin=0.5
+                ),
+            )
+        ]
+        np.testing.assert_array_equal(found[0].pose, found[1].pose)
+        assert found[0].coarse_score == found[1].coarse_score
+        assert found[0].runner_up == found[1].runner_up
+        assert found[0].inliers == found[1].inliers
+        assert found[0].score == pytest.approx(found[1].score, abs=1e-9)
+
+
+def test_second_round_verifies_no_pair_twice_and_the_building_still_closes(
+    drifted: tuple[Dataset, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ds, _ = drifted
+    from toolkit.slam.scanmap import scan_to_map
+
+    before = scan_to_map(ds).poses
+    truth = truth_poses(ds)
+    assert truth is not None
+    seen: list[tuple[int, int]] = []
+    verify = lp_mod.LoopCloser.verify
+
+    def counted(self, a, b, *args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append((a, b))
+        return verify(self, a, b, *args, **kwargs)
+
+    monkeypatch.setattr(lp_mod.LoopCloser, "verify", counted)
+    _, _, _, loops, _, _ = close_loops(ds, before, replace(SlamConfig(), rounds=2))
+    assert len(seen) == len(set(seen))
+    accepted = [lp for lp in loops if lp.accepted]
+    assert len(accepted) >= 3
+    errors = [lp_mod.loop_truth_error(lp, truth) for lp in accepted]
+    assert all(e[0] <= 0.5 and e[1] <= 5.0 for e in errors), errors
