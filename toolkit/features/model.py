@@ -65,7 +65,9 @@ from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.places import C_DEFAULT, PlaceClassifier
 
-MODEL_VERSION = 2  # 2: the descriptors' context and the forest (a version-1 model: learn anew)
+MODEL_VERSION = (
+    3  # 3: the 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
+)
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
