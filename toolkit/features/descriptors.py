@@ -446,16 +446,17 @@ def features(
     along: np.ndarray,
     context: float,
     rows: slice | None = None,
+    strip: float = BESIDE,
 ) -> np.ndarray:
     """The classifier's input for scans `rows` (default all) of a log: their descriptors
     `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
     `context` metres of path (`along`, see `path_length`) before and after each; only the
-    scans those windows reach are described."""
+    scans those windows reach are described. `strip`: see `describe`."""
     rows = rows or slice(0, len(ranges))
     if context <= 0:
-        return describe(ranges[rows], laser)[:, columns]
+        return describe(ranges[rows], laser, strip)[:, columns]
     lo, hi = context_windows(along, context, rows)
     first, last = int(lo.min()), int(hi.max())
-    x = describe(ranges[first:last], laser)[:, columns]
+    x = describe(ranges[first:last], laser, strip)[:, columns]
     own = np.arange(len(lo)) + (rows.start or 0) - first
     return with_context(x, lo - first, hi - first, own)

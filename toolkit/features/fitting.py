@@ -201,7 +201,8 @@ def _fit_places(
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
     columns = chosen_columns(config.view_ahead, config.mozos)
-    x = features(ranges, laser, columns, path_length(len(ranges), poses), config.context)
+    along = path_length(len(ranges), poses)
+    x = features(ranges, laser, columns, along, config.context, strip=config.beside)
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
     open_set = config.open_set if config.none_class else "never"
