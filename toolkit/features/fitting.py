@@ -14,7 +14,14 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.descriptors import chosen_columns, context_windows, features, path_length
+from toolkit.features.descriptors import (
+    CLAIM_BESIDE,
+    chosen_columns,
+    context_windows,
+    describe,
+    features,
+    path_length,
+)
 from toolkit.features.likelihood import (
     background_bins,
     beam_terms,
@@ -194,13 +201,19 @@ def _fit_places(
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
     columns = chosen_columns(config.view_ahead, config.mozos)
-    x = features(ranges, laser, columns, path_length(len(ranges), poses), config.context)
+    along = path_length(len(ranges), poses)
+    x = features(ranges, laser, columns, along, config.context, strip=config.beside)
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
+    open_set = config.open_set if config.none_class else "never"
+    claim = None
+    if open_set != "never" and config.classifier == "trees":  # the claims' wider strip
+        wide = describe(ranges, laser, CLAIM_BESIDE)[:, columns]
+        claim = (wide[idx], wide[rest])
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=len(columns),
-        open_set=config.open_set if config.none_class else "never",
+        open_set=open_set, claim=claim,
     )  # fmt: skip
 
 

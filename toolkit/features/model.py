@@ -63,9 +63,12 @@ import numpy as np
 from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
+from toolkit.features.descriptors import BESIDE
 from toolkit.features.places import C_DEFAULT, PlaceClassifier
 
-MODEL_VERSION = 2  # 2: the descriptors' context and the forest (a version-1 model: learn anew)
+MODEL_VERSION = (
+    3  # 3: the 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
+)
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -105,6 +108,8 @@ class Config:
     view_ahead: bool = False  # also the descriptors of the view ahead (the next place)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
+    beside: float = BESIDE  # m ahead and behind the laser whose end points are beside it
+    # (the descriptors of the place's width, its doors' and windows' openings; 1.0 before)
     context: float = 1.0  # m of path before and after a scan whose descriptors' mean and
     # spread join its own (0: the scan alone)
     priors: bool = False  # the places' shares of the training log in the regression

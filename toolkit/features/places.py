@@ -245,6 +245,7 @@ def fit_places(
     forest: bool = True,
     gate: int | None = None,
     open_set: str = "auto",
+    claim: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -265,7 +266,9 @@ def fit_places(
     "far" by). `open_set` ("auto", "always", "never"; trees only): whether the unclaimed
     scans of the log (`log_claims`, on the gate's columns) become a "none" class of the
     trees and stay out of the self-training ("auto": when the places claim less than
-    `BACKGROUND_SHARE` of the log)."""
+    `BACKGROUND_SHARE` of the log). `claim`: the descriptors the claims are tested on, of
+    the training scans and of the rest of the log (default: the gate's columns of `x` and
+    `unlabelled`)."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
@@ -295,7 +298,8 @@ def fit_places(
     claimed = np.ones(len(zu), dtype=bool)
     est = learner().fit(z, y)
     if forest and open_set != "never" and len(zu):
-        claimed, testable = log_claims(z[:, :g], y, groups, zu[:, :g])
+        cz, cu = claim if claim is not None else (z[:, :g], zu[:, :g])
+        claimed, testable = log_claims(cz, y, groups, cu)
         # a place taught by one span has no new spot to calibrate its claim by (its halves
         # look alike): the scans the trees give it are its own
         top = est.predict_proba(zu)[:, [list(est.classes_).index(k) for k in classes]]
