@@ -11,11 +11,7 @@ scan; without odometry the constant-velocity scan-to-keyframe matcher's, or with
 `scan_odometry=False` the previous motion repeated) and is refined
 by Gauss-Newton on the distances, weighted as the paper's Eq. 3-6 do: every return weighs
 exp(-d^2 / 2 sigma^2), sigma^2 re-estimated each round from the weighted residuals (Eq. 4), so
-that returns that changed or see what the map has not lose their weight (`fit="reweight"`;
-no fixed objective: it runs to the round limit, steps flipping by millimetres). With
-`fit="minimise"` sigma^2 is annealed in a few stages and fixed within each, so each has an
-objective (the returns' Welsch loss plus the prior), minimised by Levenberg-Marquardt steps
-that must decrease it: it converges, but was measured no better. The prediction is a
+that returns that changed or see what the map has not lose their weight; the prediction is a
 prior (the odometry's spread, growing with the step), and a direction the map cannot fix (a
 corridor's axis) keeps the prediction. The covariance of each estimate is (H / sigma^2 + prior)^-1.
 
@@ -44,7 +40,6 @@ from toolkit import poses as trajectories
 from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry, pose_frame
-from toolkit.errors import ToolkitError
 from toolkit.poses import Method, TrajectoryResult, odometry_poses
 from toolkit.slam.grid import LikelihoodGrid, correlative_search, stamp_segments
 from toolkit.slam.localmap import MotionMatcher
@@ -69,10 +64,7 @@ class MapConfig:
     join_angle: float = 0.15  # ... and further ones in line with a neighbouring segment
     join_max: float = 2.0  # ... up to this long
     lone_range: float = 0.0  # lone returns within this range are kept in the map as points
-    fit: str = "reweight"  # "reweight": sigma^2 re-estimated every Gauss-Newton round (the
-    # paper's loop, no fixed objective); "minimise": annealed in `stages`, each minimised
-    iterations: int = 20  # most rounds ("minimise": Levenberg-Marquardt steps, all stages)
-    stages: int = 3  # "minimise": most estimates of sigma^2, each minimised with it fixed
+    iterations: int = 20  # most Gauss-Newton rounds
     gate: float = 0.5  # returns farther than this from the map carry no weight
     sigma_min: float = 0.02  # floor of the residual spread (range noise plus grid)
     prior: tuple[float, float] = (0.01, 0.005)  # odometry's spread per step (m, rad) ...
@@ -97,7 +89,6 @@ class MapConfig:
 # ---------------------------------------------------------------- the kernel
 
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
-_PIN = 1e6  # the weak direction's pin to the prediction (information, per m^2)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -141,20 +132,17 @@ def _normal_equations(
     inlier_distance: float,
     hm: np.ndarray,
     g: np.ndarray,
-) -> tuple[float, float, float, float, float]:
+) -> tuple[float, float, float, float]:
     """The Gaussian-weighted normal equations of the returns `pts` placed at (x, y, th) on the
     bilinear distance field: the information in `hm` (upper triangle), the gradient in `g`.
     Returns the sum of weights, the weighted squared distances, the returns used (within
-    `gate`), the inliers (within `inlier_distance`) and the robust loss: the sum over returns
-    of 1 - exp(-d^2 / 2 var) (1 for a return off the grid or beyond the gate), whose
-    gradient the weighted normal equations are (Welsch's loss, the Gaussian weighting's)."""
+    `gate`) and the inliers (within `inlier_distance`)."""
     h, w = dist.shape
     hm[:, :] = 0.0
     g[:] = 0.0
     c, s = math.cos(th), math.sin(th)
     sw = swe = used = inl = 0.0
-    n = pts.shape[0]
-    for k in range(n):
+    for k in range(pts.shape[0]):
         px, py = pts[k, 0], pts[k, 1]
         rx = c * px - s * py
         ry = s * px + c * py
@@ -191,181 +179,11 @@ def _normal_equations(
         sw += wk
         swe += wk * d * d
         used += 1.0
-    hm[1, 0] = hm[0, 1]
-    hm[2, 0] = hm[0, 2]
-    hm[2, 1] = hm[1, 2]
-    return sw, swe, used, inl, n - sw
-
-
-@nb.njit(cache=True, nogil=True)
-def _objective(
-    loss: float,
-    x: float,
-    y: float,
-    th: float,
-    prior_pose: np.ndarray,
-    prior_info: np.ndarray,
-    vx: float,
-    vy: float,
-) -> float:
-    """The fit's objective at (x, y, th): the returns' robust loss plus the prior's (and the
-    weak direction's) quadratic penalty, halved."""
-    e0, e1 = x - prior_pose[0], y - prior_pose[1]
-    e2 = math.atan2(math.sin(th - prior_pose[2]), math.cos(th - prior_pose[2]))
-    ev = vx * e0 + vy * e1
-    quad = prior_info[0] * e0 * e0 + prior_info[1] * e1 * e1 + prior_info[2] * e2 * e2
-    return float(loss + 0.5 * (quad + _PIN * ev * ev))
+    return sw, swe, used, inl
 
 
 @nb.njit(cache=True, nogil=True)
 def _fit(
-    dist: np.ndarray,
-    origin: np.ndarray,
-    res: float,
-    pts: np.ndarray,
-    start: np.ndarray,
-    prior_pose: np.ndarray,
-    prior_info: np.ndarray,
-    iterations: int,
-    stages: int,
-    gate: float,
-    sigma_min: float,
-    inlier_distance: float,
-    degenerate_ratio: float,
-    min_information: float,
-    out: np.ndarray,
-    out_cov: np.ndarray,
-) -> None:
-    """Minimise the Gaussian-weighted distances of the returns on the bilinear distance field
-    plus the prior N(prior_pose, diag(1 / prior_info)), from `start`; results in `out`
-    (slots above) and the covariance in `out_cov`.
-
-    The weighting's variance (Eq. 4) is annealed in stages, not re-estimated every step (that
-    gave the fit no fixed objective, and steps that cycled): each stage estimates it at the
-    current pose, fixes it and the weak direction, and minimises that stage's objective (the
-    returns' Welsch loss plus the prior) by Levenberg-Marquardt: a step is taken only if the
-    objective decreases, else the damping grows. At most `stages` stages (a new one only if
-    the variance moved by more than a tenth), at most `iterations` steps tried in all."""
-    inv = 1.0 / res
-    x, y, th = start[0], start[1], start[2]
-    var = gate * gate
-    var_min = sigma_min * sigma_min
-    n = pts.shape[0]
-    hm = np.zeros((3, 3))
-    g = np.zeros(3)
-    hm2 = np.zeros((3, 3))
-    g2 = np.zeros(3)
-    a = np.zeros((3, 3))
-    a0 = np.zeros((3, 3))
-    b = np.zeros(3)
-    rounds = 0
-    vx = vy = 0.0
-    sw, swe, used, _, loss = _normal_equations(
-        dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
-    )
-    for stage in range(stages):
-        if sw < 3.0 or rounds >= iterations:
-            break
-        # Eq. 4: the weighted spread; weights exp(-d^2/2v) shrink a Gaussian's variance s^2
-        # to s^2 v / (s^2 + v), so 2x the weighted variance settles on s^2 (not on zero)
-        new_var = min(max(2.0 * swe / sw, var_min), gate * gate)
-        if stage > 0 and abs(new_var - var) <= 0.1 * var:
-            break
-        var = new_var
-        sw, swe, used, _, loss = _normal_equations(
-            dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
-        )
-        if sw < 3.0:
-            break
-        # a direction the map cannot fix (a corridor's axis: the translation information,
-        # rotation marginalised, has a small eigenvalue) keeps the motion model's prediction
-        vx, vy = _weak(hm, degenerate_ratio, min_information)
-        f = _objective(loss, x, y, th, prior_pose, prior_info, vx, vy)
-        lam, nu = 1e-3, 2.0
-        while rounds < iterations:
-            e0, e1 = x - prior_pose[0], y - prior_pose[1]
-            e2 = math.atan2(math.sin(th - prior_pose[2]), math.cos(th - prior_pose[2]))
-            ev = vx * e0 + vy * e1
-            for r in range(3):
-                for q in range(3):
-                    a[r, q] = hm[r, q] / var
-            a[0, 0] += prior_info[0] + _PIN * vx * vx
-            a[0, 1] += _PIN * vx * vy
-            a[1, 0] += _PIN * vx * vy
-            a[1, 1] += prior_info[1] + _PIN * vy * vy
-            a[2, 2] += prior_info[2]
-            b[0] = -(g[0] / var + prior_info[0] * e0 + _PIN * vx * ev)
-            b[1] = -(g[1] / var + prior_info[1] * e1 + _PIN * vy * ev)
-            b[2] = -(g[2] / var + prior_info[2] * e2)
-            a0[:, :] = a
-            for r in range(3):
-                a[r, r] *= 1.0 + lam
-            step = np.linalg.solve(a, b)
-            # a step is at most a grid cap's worth: the field is flat beyond
-            norm = math.hypot(step[0], step[1])
-            if norm > 0.3:
-                step *= 0.3 / norm
-                norm = 0.3
-            if abs(step[2]) > 0.1:
-                step *= 0.1 / abs(step[2])
-                norm = math.hypot(step[0], step[1])
-            rounds += 1
-            nx, ny, nth = x + step[0], y + step[1], th + step[2]
-            sw2, swe2, used2, _, loss2 = _normal_equations(
-                dist, origin, inv, pts, nx, ny, nth, var, gate, inlier_distance, hm2, g2
-            )
-            f2 = _objective(loss2, nx, ny, nth, prior_pose, prior_info, vx, vy)
-            # settled: a step below a millimetre (and a tenth of a milliradian: a millimetre
-            # at 10 m), or a decrease below 1e-4 of a loss per return (the bilinear field's
-            # gradient jumps at cell borders, so sub-millimetre steps only trade places)
-            small = norm < 1e-3 and abs(step[2]) < 1e-4
-            if f2 < f:
-                settled = small or f - f2 < 1e-4 * n
-                # Nielsen's damping update, from the decrease against the quadratic model's
-                pred = 0.0
-                for r in range(3):
-                    pred += b[r] * step[r]
-                    for q in range(3):
-                        pred -= 0.5 * step[r] * a0[r, q] * step[q]
-                rho = (f - f2) / pred if pred > 0.0 else 1.0
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3)
-                lam = max(lam, 1e-7)
-                nu = 2.0
-                x, y, th, f = nx, ny, nth, f2
-                sw, swe, used, loss = sw2, swe2, used2, loss2
-                hm[:, :] = hm2
-                g[:] = g2
-                if settled:
-                    break
-            else:
-                if small or lam > 1e4:
-                    break  # no step of any length decreases it: a minimum
-                lam *= nu
-                nu *= 2.0
-    # final: the information at the estimate, the inlier share
-    _, _, _, inl, _ = _normal_equations(
-        dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
-    )
-    for r in range(3):
-        for q in range(3):
-            a[r, q] = hm[r, q] / var
-    vx, vy = _weak(hm, degenerate_ratio, min_information)
-    degenerate = 1.0 if vx != 0.0 or vy != 0.0 else 0.0
-    for r in range(3):
-        a[r, r] += prior_info[r]
-    out_cov[:, :] = np.linalg.inv(a)
-    out[0] = x
-    out[1] = y
-    out[2] = math.atan2(math.sin(th), math.cos(th))
-    out[3] = math.sqrt(var)
-    out[4] = inl / max(n, 1)
-    out[5] = used
-    out[6] = degenerate
-    out[7] = rounds
-
-
-@nb.njit(cache=True, nogil=True)
-def _fit_reweight(
     dist: np.ndarray,
     origin: np.ndarray,
     res: float,
@@ -383,10 +201,8 @@ def _fit_reweight(
     out_cov: np.ndarray,
 ) -> None:
     """Gauss-Newton on the bilinear distance field from `start`, Gaussian-weighted returns,
-    the prior N(prior_pose, diag(1 / prior_info)), sigma^2 re-estimated every round (the
-    paper's loop of Eq. 3-6; no fixed objective, so it runs to `iterations` with steps
-    flipping by millimetres, but measured better than `_fit`); results in `out` (slots
-    above) and the covariance in `out_cov`."""
+    the prior N(prior_pose, diag(1 / prior_info)); results in `out` (slots above) and the
+    covariance in `out_cov`."""
     inv = 1.0 / res
     x, y, th = start[0], start[1], start[2]
     var = gate * gate
@@ -398,7 +214,7 @@ def _fit_reweight(
     used = 0.0
     for it in range(iterations):
         rounds = it + 1
-        sw, swe, used, _, _ = _normal_equations(
+        sw, swe, used, _ = _normal_equations(
             dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
         )
         if sw < 3.0:
@@ -443,7 +259,7 @@ def _fit_reweight(
         if norm < 1e-4 and abs(step[2]) < 1e-5:
             break
     # final: the information at the estimate, the inlier share
-    _, _, _, inl, _ = _normal_equations(
+    _, _, _, inl = _normal_equations(
         dist, origin, inv, pts, x, y, th, var, gate, inlier_distance, hm, g
     )
     hm[1, 0] = hm[0, 1]
@@ -536,8 +352,6 @@ class MapMatcher:
     def __init__(self, laser: LaserGeometry, config: MapConfig | None = None) -> None:
         self.laser = laser
         self.config = config or MapConfig()
-        if self.config.fit not in ("reweight", "minimise"):
-            raise ToolkitError(f"scan-to-map: fit {self.config.fit!r}: reweight or minimise")
         self._keys: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # path, pose, points
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # origin, distances
         self._coarse: tuple[LikelihoodGrid, LikelihoodGrid] | None = None
@@ -618,13 +432,6 @@ class MapMatcher:
         cov = np.zeros((3, 3))
 
         def fit(start: np.ndarray, prior_info: np.ndarray, res: np.ndarray, c: np.ndarray) -> None:
-            if cfg.fit == "reweight":
-                _fit_reweight(
-                    grid[1], grid[0], cfg.resolution, pts, start, start, prior_info,
-                    cfg.iterations, cfg.gate, cfg.sigma_min, cfg.inlier_distance,
-                    cfg.degenerate, cfg.min_information, res, c,
-                )  # fmt: skip
-                return
             _fit(
                 grid[1],
                 grid[0],
@@ -634,7 +441,6 @@ class MapMatcher:
                 start,
                 prior_info,
                 cfg.iterations,
-                cfg.stages,
                 cfg.gate,
                 cfg.sigma_min,
                 cfg.inlier_distance,
