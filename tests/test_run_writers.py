@@ -171,6 +171,22 @@ def test_occupancy_tracing_equals_plain_bresenham(dataset: toolkit.Dataset, crop
     assert np.array_equal(grids[0], grids[2]) and np.array_equal(grids[1], grids[3])
 
 
+def test_occupancy_in_two_threads_counts_as_one(
+    dataset: toolkit.Dataset, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two threads, each into its own grid, then added: the same counts as one pass."""
+    robot = truth_poses(dataset)
+    assert robot is not None
+    monkeypatch.setattr(render, "SPLIT_BYTES", 0)  # one pass
+    hits, seen, lo = render.occupancy(dataset, robot, 0.05)
+    monkeypatch.setattr(render, "SPLIT_BYTES", 2**40)
+    monkeypatch.setattr(render, "CHUNK", 37)  # several chunks per thread, odd and even
+    split = render.occupancy(dataset, robot, 0.05)
+    assert seen.sum() > 10_000 and hits.sum() > 1_000
+    assert np.array_equal(split[0], hits) and np.array_equal(split[1], seen)
+    assert np.array_equal(split[2], lo)
+
+
 @pytest.mark.parametrize("reach", [np.inf, 2.5])
 def test_returns_box_is_world_points_extent(dataset: toolkit.Dataset, reach: float) -> None:
     ds = dataset

@@ -12,6 +12,7 @@ the yaml's thresholds.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numba as nb
@@ -22,6 +23,10 @@ from toolkit.dataset import Dataset
 from toolkit.metrics import align_se2
 from toolkit.raster import CHUNK, grid_for, map_image, map_text, returns_box, scan_chunks
 from toolkit.writers import write_png
+
+#: the occupancy counts are traced in two threads, each into its own grid, only while the
+#: second grid's hits and observations take at most this many bytes
+SPLIT_BYTES = 64 * 2**20
 
 
 def _bounds(ds: Dataset, robot: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
@@ -115,9 +120,28 @@ def occupancy(
     hits = np.zeros((shape[1], shape[0]), dtype=np.int32)
     seen = np.zeros_like(hits)
     angles = ds.laser.angles.astype(np.float64)
-    for part in scan_chunks(ds.n_scans, CHUNK):
-        lp = se2.laser_poses(robot[part], ds.laser)
-        _trace(lp, ds.ranges[part], angles, lo, resolution, reach, free_range, hits, seen)
+
+    def trace(parts: list[slice], hits: np.ndarray, seen: np.ndarray) -> None:
+        for part in parts:
+            lp = se2.laser_poses(robot[part], ds.laser)
+            _trace(lp, ds.ranges[part], angles, lo, resolution, reach, free_range, hits, seen)
+
+    parts = list(scan_chunks(ds.n_scans, min(CHUNK, max(-(-ds.n_scans // 2), 1))))
+    if len(parts) < 2 or 2 * hits.nbytes > SPLIT_BYTES:
+        trace(parts, hits, seen)
+        return hits, seen, lo
+    # two threads (the kernel releases the GIL), each counting into its own grid: counts
+    # add up to the same integers whatever the order
+    other = (np.zeros_like(hits), np.zeros_like(seen))
+    with ThreadPoolExecutor(2) as pool:
+        done = [
+            pool.submit(trace, parts[0::2], hits, seen),
+            pool.submit(trace, parts[1::2], *other),
+        ]
+        for future in done:
+            future.result()
+    hits += other[0]
+    seen += other[1]
     return hits, seen, lo
 
 
