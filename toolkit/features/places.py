@@ -101,10 +101,18 @@ class Forest:
             f = np.where(leaf, 0, feature)
             feature = np.where(leaf, 0, np.asarray(columns)[f])
             threshold = np.where(leaf, 0.0, threshold * scale[f] + mean[f])
+        # leaves step to themselves (threshold +inf), so every tree is walked for its depth's
+        # steps without a branch; the leaves' shares are divided by the tree count once
+        leaf = self.left < 0
+        nodes = np.arange(len(leaf))
+        left = np.where(leaf, nodes, self.left)
+        right = np.where(leaf, nodes, self.right)
+        threshold = np.where(leaf, np.inf, threshold)
+        share = self.value / len(self.roots)
         out = np.zeros((len(z), self.value.shape[1]))
         _forest_proba(
-            np.ascontiguousarray(z, dtype=np.float64), self.roots, self.left, self.right,
-            feature, threshold, self.value, out,
+            np.ascontiguousarray(z, dtype=np.float64), self.roots, _depths(self.roots, self.left, self.right),
+            left, right, np.where(leaf, 0, feature), threshold, share, out,
         )  # fmt: skip
         return out
 
@@ -122,25 +130,90 @@ class Forest:
         )
 
 
+#: scans walked through one tree together: independent walks overlap their memory waits
+TILE = 32
+
+
+@numba.njit(cache=True)
+def _depths(
+    roots: np.ndarray, left: np.ndarray, right: np.ndarray
+) -> np.ndarray:  # pragma: no cover - numba
+    """Per tree, its depth (steps from the root to its deepest leaf)."""
+    depth = np.zeros(len(left), dtype=np.int64)
+    out = np.zeros(len(roots), dtype=np.int64)
+    ends = np.append(roots[1:], len(left))
+    for t in range(len(roots)):
+        for node in range(roots[t], ends[t]):  # scikit-learn numbers parents before children
+            if left[node] >= 0:
+                depth[left[node]] = depth[node] + 1
+                depth[right[node]] = depth[node] + 1
+            out[t] = max(out[t], depth[node])
+    return out
+
+
 @numba.njit(parallel=True, cache=True)
 def _forest_proba(  # pragma: no cover - numba
     z: np.ndarray,
     roots: np.ndarray,
+    depths: np.ndarray,
     left: np.ndarray,
     right: np.ndarray,
     feature: np.ndarray,
     threshold: np.ndarray,
-    value: np.ndarray,
+    share: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    trees = len(roots)
-    for s in numba.prange(z.shape[0]):
-        for t in range(trees):
-            node = roots[t]
-            while left[node] >= 0:
-                node = left[node] if z[s, feature[node]] <= threshold[node] else right[node]
-            for k in range(value.shape[1]):
-                out[s, k] += value[node, k] / trees
+    """Per scan, the sum over the trees (in their order) of its leaf's `share`. Leaves step to
+    themselves; a tile of `TILE` scans goes through a tree step by step together."""
+    n, k = z.shape[0], share.shape[1]
+    for tile in numba.prange((n + TILE - 1) // TILE):
+        a = tile * TILE
+        m = min(TILE, n - a)
+        node = np.empty(TILE, dtype=np.int64)
+        for t in range(len(roots)):
+            for i in range(m):
+                node[i] = roots[t]
+            for _ in range(depths[t]):
+                for i in range(m):
+                    nd = node[i]
+                    node[i] = left[nd] if z[a + i, feature[nd]] <= threshold[nd] else right[nd]
+            for i in range(m):
+                nd = node[i]
+                for c in range(k):
+                    out[a + i, c] += share[nd, c]
+
+
+@numba.njit(parallel=True, cache=True)
+def _log_distance(  # pragma: no cover - numba
+    x: np.ndarray,
+    columns: np.ndarray,
+    mean: np.ndarray,
+    scale: np.ndarray,
+    precision: np.ndarray,
+    centres: np.ndarray,
+    cpc: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Per scan: z = standardised descriptors, min over centres c of z'Pz - 2 z'Pc + c'Pc."""
+    g, k = len(columns), len(centres)
+    for s in numba.prange(x.shape[0]):
+        z = np.empty(g)
+        zp = np.zeros(g)
+        for i in range(g):
+            z[i] = (x[s, columns[i]] - mean[i]) / scale[i]
+        for i in range(g):
+            for j in range(g):
+                zp[j] += z[i] * precision[i, j]
+        zz = 0.0
+        for j in range(g):
+            zz += zp[j] * z[j]
+        best = np.inf
+        for c in range(k):
+            cross = 0.0
+            for j in range(g):
+                cross += zp[j] * centres[c, j]
+            best = min(best, zz - 2 * cross + cpc[c])
+        out[s] = 0.5 * np.log(max(best, 1e-12))
 
 
 @dataclass
@@ -170,8 +243,20 @@ class PlaceClassifier:
         return np.asarray((z @ self.coef.T + self.intercept) * self.temperature)
 
     def log_distance(self, x: np.ndarray) -> np.ndarray:
-        """Per scan, half the log squared Mahalanobis distance to the nearest class centre."""
+        """Per scan, half the log squared Mahalanobis distance to the nearest class centre
+        (one compiled pass per scan; `log_distance_reference` is the same in numpy)."""
         g = self.centres.shape[1]  # the gate's (leading) columns
+        cpc = np.einsum("kd,kd->k", self.centres @ self.precision, self.centres)
+        out = np.empty(len(x))
+        _log_distance(
+            np.ascontiguousarray(x, dtype=np.float64), self.columns[:g], self.mean[:g],
+            self.scale[:g], np.ascontiguousarray(self.precision), self.centres, cpc, out,
+        )  # fmt: skip
+        return out
+
+    def log_distance_reference(self, x: np.ndarray) -> np.ndarray:
+        """`log_distance` in numpy (S x D temporaries): what the compiled pass is tested by."""
+        g = self.centres.shape[1]
         z = (x[:, self.columns[:g]] - self.mean[:g]) / self.scale[:g]
         zp = z @ self.precision
         quad = np.einsum("sd,sd->s", zp, z)[:, None] - 2 * zp @ self.centres.T
