@@ -102,18 +102,24 @@ class Forest:
             feature = np.where(leaf, 0, np.asarray(columns)[f])
             threshold = np.where(leaf, 0.0, threshold * scale[f] + mean[f])
         # leaves step to themselves (threshold +inf), so every tree is walked for its depth's
-        # steps without a branch; the leaves' shares are divided by the tree count once
+        # steps without a branch: a node's children side by side, the test picks one; the
+        # leaves' shares are divided by the tree count once
         leaf = self.left < 0
         nodes = np.arange(len(leaf))
-        left = np.where(leaf, nodes, self.left)
-        right = np.where(leaf, nodes, self.right)
-        threshold = np.where(leaf, np.inf, threshold)
-        share = self.value / len(self.roots)
-        out = np.zeros((len(z), self.value.shape[1]))
+        children = np.empty((len(leaf), 2), dtype=np.int32)
+        children[:, 0] = np.where(leaf, nodes, self.left)
+        children[:, 1] = np.where(leaf, nodes, self.right)
+        out = np.empty((len(z), self.value.shape[1]))
         _forest_proba(
-            np.ascontiguousarray(z, dtype=np.float64), self.roots, _depths(self.roots, self.left, self.right),
-            left, right, np.where(leaf, 0, feature), threshold, share, out,
-        )  # fmt: skip
+            np.ascontiguousarray(z, dtype=np.float64),
+            self.roots,
+            _depths(self.roots, self.left, self.right),
+            children.ravel(),
+            np.where(leaf, 0, feature).astype(np.int32),
+            np.where(leaf, np.inf, threshold),
+            self.value / len(self.roots),
+            out,
+        )
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -156,31 +162,40 @@ def _forest_proba(  # pragma: no cover - numba
     z: np.ndarray,
     roots: np.ndarray,
     depths: np.ndarray,
-    left: np.ndarray,
-    right: np.ndarray,
+    children: np.ndarray,
     feature: np.ndarray,
     threshold: np.ndarray,
     share: np.ndarray,
     out: np.ndarray,
 ) -> None:
     """Per scan, the sum over the trees (in their order) of its leaf's `share`. Leaves step to
-    themselves; a tile of `TILE` scans goes through a tree step by step together."""
-    n, k = z.shape[0], share.shape[1]
+    themselves; a tile of `TILE` scans (its descriptors copied column by column) goes
+    through a tree step by step together, each step to the child at 2 node + (not z <=
+    threshold) (NaN goes right, as in scikit-learn); `out` is written once."""
+    n, k, d = z.shape[0], share.shape[1], z.shape[1]
     for tile in numba.prange((n + TILE - 1) // TILE):
         a = tile * TILE
         m = min(TILE, n - a)
+        zt = np.empty((d, TILE))
+        for i in range(m):
+            for j in range(d):
+                zt[j, i] = z[a + i, j]
         node = np.empty(TILE, dtype=np.int64)
+        acc = np.zeros((TILE, k))
         for t in range(len(roots)):
             for i in range(m):
                 node[i] = roots[t]
             for _ in range(depths[t]):
                 for i in range(m):
                     nd = node[i]
-                    node[i] = left[nd] if z[a + i, feature[nd]] <= threshold[nd] else right[nd]
+                    node[i] = children[2 * nd + np.int64(not zt[feature[nd], i] <= threshold[nd])]
             for i in range(m):
                 nd = node[i]
                 for c in range(k):
-                    out[a + i, c] += share[nd, c]
+                    acc[i, c] += share[nd, c]
+        for i in range(m):
+            for c in range(k):
+                out[a + i, c] = acc[i, c]
 
 
 @numba.njit(parallel=True, cache=True)
@@ -194,26 +209,37 @@ def _log_distance(  # pragma: no cover - numba
     cpc: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """Per scan: z = standardised descriptors, min over centres c of z'Pz - 2 z'Pc + c'Pc."""
-    g, k = len(columns), len(centres)
-    for s in numba.prange(x.shape[0]):
-        z = np.empty(g)
-        zp = np.zeros(g)
-        for i in range(g):
-            z[i] = (x[s, columns[i]] - mean[i]) / scale[i]
+    """Per scan: z = standardised descriptors, min over centres c of z'Pz - 2 z'Pc + c'Pc;
+    a tile of `TILE` scans at once, the scans side by side (the inner loops run over them)."""
+    n, g, k = x.shape[0], len(columns), len(centres)
+    for tile in numba.prange((n + TILE - 1) // TILE):
+        a = tile * TILE
+        m = min(TILE, n - a)
+        z = np.empty((g, TILE))
+        zp = np.zeros((g, TILE))
+        for s in range(m):
+            for i in range(g):
+                z[i, s] = (x[a + s, columns[i]] - mean[i]) / scale[i]
         for i in range(g):
             for j in range(g):
-                zp[j] += z[i] * precision[i, j]
-        zz = 0.0
+                p = precision[i, j]
+                for s in range(m):
+                    zp[j, s] += z[i, s] * p
+        zz = np.zeros(TILE)
+        best = np.full(TILE, np.inf)
         for j in range(g):
-            zz += zp[j] * z[j]
-        best = np.inf
+            for s in range(m):
+                zz[s] += zp[j, s] * z[j, s]
         for c in range(k):
-            cross = 0.0
+            cross = np.zeros(TILE)
             for j in range(g):
-                cross += zp[j] * centres[c, j]
-            best = min(best, zz - 2 * cross + cpc[c])
-        out[s] = 0.5 * np.log(max(best, 1e-12))
+                w = centres[c, j]
+                for s in range(m):
+                    cross[s] += zp[j, s] * w
+            for s in range(m):
+                best[s] = min(best[s], zz[s] - 2 * cross[s] + cpc[c])
+        for s in range(m):
+            out[a + s] = 0.5 * np.log(max(best[s], 1e-12))
 
 
 @dataclass
