@@ -415,7 +415,7 @@ def with_context(
 
 
 #: descriptors whose running sums one thread keeps (`_running_sums`)
-COLUMNS_PER_TASK = 16
+COLUMNS_PER_TASK = 8
 
 
 @numba.njit(parallel=True, cache=True)
