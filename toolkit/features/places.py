@@ -186,9 +186,14 @@ def _forest_proba(  # pragma: no cover - numba
             for i in range(m):
                 node[i] = roots[t]
             for _ in range(depths[t]):
+                moved = 0
                 for i in range(m):
                     nd = node[i]
-                    node[i] = children[2 * nd + np.int64(not zt[feature[nd], i] <= threshold[nd])]
+                    step = children[2 * nd + np.int64(not zt[feature[nd], i] <= threshold[nd])]
+                    moved += step != nd  # only a leaf is its own child
+                    node[i] = step
+                if moved == 0:  # the whole tile in leaves before the tree's depth
+                    break
             for i in range(m):
                 nd = node[i]
                 for c in range(k):
