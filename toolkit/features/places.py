@@ -101,11 +101,25 @@ class Forest:
             f = np.where(leaf, 0, feature)
             feature = np.where(leaf, 0, np.asarray(columns)[f])
             threshold = np.where(leaf, 0.0, threshold * scale[f] + mean[f])
-        out = np.zeros((len(z), self.value.shape[1]))
+        # leaves step to themselves (threshold +inf), so every tree is walked for its depth's
+        # steps without a branch: a node's children side by side, the test picks one; the
+        # leaves' shares are divided by the tree count once
+        leaf = self.left < 0
+        nodes = np.arange(len(leaf))
+        children = np.empty((len(leaf), 2), dtype=np.int32)
+        children[:, 0] = np.where(leaf, nodes, self.left)
+        children[:, 1] = np.where(leaf, nodes, self.right)
+        out = np.empty((len(z), self.value.shape[1]))
         _forest_proba(
-            np.ascontiguousarray(z, dtype=np.float64), self.roots, self.left, self.right,
-            feature, threshold, self.value, out,
-        )  # fmt: skip
+            np.ascontiguousarray(z, dtype=np.float64),
+            self.roots,
+            _depths(self.roots, self.left, self.right),
+            children.ravel(),
+            np.where(leaf, 0, feature).astype(np.int32),
+            np.where(leaf, np.inf, threshold),
+            self.value / len(self.roots),
+            out,
+        )
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -122,25 +136,115 @@ class Forest:
         )
 
 
+#: scans walked through one tree together: independent walks overlap their memory waits
+TILE = 32
+
+
+@numba.njit(cache=True)
+def _depths(
+    roots: np.ndarray, left: np.ndarray, right: np.ndarray
+) -> np.ndarray:  # pragma: no cover - numba
+    """Per tree, its depth (steps from the root to its deepest leaf)."""
+    depth = np.zeros(len(left), dtype=np.int64)
+    out = np.zeros(len(roots), dtype=np.int64)
+    ends = np.append(roots[1:], len(left))
+    for t in range(len(roots)):
+        for node in range(roots[t], ends[t]):  # scikit-learn numbers parents before children
+            if left[node] >= 0:
+                depth[left[node]] = depth[node] + 1
+                depth[right[node]] = depth[node] + 1
+            out[t] = max(out[t], depth[node])
+    return out
+
+
 @numba.njit(parallel=True, cache=True)
 def _forest_proba(  # pragma: no cover - numba
     z: np.ndarray,
     roots: np.ndarray,
-    left: np.ndarray,
-    right: np.ndarray,
+    depths: np.ndarray,
+    children: np.ndarray,
     feature: np.ndarray,
     threshold: np.ndarray,
-    value: np.ndarray,
+    share: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    trees = len(roots)
-    for s in numba.prange(z.shape[0]):
-        for t in range(trees):
-            node = roots[t]
-            while left[node] >= 0:
-                node = left[node] if z[s, feature[node]] <= threshold[node] else right[node]
-            for k in range(value.shape[1]):
-                out[s, k] += value[node, k] / trees
+    """Per scan, the sum over the trees (in their order) of its leaf's `share`. Leaves step to
+    themselves; a tile of `TILE` scans (its descriptors copied column by column) goes
+    through a tree step by step together, each step to the child at 2 node + (not z <=
+    threshold) (NaN goes right, as in scikit-learn); `out` is written once."""
+    n, k, d = z.shape[0], share.shape[1], z.shape[1]
+    for tile in numba.prange((n + TILE - 1) // TILE):
+        a = tile * TILE
+        m = min(TILE, n - a)
+        zt = np.empty((d, TILE))
+        for i in range(m):
+            for j in range(d):
+                zt[j, i] = z[a + i, j]
+        node = np.empty(TILE, dtype=np.int64)
+        acc = np.zeros((TILE, k))
+        for t in range(len(roots)):
+            for i in range(m):
+                node[i] = roots[t]
+            for _ in range(depths[t]):
+                moved = 0
+                for i in range(m):
+                    nd = node[i]
+                    step = children[2 * nd + np.int64(not zt[feature[nd], i] <= threshold[nd])]
+                    moved += step != nd  # only a leaf is its own child
+                    node[i] = step
+                if moved == 0:  # the whole tile in leaves before the tree's depth
+                    break
+            for i in range(m):
+                nd = node[i]
+                for c in range(k):
+                    acc[i, c] += share[nd, c]
+        for i in range(m):
+            for c in range(k):
+                out[a + i, c] = acc[i, c]
+
+
+@numba.njit(parallel=True, cache=True)
+def _log_distance(  # pragma: no cover - numba
+    x: np.ndarray,
+    columns: np.ndarray,
+    mean: np.ndarray,
+    scale: np.ndarray,
+    precision: np.ndarray,
+    centres: np.ndarray,
+    cpc: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Per scan: z = standardised descriptors, min over centres c of z'Pz - 2 z'Pc + c'Pc;
+    a tile of `TILE` scans at once, the scans side by side (the inner loops run over them)."""
+    n, g, k = x.shape[0], len(columns), len(centres)
+    for tile in numba.prange((n + TILE - 1) // TILE):
+        a = tile * TILE
+        m = min(TILE, n - a)
+        z = np.empty((g, TILE))
+        zp = np.zeros((g, TILE))
+        for s in range(m):
+            for i in range(g):
+                z[i, s] = (x[a + s, columns[i]] - mean[i]) / scale[i]
+        for i in range(g):
+            for j in range(g):
+                p = precision[i, j]
+                for s in range(m):
+                    zp[j, s] += z[i, s] * p
+        zz = np.zeros(TILE)
+        best = np.full(TILE, np.inf)
+        for j in range(g):
+            for s in range(m):
+                zz[s] += zp[j, s] * z[j, s]
+        for c in range(k):
+            cross = np.zeros(TILE)
+            for j in range(g):
+                w = centres[c, j]
+                for s in range(m):
+                    cross[s] += zp[j, s] * w
+            for s in range(m):
+                best[s] = min(best[s], zz[s] - 2 * cross[s] + cpc[c])
+        for s in range(m):
+            out[a + s] = 0.5 * np.log(max(best[s], 1e-12))
 
 
 @dataclass
@@ -170,8 +274,20 @@ class PlaceClassifier:
         return np.asarray((z @ self.coef.T + self.intercept) * self.temperature)
 
     def log_distance(self, x: np.ndarray) -> np.ndarray:
-        """Per scan, half the log squared Mahalanobis distance to the nearest class centre."""
+        """Per scan, half the log squared Mahalanobis distance to the nearest class centre
+        (one compiled pass per scan; `log_distance_reference` is the same in numpy)."""
         g = self.centres.shape[1]  # the gate's (leading) columns
+        cpc = np.einsum("kd,kd->k", self.centres @ self.precision, self.centres)
+        out = np.empty(len(x))
+        _log_distance(
+            np.ascontiguousarray(x, dtype=np.float64), self.columns[:g], self.mean[:g],
+            self.scale[:g], np.ascontiguousarray(self.precision), self.centres, cpc, out,
+        )  # fmt: skip
+        return out
+
+    def log_distance_reference(self, x: np.ndarray) -> np.ndarray:
+        """`log_distance` in numpy (S x D temporaries): what the compiled pass is tested by."""
+        g = self.centres.shape[1]
         z = (x[:, self.columns[:g]] - self.mean[:g]) / self.scale[:g]
         zp = z @ self.precision
         quad = np.einsum("sd,sd->s", zp, z)[:, None] - 2 * zp @ self.centres.T
