@@ -6,7 +6,7 @@ frame) and stores, per cell, exp(-d^2 / 2 sigma^2) of the distance d to the near
 scoring a pose is O(N) in the query's points, with no tree and no neighbour search.
 
 `correlative_search` scores every pose of a grid of (heading, x, y) offsets around a
-prediction (numba, parallel over headings), coarse to fine: a coarse grid over the whole
+prediction (numba, one heading after another), coarse to fine: a coarse grid over the whole
 window, then a fine grid around the coarse maxima. It needs no good seed, only the window.
 """
 
