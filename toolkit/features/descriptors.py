@@ -403,8 +403,9 @@ def with_context(
     """Descriptors `x[own]` (S x D; default: all rows) followed by their mean and spread over
     each scan's window of rows [lo, hi) (S x 3D): a place persists over several scans, and a door, a niche and the mouth
     of a side corridor differ in how long and how deep the gap beside the robot stays."""
-    centre = x.mean(axis=0) if len(x) else np.zeros(x.shape[1])  # running sums of centred
-    x = np.ascontiguousarray(x, dtype=np.float64)  # values: less cancellation in the spread
+    # running sums of centred values: less cancellation in the spread
+    centre = x.mean(axis=0) if len(x) else np.zeros(x.shape[1])
+    x = np.ascontiguousarray(x, dtype=np.float64)
     c1 = np.empty((len(x) + 1, x.shape[1]))
     c2 = np.empty_like(c1)
     _running_sums(x, centre, c1, c2)

@@ -66,9 +66,8 @@ from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.descriptors import BESIDE
 from toolkit.features.places import C_DEFAULT, PlaceClassifier
 
-MODEL_VERSION = (
-    3  # 3: the 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
-)
+#: 3: the 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
+MODEL_VERSION = 3
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 

@@ -275,7 +275,7 @@ class PlaceClassifier:
 
     def log_distance(self, x: np.ndarray) -> np.ndarray:
         """Per scan, half the log squared Mahalanobis distance to the nearest class centre
-        (one compiled pass per scan; `log_distance_reference` is the same in numpy)."""
+        (one compiled pass per tile of scans, tested against the numpy form)."""
         g = self.centres.shape[1]  # the gate's (leading) columns
         cpc = np.einsum("kd,kd->k", self.centres @ self.precision, self.centres)
         out = np.empty(len(x))
@@ -284,15 +284,6 @@ class PlaceClassifier:
             self.scale[:g], np.ascontiguousarray(self.precision), self.centres, cpc, out,
         )  # fmt: skip
         return out
-
-    def log_distance_reference(self, x: np.ndarray) -> np.ndarray:
-        """`log_distance` in numpy (S x D temporaries): what the compiled pass is tested by."""
-        g = self.centres.shape[1]
-        z = (x[:, self.columns[:g]] - self.mean[:g]) / self.scale[:g]
-        zp = z @ self.precision
-        quad = np.einsum("sd,sd->s", zp, z)[:, None] - 2 * zp @ self.centres.T
-        quad += np.einsum("kd,kd->k", self.centres @ self.precision, self.centres)[None, :]
-        return np.asarray(0.5 * np.log(np.maximum(quad.min(axis=1), 1e-12)))
 
     def log_proba(self, x: np.ndarray, none: bool = True) -> np.ndarray:
         """Log-probabilities (S, K + 1 with `none`) of descriptors (S, D)."""

@@ -41,12 +41,7 @@ class LikelihoodGrid:
         cap: float = 2.0,
     ) -> LikelihoodGrid:
         """The grid of `points` (N x 2, finite) with `margin` m around their bounding box."""
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        if len(pts) == 0:
-            pts = np.zeros((1, 2))
-        lo = pts.min(axis=0) - margin
-        shape = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(np.int64) + 1
-        ij = np.floor((pts - lo) / resolution).astype(np.int64)
+        lo, shape, ij = _raster(points, resolution, margin)
         free = np.ones((shape[1], shape[0]), dtype=bool)
         free[ij[:, 1], ij[:, 0]] = False
         dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
@@ -73,11 +68,7 @@ class LikelihoodGrid:
         (numba) instead of a distance transform of the whole map: a correlative search's fine
         level needs only where the query lands, and the whole map at the fine resolution was
         most of a loop test's time."""
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        if len(pts) == 0:
-            pts = np.zeros((1, 2))
-        full_lo = pts.min(axis=0) - margin
-        shape = np.ceil((pts.max(axis=0) + margin - full_lo) / resolution).astype(np.int64) + 1
+        full_lo, shape, ij = _raster(points, resolution, margin)
         n_pad = math.ceil(pad / resolution) + 1
         i0 = np.maximum(
             np.floor((np.asarray(lo) - full_lo) / resolution).astype(np.int64) - n_pad, 0
@@ -86,7 +77,6 @@ class LikelihoodGrid:
             np.ceil((np.asarray(hi) - full_lo) / resolution).astype(np.int64) + n_pad + 1, shape
         )
         i1 = np.maximum(i1, i0 + 1)
-        ij = np.floor((pts - full_lo) / resolution).astype(np.int64)
         keep = ((ij >= i0) & (ij < i1)).all(axis=1)
         cells = np.ascontiguousarray(ij[keep] - i0)
         r = math.floor(pad / resolution)
@@ -152,6 +142,20 @@ class LikelihoodGrid:
         out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
         out[inside] = self.distance[j[inside], i[inside]]
         return out
+
+
+def _raster(
+    points: np.ndarray, resolution: float, margin: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frame a grid of `points` (N x 2) has with `margin` m around their bounding box: its
+    lower-left corner, its shape (columns, rows) and each point's cell (column, row); no
+    points: a grid around the origin."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(pts) == 0:
+        pts = np.zeros((1, 2))
+    lo = pts.min(axis=0) - margin
+    shape = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(np.int64) + 1
+    return lo, shape, np.floor((pts - lo) / resolution).astype(np.int64)
 
 
 @nb.njit(cache=True, nogil=True)

@@ -157,13 +157,6 @@ def candidates(
     return out
 
 
-def candidate_for(
-    q: int, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, config: LoopConfig
-) -> tuple[int, int, float] | None:
-    """The candidate of key number `q` (`KeyIndex.candidate`; an index of one query's)."""
-    return KeyIndex(keys, poses, along, config).candidate(q)
-
-
 class LoopCloser:
     """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
     scans a test needs are computed when it needs them, so memory does not grow with S)."""
@@ -306,7 +299,6 @@ __all__ = [
     "Loop",
     "LoopCloser",
     "LoopConfig",
-    "candidate_for",
     "candidates",
     "compose",
     "loop_truth_error",
