@@ -101,3 +101,26 @@ def test_import_auto_reads_the_native_file_beside_the_truth(tmp_path: Path, cli:
     assert ds.groundtruth is not None
     np.testing.assert_allclose(ds.groundtruth.x, truth.x, atol=1e-6)
     assert ds.meta["source"]["format"] == "rawseeds"
+
+
+def test_building_laps_drive_the_ring_again_with_the_scans_growing(
+    tmp_path: Path, cli: Cli
+) -> None:
+    out = tmp_path / "laps"
+    code, stdout, _ = cli(
+        "simulate", "building", "-p", "laps=2", "-p", "scans=2000", "--out", str(out),
+        "-f", "dataset",
+    )  # fmt: skip
+    assert code == 0, stdout
+    truth = pd.read_parquet(out / "truth.parquet")
+    assert len(truth) == 2000
+    # the far corner of the ring, reached once per lap
+    near = np.hypot(truth.x - 40.0, truth.y - 24.0) < 0.3
+    assert np.count_nonzero(np.diff(near.astype(int)) == 1) == 2
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["simulation"]["params"]["laps"] == 2
+    code, _, err = cli(
+        "simulate", "corridor", "-p", "laps=2", "--out", str(tmp_path / "c"), "-f", "dataset"
+    )
+    assert code == 1 and "laps" in err and "Traceback" not in err
+    assert not (tmp_path / "c").exists()

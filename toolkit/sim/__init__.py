@@ -30,7 +30,7 @@ from toolkit.sim.laser import LaserModel
 from toolkit.sim.odometry import OdometryModel
 from toolkit.sim.procedural import random_world
 from toolkit.sim.scenarios import SCENARIOS as FIXED_SCENARIOS
-from toolkit.sim.scenarios import Scenario, sample_path
+from toolkit.sim.scenarios import Scenario, building, sample_path
 from toolkit.sim.truth import REGION_PARTS, training_regions
 from toolkit.sim.truth import sections as _sections
 from toolkit.typed import convert, field_types
@@ -109,14 +109,26 @@ def parameters(
     """The scenario and the models with `params` applied. Each parameter is checked against
     the models' dataclass fields and converted to the field's type (text from `-p KEY=VALUE`
     or JSON values); an unknown name or a wrong type is a one-line error. The random
-    scenario's world is drawn from `seed`, its path from the parameter `route` (0 or 1)."""
+    scenario's world is drawn from `seed`, its path from the parameter `route` (0 or 1); the
+    building's `laps` drives its ring that many times."""
     if scenario not in SCENARIOS:
         raise ToolkitError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     route = params.pop("route", None)
     if route is not None and scenario != "random":
         raise ToolkitError("route is a parameter of the random scenario only")
     way = cast(int, convert(route, int, "route", "the simulator")) if route is not None else 0
-    scn = random_world(seed, way) if scenario == "random" else SCENARIOS[scenario]()
+    laps = params.pop("laps", None)
+    if laps is not None and scenario != "building":
+        raise ToolkitError("laps is a parameter of the building scenario only")
+    rounds = cast(int, convert(laps, int, "laps", "the simulator")) if laps is not None else 1
+    if rounds < 1:
+        raise ToolkitError(f"laps must be at least 1, not {rounds}")
+    if scenario == "random":
+        scn = random_world(seed, way)
+    elif scenario == "building":
+        scn = building(rounds)
+    else:
+        scn = SCENARIOS[scenario]()
     laser_fields = field_types(LaserModel)
     odo_fields = field_types(OdometryModel)
     kinds = {**PATH_PARAMS, **laser_fields, **odo_fields}
@@ -141,7 +153,8 @@ def parameters(
 
 def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
-    `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`)."""
+    `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`; for
+    "building", `laps`: times round the ring)."""
     scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
@@ -156,6 +169,7 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
         **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
+        **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
         **laser.to_dict(),
         **odometry.to_dict(),
         "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),

@@ -167,8 +167,10 @@ def corridor() -> Scenario:
     )
 
 
-def building() -> Scenario:
-    """A Rawseeds Bicocca-like floor: see the module docstring for the plan."""
+def building(laps: int = 1) -> Scenario:
+    """A Rawseeds Bicocca-like floor: see the module docstring for the plan. `laps`: times
+    round the ring before the last leg (the scans grow with the path, as far apart as in one
+    lap), for logs that come back again and again."""
     b = WorldBuilder()
     # ring: outer walls x in [-1, 41], y in [-1, 25]; inner block x in [1, 39], y in [1, 23]
     hall_x0, hall_x1, hall_depth = 12.0, 28.0, 10.0
@@ -206,13 +208,14 @@ def building() -> Scenario:
     zones += [Zone("stairs", 39.0, 7.5, 41.0, 10.8)]  # driving +y
     zones += [Zone("window", 8.2, 23.0, 32.0, 25.0)]  # driving -x
     zones += [Zone("door", -1.0, d - 0.3, 1.0, d + 0.9) for d in doors_w]  # driving -y
+    lap = [*_ring()[1:], (0.0, 0.0)]  # from (4, 0) round the ring and back to (0, 0)
     return Scenario(
         name="building",
         world=b.build(),
-        waypoints=np.array([(4.0, 0.0), *_ring()[1:], (0.0, 0.0), (20.0, 0.0)]),
+        waypoints=np.array([(4.0, 0.0), *lap * laps, (20.0, 0.0)]),
         zones=zones,
         default_label="corridor",
-        scans=4000,
+        scans=round(4000 * (144.0 + 128.0 * (laps - 1)) / 144.0),  # path 144 m, 128 m a lap more
         speed=0.6,
         turn_rate=0.3,
         sections=0,

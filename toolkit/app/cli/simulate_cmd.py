@@ -45,8 +45,9 @@ def simulate_command(
         str,
         typer.Argument(
             metavar="SCENARIO",
-            help="corridor (the paper's Fig. 1), building, or random (a new world per --seed; "
-            "-p route=1: the other way through it)",
+            help="corridor (the paper's Fig. 1), building (-p laps=N: N times round its ring, "
+            "for loop closure), or random (a new world per --seed; -p route=1: the other way "
+            "through it)",
         ),
     ],
     out: Annotated[Path, typer.Option("--out", metavar="DIR", help="directory to write")],
