@@ -367,7 +367,7 @@ class MapMatcher:
         self.covariance = np.zeros((3, 3))
         self.stats = np.zeros(_OUT)
         self.searches = 0
-        self._motion = MotionMatcher(laser)
+        self._motion = MotionMatcher(laser, gain=1.0)  # as measured (docs/maps.md)
         self._mount = se2.mount_pose(laser)
         self._cos = np.cos(laser.angles + self._mount[2])  # the beams' directions, once
         self._sin = np.sin(laser.angles + self._mount[2])
