@@ -233,13 +233,16 @@ def _disc_field(
                 d = (i - ci) * (i - ci) + dj * dj
                 if d < row[i]:
                     row[i] = d
-    dist = np.empty((h, w), dtype=np.float32)
-    like_t = np.empty((w, h), dtype=np.float32)
+    # cells beyond r keep the tables' last entry: only those within it are written (the
+    # transposed writes of every cell cost more than the stamping)
+    dist = np.full((h, w), dist_of[far], dtype=np.float32)
+    like_t = np.full((w, h), like_of[far], dtype=np.float32)
     for j in range(h):
         for i in range(w):
             d = d2[j, i]
-            dist[j, i] = dist_of[d]
-            like_t[i, j] = like_of[d]
+            if d < far:
+                dist[j, i] = dist_of[d]
+                like_t[i, j] = like_of[d]
     return dist, like_t
 
 
@@ -261,14 +264,18 @@ def _likelihood_t(
     dist: np.ndarray, sigma: float, cap: float, i0: int, i1: int, j0: int, j1: int
 ) -> np.ndarray:
     """exp(-d^2 / 2 sigma^2) of the distances `dist` (H x W), 0 at `cap`, transposed (W x H):
-    over columns i0..i1 and rows j0..j1 (0 elsewhere)."""
+    over columns i0..i1 and rows j0..j1 (0 elsewhere). Read row by row, written only where
+    a surface is within the cap (the rest of a map is the cap: zeros already), as the
+    transposed writes of every cell cost more than the exponentials."""
     h, w = dist.shape
     out = np.zeros((w, h), dtype=np.float32)
     k = -0.5 / (sigma * sigma)
     for j in range(j0, j1):
+        row = dist[j]
         for i in range(i0, i1):
-            d = dist[j, i]
-            out[i, j] = math.exp(k * d * d) if d < cap else 0.0
+            d = row[i]
+            if d < cap:
+                out[i, j] = math.exp(k * d * d)
     return out
 
 
