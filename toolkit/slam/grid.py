@@ -94,13 +94,30 @@ class LikelihoodGrid:
 
     @classmethod
     def from_distance(
-        cls, distance: np.ndarray, origin: np.ndarray, resolution: float, sigma: float, cap: float
+        cls,
+        distance: np.ndarray,
+        origin: np.ndarray,
+        resolution: float,
+        sigma: float,
+        cap: float,
+        box: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> LikelihoodGrid:
         """The grid of a distance field already at hand (H x W, row = y, capped at `cap`: a
         scan-to-map matcher's); cells at the cap (beyond the field's reach) have likelihood 0.
-        No distance transform: one pass over the cells."""
+        No distance transform: one pass over the cells. With `box` (lo, hi: world x, y) the
+        likelihood is computed only over the cells of the box (and 2 more around it), 0
+        elsewhere: the fine level of a correlative search reads only where its points land
+        (`correlative_search` asks for that box), and the whole field was most of its time;
+        the cells it reads are the same, to the bit."""
         d = np.asarray(distance, dtype=np.float32)
-        like_t = _likelihood_t(d, sigma, cap)
+        h, w = d.shape
+        i0, j0, i1, j1 = 0, 0, w, h
+        if box is not None:
+            lo = np.floor((np.asarray(box[0]) - origin) / resolution).astype(np.int64) - 2
+            hi = np.ceil((np.asarray(box[1]) - origin) / resolution).astype(np.int64) + 3
+            i0, j0 = int(min(max(lo[0], 0), w)), int(min(max(lo[1], 0), h))
+            i1, j1 = int(min(max(hi[0], i0), w)), int(min(max(hi[1], j0), h))
+        like_t = _likelihood_t(d, sigma, cap, i0, i1, j0, j1)
         return cls(np.asarray(origin, dtype=np.float64), resolution, like_t.T, like_t, d)
 
     @classmethod
@@ -139,6 +156,9 @@ class LikelihoodGrid:
         j = np.floor((y - self.origin[1]) / self.resolution).astype(np.int64)
         h, w = self.distance.shape
         inside = (i >= 0) & (i < w) & (j >= 0) & (j < h)
+        if inside.all():  # the grid's largest distance (a pass over every cell) only if needed
+            out: np.ndarray = self.distance[j, i].astype(np.float64)
+            return out
         out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
         out[inside] = self.distance[j[inside], i[inside]]
         return out
@@ -164,32 +184,65 @@ def _disc_field(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distance (H x W) and likelihood transposed (W x H) of the occupied `cells` (N x 2:
     column, row) within `r` cells, from the tables `dist_of` / `like_of` indexed by the squared
-    cell distance (their last entry: beyond `r`)."""
+    cell distance (their last entry: beyond `r`).
+
+    An occupied cell stamps its disc only where no occupied neighbour is nearer: a cell p
+    with (p - c) . e >= 1 for a side neighbour c + e (>= 2 for a diagonal one) is strictly
+    nearer that neighbour, so the nearest occupied cell of every p still stamps it and the
+    result is the same minimum; along a wall a cell stamps a line, not a disc."""
     far = r * r + 1
+    occ = np.zeros((h + 2, w + 2), dtype=np.bool_)  # one cell of border, never occupied
+    for k in range(cells.shape[0]):
+        occ[cells[k, 1] + 1, cells[k, 0] + 1] = True
     d2 = np.full((h, w), far, dtype=np.int32)
     for k in range(cells.shape[0]):
         ci, cj = cells[k, 0], cells[k, 1]
         if d2[cj, ci] == 0:
             continue
-        for dj in range(-r, r + 1):
+        d2[cj, ci] = 0
+        # the clipping half-planes: dx <= bx_hi, dx >= bx_lo, dy likewise (side neighbours),
+        # and +-dx +-dy <= 1 (diagonal ones)
+        east, west = occ[cj + 1, ci + 2], occ[cj + 1, ci]
+        north, south = occ[cj + 2, ci + 1], occ[cj, ci + 1]
+        ne, nw = occ[cj + 2, ci + 2], occ[cj + 2, ci]
+        se, sw = occ[cj, ci + 2], occ[cj, ci]
+        dy0 = 0 if south else -r
+        dy1 = 0 if north else r
+        for dj in range(dy0, dy1 + 1):
             j = cj + dj
             if j < 0 or j >= h:
                 continue
             m = r
             while m * m + dj * dj > r * r:
                 m -= 1
+            lo, hi = -m, m
+            if east:
+                hi = min(hi, 0)
+            if west:
+                lo = max(lo, 0)
+            if ne:  # dx + dy <= 1
+                hi = min(hi, 1 - dj)
+            if se:  # dx - dy <= 1
+                hi = min(hi, 1 + dj)
+            if nw:  # -dx + dy <= 1
+                lo = max(lo, dj - 1)
+            if sw:  # -dx - dy <= 1
+                lo = max(lo, -dj - 1)
             row = d2[j]
-            for i in range(max(ci - m, 0), min(ci + m + 1, w)):
+            for i in range(max(ci + lo, 0), min(ci + hi + 1, w)):
                 d = (i - ci) * (i - ci) + dj * dj
                 if d < row[i]:
                     row[i] = d
-    dist = np.empty((h, w), dtype=np.float32)
-    like_t = np.empty((w, h), dtype=np.float32)
+    # cells beyond r keep the tables' last entry: only those within it are written (the
+    # transposed writes of every cell cost more than the stamping)
+    dist = np.full((h, w), dist_of[far], dtype=np.float32)
+    like_t = np.full((w, h), like_of[far], dtype=np.float32)
     for j in range(h):
         for i in range(w):
             d = d2[j, i]
-            dist[j, i] = dist_of[d]
-            like_t[i, j] = like_of[d]
+            if d < far:
+                dist[j, i] = dist_of[d]
+                like_t[i, j] = like_of[d]
     return dist, like_t
 
 
@@ -207,15 +260,22 @@ def _pool_min(dist: np.ndarray, pool: int) -> np.ndarray:
 
 
 @nb.njit(cache=True, nogil=True)
-def _likelihood_t(dist: np.ndarray, sigma: float, cap: float) -> np.ndarray:
-    """exp(-d^2 / 2 sigma^2) of the distances `dist` (H x W), 0 at `cap`, transposed (W x H)."""
+def _likelihood_t(
+    dist: np.ndarray, sigma: float, cap: float, i0: int, i1: int, j0: int, j1: int
+) -> np.ndarray:
+    """exp(-d^2 / 2 sigma^2) of the distances `dist` (H x W), 0 at `cap`, transposed (W x H):
+    over columns i0..i1 and rows j0..j1 (0 elsewhere). Read row by row, written only where
+    a surface is within the cap (the rest of a map is the cap: zeros already), as the
+    transposed writes of every cell cost more than the exponentials."""
     h, w = dist.shape
-    out = np.empty((w, h), dtype=np.float32)
+    out = np.zeros((w, h), dtype=np.float32)
     k = -0.5 / (sigma * sigma)
-    for j in range(h):
-        for i in range(w):
-            d = dist[j, i]
-            out[i, j] = math.exp(k * d * d) if d < cap else 0.0
+    for j in range(j0, j1):
+        row = dist[j]
+        for i in range(i0, i1):
+            d = row[i]
+            if d < cap:
+                out[i, j] = math.exp(k * d * d)
     return out
 
 

@@ -318,6 +318,81 @@ def surfaces(ranges: np.ndarray, laser: LaserGeometry, config: MapConfig) -> np.
     return np.concatenate([np.column_stack([p[k], p[k + 1]]), np.column_stack([p[lone], p[lone]])])
 
 
+@nb.njit(cache=True, nogil=True)
+def _placed_surfaces(
+    r: np.ndarray,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    mount: np.ndarray,
+    limit: float,
+    reach_per_m: float,
+    join_cos: float,
+    join_max: float,
+    lone_range: float,
+    pose: np.ndarray,
+) -> np.ndarray:
+    """`_place(pose, surfaces(...))` in one pass (numba): the same arithmetic, to the bit
+    (tests/slam/test_scanmap.py compares them), without numpy's dozen temporaries per
+    keyframe. `cos_a`, `sin_a`: the beams' directions (numpy's, as `surfaces` computes
+    them); `limit`: max_range + map_margin; `reach_per_m`: join * |angle increment|."""
+    n = r.shape[0]
+    x = np.empty(n)
+    y = np.empty(n)
+    ok = np.empty(n, dtype=np.bool_)
+    for k in range(n):
+        rk = r[k]
+        x[k] = mount[0] + rk * cos_a[k]
+        y[k] = mount[1] + rk * sin_a[k]
+        ok[k] = math.isfinite(rk) and rk > 0 and rk <= limit
+    m = max(n - 1, 0)
+    length = np.empty(m)
+    ux = np.empty(m)
+    uy = np.empty(m)
+    for k in range(m):
+        sx, sy = x[k + 1] - x[k], y[k + 1] - y[k]
+        length[k] = math.hypot(sx, sy)
+        ux[k] = sx / length[k] if length[k] != 0.0 else math.nan
+        uy[k] = sy / length[k] if length[k] != 0.0 else math.nan
+    in_line = np.zeros(m, dtype=np.bool_)
+    for k in range(m - 1):
+        c = abs(ux[k + 1] * ux[k] + uy[k + 1] * uy[k])
+        if c > join_cos:  # NaN (a zero-length step) never is
+            in_line[k + 1] = True
+            in_line[k] = True
+    join = np.zeros(m, dtype=np.bool_)
+    joined = np.zeros(n, dtype=np.bool_)
+    count = 0
+    for k in range(m):
+        if ok[k + 1] and ok[k]:
+            reach = 0.05 + reach_per_m * min(r[k + 1], r[k])
+            if length[k] < reach or (in_line[k] and length[k] < join_max):
+                join[k] = True
+                joined[k] = True
+                joined[k + 1] = True
+                count += 1
+    lone = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        if ok[k] and not joined[k] and r[k] <= lone_range:
+            lone[k] = True
+            count += 1
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    out = np.empty((count, 4))
+    row = 0
+    for k in range(m):
+        if join[k]:
+            out[row, 0] = pose[0] + c * x[k] - s * y[k]
+            out[row, 1] = pose[1] + s * x[k] + c * y[k]
+            out[row, 2] = pose[0] + c * x[k + 1] - s * y[k + 1]
+            out[row, 3] = pose[1] + s * x[k + 1] + c * y[k + 1]
+            row += 1
+    for k in range(n):
+        if lone[k]:
+            out[row, 0] = out[row, 2] = pose[0] + c * x[k] - s * y[k]
+            out[row, 1] = out[row, 3] = pose[1] + s * x[k] + c * y[k]
+            row += 1
+    return out
+
+
 def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`se2.compose` of two poses (3,), in scalar arithmetic: the per-scan path calls it a few
     times per scan, where numpy's call overhead was a fifth of the matching time."""
@@ -354,7 +429,7 @@ class MapMatcher:
         self.config = config or MapConfig()
         self._keys: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # path, pose, points
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # origin, distances
-        self._coarse: tuple[LikelihoodGrid, LikelihoodGrid] | None = None
+        self._coarse: tuple[LikelihoodGrid, np.ndarray, np.ndarray] | None = None
         self._centre = np.zeros(2)
         self._last = np.zeros(3)
         self._step = np.zeros(3)
@@ -462,6 +537,7 @@ class MapMatcher:
                 turn=cfg.search_turn,
                 turn_step=0.02,
                 coarse_voxel=0.2,
+                fine_resolution=cfg.resolution,
             )
             out2 = np.zeros(_OUT)
             cov2 = np.zeros((3, 3))
@@ -490,7 +566,18 @@ class MapMatcher:
         the window's keyframes once the robot has left the grid's centre (keyframes that fell
         out of the window leave the grid then)."""
         cfg = self.config
-        pts = _place(pose, surfaces(ranges, self.laser, cfg))
+        pts = _placed_surfaces(
+            np.asarray(ranges, dtype=np.float64),
+            self._cos,
+            self._sin,
+            self._mount,
+            cfg.max_range + cfg.map_margin,
+            cfg.join * abs(self.laser.angle_increment),
+            math.cos(cfg.join_angle),
+            cfg.join_max,
+            cfg.lone_range,
+            pose,
+        )
         self._keys.append((self._path, pose.copy(), pts))
         self._key_pose = pose.copy()
         self._coarse = None
@@ -505,17 +592,37 @@ class MapMatcher:
         half = cfg.max_range + cfg.map_margin + cfg.recentre
         size = math.ceil(2 * half / cfg.resolution)
         origin = pose[:2] - half
-        dist = np.full((size, size), cfg.cap, dtype=np.float32)
+        if grid is not None and grid[1].shape == (size, size):
+            dist = grid[1]  # the old grid's memory, refilled: no new pages to fault in
+            dist.fill(cfg.cap)
+        else:
+            dist = np.full((size, size), cfg.cap, dtype=np.float32)
         for _, _, q in self._keys:
             stamp_segments(dist, origin, cfg.resolution, q, cfg.cap)
         self._grid = (origin, dist)
         self._centre = pose[:2].copy()
 
-    def _search_grids(self) -> tuple[LikelihoodGrid, LikelihoodGrid]:
+    def _search_grids(
+        self,
+    ) -> tuple[LikelihoodGrid, Callable[[np.ndarray, np.ndarray], LikelihoodGrid]]:
         """Likelihood grids of the window's keyframes near the robot, for the search: the
         coarse one from their returns (a distance transform of 0.2 m cells), the fine one
         cut from the distance grid (no distance transform of 5 cm cells: it was most of a
-        search's time)."""
+        search's time), as a function of the box the fine search needs (its likelihood is
+        computed there only: `LikelihoodGrid.from_distance`)."""
+        coarse, crop, corner = self._search_maps()
+        cfg = self.config
+
+        def fine(lo: np.ndarray, hi: np.ndarray) -> LikelihoodGrid:
+            return LikelihoodGrid.from_distance(
+                crop, corner, cfg.resolution, 0.08, cfg.cap, box=(lo, hi)
+            )
+
+        return coarse, fine
+
+    def _search_maps(self) -> tuple[LikelihoodGrid, np.ndarray, np.ndarray]:
+        """The search's coarse grid, and the crop of the distance grid (and its corner) that
+        the fine grid is cut from; kept until the next keyframe."""
         if self._coarse is None:
             cfg = self.config
             assert self._grid is not None
@@ -532,10 +639,7 @@ class MapMatcher:
             hi = np.maximum(np.minimum(hi, (dist.shape[1], dist.shape[0])), lo + 1)
             crop = dist[lo[1] : hi[1], lo[0] : hi[0]]
             corner = origin + lo * cfg.resolution
-            self._coarse = (
-                LikelihoodGrid.build(world, 0.2, 0.25, margin=1.5),
-                LikelihoodGrid.from_distance(crop, corner, cfg.resolution, 0.08, cfg.cap),
-            )
+            self._coarse = (LikelihoodGrid.build(world, 0.2, 0.25, margin=1.5), crop, corner)
         return self._coarse
 
 
