@@ -66,6 +66,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: closed set, no learnt none (--open-set never)", dataclasses.replace(FULL, open_set="never")),
     ("alternative: open set always (--open-set always)", dataclasses.replace(FULL, open_set="always")),
     ("alternative: the strip beside the laser 1 m (the last session's; default 0.45 m)", dataclasses.replace(FULL, beside=1.0)),
+    ("alternative: leaf shares not mixed with uniform (leaf_mix 0, the last session's; default 0.1)", dataclasses.replace(FULL, leaf_mix=0.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -213,7 +213,7 @@ def _fit_places(
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=len(columns),
-        open_set=open_set, claim=claim,
+        open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
     )  # fmt: skip
 
 

@@ -64,10 +64,11 @@ from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.descriptors import BESIDE
-from toolkit.features.places import C_DEFAULT, PlaceClassifier
+from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
-#: 3: the 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
-MODEL_VERSION = 3
+#: 4: the forest's leaf shares mixed with uniform (`leaf_mix`); 3: the 0.45 m strip beside
+#: the laser; 2: the context and the forest (older: learn anew)
+MODEL_VERSION = 4
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -118,6 +119,8 @@ class Config:
     # of the log (taught spots in an untaught background), "always", "never"
     beam_term: float = 0.0  # weight of the per-beam model's log-posterior added to the
     # descriptors' (0: not used)
+    leaf_mix: float = LEAF_MIX  # share of uniform mixed into each leaf's class shares (a
+    # leaf of a few training scans of one place does not rule the others out; 0: unmixed)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""
@@ -133,6 +136,8 @@ class Config:
                 raise ToolkitError(f"{name} {value!r}: use one of {', '.join(allowed)}")
         if not 0.0 <= self.robust < 1.0:
             raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
+        if not 0.0 <= self.leaf_mix < 1.0:
+            raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
