@@ -9,15 +9,17 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import importers
+import toolkit
 from toolkit.app.simulation import write_simulation
 from toolkit.dataset import load
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses
 from toolkit.sim import simulate
-from toolkit.slam.localmap import start_velocity
+from toolkit.slam.localmap import standing, start_velocity
 from toolkit.slam.run import slam_trajectory
 
 
@@ -57,3 +59,29 @@ def test_start_velocity_is_the_robots_speed(scenario: str) -> None:
     step = start_velocity(replace(ds, odometry=None))
     assert step is not None
     assert abs(step[0] - speed) < 0.1 * speed and abs(step[1]) < 0.1 * speed
+
+
+def _standing_first(ds: toolkit.Dataset, scans: int) -> toolkit.Dataset:
+    """`ds` with `scans` scans of the robot standing at its first pose put before it: scan 0
+    again with fresh range noise (1 cm, the simulator's), the truth still."""
+    truth = truth_poses(ds)
+    assert truth is not None
+    dt = float(ds.t[1] - ds.t[0])
+    t = np.concatenate([ds.t[0] - dt * np.arange(scans, 0, -1), ds.t])
+    rng = np.random.default_rng(1)
+    still = ds.ranges[:1] + rng.normal(0.0, 0.01, (scans, ds.n_beams)).astype(np.float32)
+    poses = np.concatenate([np.repeat(truth[:1], scans, axis=0), truth])
+    frame = pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
+    ranges = np.concatenate([still, ds.ranges]).astype(np.float32)
+    return replace(ds, t=t, ranges=ranges, odometry=None, groundtruth=frame)
+
+
+def test_a_log_that_starts_at_rest_keeps_still_then_takes_the_velocity() -> None:
+    # 14.7 m when the start velocity was applied from scan 0 (a mutation run)
+    ds = _standing_first(simulate("corridor", seed=21).dataset, 150)
+    assert standing(ds.ranges) in range(150, 153)  # the first moving scans change little
+    assert standing(simulate("corridor", seed=21).dataset.ranges) == 1
+    result, _ = slam_trajectory(ds)
+    truth = truth_poses(ds)
+    assert truth is not None
+    assert evaluate(result.poses, truth)["ate"]["rmse"] <= 0.5

@@ -37,6 +37,9 @@ from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
 STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
 VELOCITY_GAIN = 0.3  # share of a scan's matched motion taken into the velocity (1: the last)
 START_SCANS = 300  # scans of the first pass that gives the start velocity
+REST_CHANGE = 0.1  # m: a beam whose range moved this much since the first scan (or whose
+# return came or went) has seen motion ...
+REST_SHARE = 0.02  # ... and a scan with more such beams than this share is not at rest
 
 
 class MotionMatcher(sc.StreamMatcher):
@@ -59,6 +62,11 @@ class MotionMatcher(sc.StreamMatcher):
         self.gain = gain
         self._dt = 0.0
         self._t: float | None = None
+
+    def set_velocity(self, step: np.ndarray) -> None:
+        """Go on from the next scan with this motion per scan interval (robot frame)."""
+        self._step = np.asarray(step, np.float64).reshape(3)
+        self._known = True
 
     def push_predicted(self, ranges: np.ndarray, t: float | None = None) -> np.ndarray:
         """Take the next scan of a log without odometry (at time `t`, to scale the motion to
@@ -87,17 +95,35 @@ class MotionMatcher(sc.StreamMatcher):
         return pose
 
 
+def standing(ranges: np.ndarray, chunk: int = 1024) -> int:
+    """How many scans the log starts with at rest: scans that differ from the first one by
+    the range noise only (at most `REST_SHARE` of the beams moved `REST_CHANGE` or more).
+    Along a corridor the matcher cannot tell rest from motion; the scans can."""
+    first = ranges[0]
+    for start in range(0, len(ranges), chunk):
+        block = ranges[start : start + chunk]
+        with np.errstate(invalid="ignore"):
+            moved = np.abs(block - first) >= REST_CHANGE
+        moved |= np.isnan(block) != np.isnan(first)
+        going = np.nonzero(moved.mean(axis=1) > REST_SHARE)[0]
+        if len(going):
+            return start + int(going[0])
+    return len(ranges)
+
+
 def start_velocity(
-    ds: Dataset, config: sc.MatchConfig | None = None, scans: int = START_SCANS
+    ds: Dataset, config: sc.MatchConfig | None = None, scans: int = START_SCANS, begin: int = 0
 ) -> np.ndarray | None:
     """The motion per scan (robot frame) to start a log without odometry with: the median
-    motion over the second half of a first, unfiltered pass over its first `scans` scans
-    (None when there are fewer than 8)."""
-    m = min(scans, ds.n_scans)
+    motion over the second half of a first, unfiltered pass over `scans` scans from scan
+    `begin` (None when there are fewer than 8)."""
+    m = min(scans, ds.n_scans - begin)
     if m < 8:
         return None
     first = MotionMatcher(ds.laser, config, gain=1.0)
-    poses = np.array([first.push_predicted(ds.ranges[k], float(ds.t[k])) for k in range(m)])
+    poses = np.array(
+        [first.push_predicted(ds.ranges[k], float(ds.t[k])) for k in range(begin, begin + m)]
+    )
     steps = se2.between(poses[:-1], poses[1:])
     return np.asarray(np.median(steps[m // 2 :], axis=0))
 
@@ -114,10 +140,15 @@ def sequential(
         return build(ds, "gaussian", config, progress=progress)
     config = config or sc.MatchConfig()
     t0 = time.perf_counter()
-    matcher = MotionMatcher(ds.laser, config, start_velocity(ds, config))
+    rest = standing(ds.ranges)  # the start velocity from where the robot starts moving
+    rest = rest if rest > 1 else 0  # the first scan alone is no rest
+    velocity = start_velocity(ds, config, begin=rest)
+    matcher = MotionMatcher(ds.laser, config, None if rest else velocity)
     poses = np.zeros((ds.n_scans, 3))
     matches = sc.PairMatches.empty(max(ds.n_scans - 1, 0))
     for k in range(ds.n_scans):
+        if k == rest and k > 0 and velocity is not None:
+            matcher.set_velocity(velocity)
         poses[k] = matcher.push_predicted(ds.ranges[k], float(ds.t[k]))
         if k > 0:  # the pair just matched: its pose, covariance and diagnostics
             sigma, n_used, degenerate, agreement = matcher.stats
@@ -133,4 +164,4 @@ def sequential(
     return TrajectoryResult(frame, Method.GAUSSIAN, matches, seconds, used)
 
 
-__all__ = ["MotionMatcher", "sequential", "start_velocity"]
+__all__ = ["MotionMatcher", "sequential", "standing", "start_velocity"]
