@@ -255,3 +255,23 @@ def test_an_unfinished_write_is_never_a_dataset(tmp_path: Path) -> None:
     from toolkit.app.fleet import find_datasets
 
     assert find_datasets([tmp_path]) == []
+
+
+def test_a_stop_wrapped_by_an_import_is_still_a_stop(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """SIGTERM landing in an extension module's initialisation comes out as ImportError
+    ("initialization failed", seen in CI on a cold clone): still 143 and the one line."""
+    import toolkit.app.cli as cli
+    from toolkit.app import signals
+
+    def stopped_inside_an_import(**_: object) -> None:
+        signals.received = signal.SIGTERM  # as the handler records it, before raising
+        raise ImportError("initialization failed")
+
+    monkeypatch.setattr(signals, "received", None)
+    monkeypatch.setattr(cli, "app", stopped_inside_an_import)
+    with pytest.raises(SystemExit) as stop:
+        cli.main()
+    assert stop.value.code == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip() == "interrupted (SIGTERM); no output written"

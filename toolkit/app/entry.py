@@ -25,6 +25,11 @@ def main() -> None:
     except KeyboardInterrupt:
         signals.exit_stopped()
         return
+    except Exception:  # a stop wrapped by an import (see `toolkit.app.cli.main`)
+        if signals.received is None:
+            raise
+        signals.exit_stopped()
+        return
     try:
         cli_main()
     finally:

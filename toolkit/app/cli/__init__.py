@@ -100,6 +100,10 @@ def main() -> None:
     except (typer.Abort, KeyboardInterrupt):
         signals.exit_stopped()
     except Exception as e:  # a usage error, or a bug: still one line
+        if signals.received is not None:
+            # the stop landed inside an import or a library's C code, which wrapped it (an
+            # extension module's "initialization failed"): a stopped command all the same
+            signals.exit_stopped()
         show = getattr(e, "format_message", None)
         if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
             typer.echo(show())  # `toolkit` alone: the help, as `--help` prints it
