@@ -14,17 +14,54 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 
 from toolkit import se2
-from toolkit.dataset import Dataset
+from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.sim import Simulation
 from toolkit.slam.grid import LikelihoodGrid, _disc_field, correlative_search, stamp_segments
 from toolkit.slam.loops import LoopCloser
-from toolkit.slam.scanmap import MapConfig, MapMatcher, _place, _placed_surfaces, surfaces
+from toolkit.slam.scanmap import MapConfig, MapMatcher, _placed_surfaces
 
 
 @pytest.fixture(scope="module")
 def drifted(building_sim: Simulation) -> Dataset:
     return with_drift(building_sim.dataset, 0)
+
+
+def _surfaces_numpy(
+    pose: np.ndarray, ranges: np.ndarray, laser: LaserGeometry, config: MapConfig
+) -> np.ndarray:
+    """The numpy computation `_placed_surfaces` replaced: the surfaces in the robot frame,
+    then placed at `pose`."""
+    mount = se2.mount_pose(laser)
+    a = laser.angles + mount[2]
+    r = np.asarray(ranges, dtype=np.float64)
+    x = mount[0] + r * np.cos(a)
+    y = mount[1] + r * np.sin(a)
+    ok = np.isfinite(r) & (r > 0) & (r <= config.max_range + config.map_margin)
+    p = np.column_stack([x, y])
+    seg = p[1:] - p[:-1]
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    reach = 0.05 + config.join * np.abs(laser.angle_increment) * np.fmin(r[1:], r[:-1])
+    both = ok[1:] & ok[:-1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = seg / length[:, None]
+    cos_prev = np.nan_to_num(np.abs(np.einsum("ij,ij->i", u[1:], u[:-1])))
+    limit = math.cos(config.join_angle)
+    in_line = np.zeros(len(seg), dtype=bool)
+    in_line[1:] |= cos_prev > limit
+    in_line[:-1] |= cos_prev > limit
+    join = both & ((length < reach) | (in_line & (length < config.join_max)))
+    joined = np.zeros(len(r), dtype=bool)
+    joined[1:] |= join
+    joined[:-1] |= join
+    lone = ok & ~joined & (r <= config.lone_range)
+    k = np.nonzero(join)[0]
+    local = np.concatenate([np.column_stack([p[k], p[k + 1]]), np.column_stack([p[lone], p[lone]])])
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    out = np.empty_like(local)
+    out[:, 0::2] = pose[0] + c * local[:, 0::2] - s * local[:, 1::2]
+    out[:, 1::2] = pose[1] + s * local[:, 0::2] + c * local[:, 1::2]
+    return out
 
 
 @pytest.mark.parametrize(
@@ -45,7 +82,7 @@ def test_placed_surfaces_in_one_pass_equal_surfaces_then_place(
     for r in ranges:
         pose = np.array([*rng.normal(0.0, 30.0, 2), rng.uniform(-np.pi, np.pi)])
         with np.errstate(invalid="ignore"):  # inf - inf: the returns left out
-            want = _place(pose, surfaces(r, ds.laser, config))
+            want = _surfaces_numpy(pose, r, ds.laser, config)
         got = _placed_surfaces(
             r,
             cos_a,

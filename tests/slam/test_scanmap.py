@@ -18,7 +18,7 @@ from toolkit.poses import build, odometry_poses, truth_poses, with_drift
 from toolkit.sim import simulate
 from toolkit.slam.grid import stamp_segments
 from toolkit.slam.run import slam_trajectory
-from toolkit.slam.scanmap import MapConfig, MapMatcher, _place, scan_to_map, surfaces
+from toolkit.slam.scanmap import MapConfig, MapMatcher, scan_to_map, surfaces
 
 
 def _ate(poses: np.ndarray, ds: toolkit.Dataset) -> float:
@@ -101,7 +101,7 @@ def test_stamped_distances_are_the_exact_truncated_distances_to_the_surfaces() -
     res, cap = 0.05, 0.5
     origin = truth[30, :2] - 6.0
     dist = np.full((240, 240), cap, dtype=np.float32)
-    placed = [_place(truth[k], surfaces(ds.ranges[k], ds.laser, config)) for k in (0, 30, 59)]
+    placed = [surfaces(ds.ranges[k], ds.laser, config, truth[k]) for k in (0, 30, 59)]
     for seg in placed:
         stamp_segments(dist, origin, res, seg, cap)
     seg = np.concatenate(placed)

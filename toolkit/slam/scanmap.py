@@ -284,38 +284,32 @@ def _fit(
 # ---------------------------------------------------------------- the local map
 
 
-def surfaces(ranges: np.ndarray, laser: LaserGeometry, config: MapConfig) -> np.ndarray:
-    """A scan's surfaces in the robot frame, N x 4 segments (x0, y0, x1, y1): consecutive
-    returns of one surface joined (close enough for their range, or in line with a
-    neighbouring segment: a wall seen at a grazing angle), a lone return as a point; returns
+def surfaces(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    config: MapConfig,
+    pose: np.ndarray | None = None,
+) -> np.ndarray:
+    """A scan's surfaces, N x 4 segments (x0, y0, x1, y1), in the robot frame or, with `pose`,
+    placed in the world: consecutive returns of one surface joined (close enough for their
+    range, or in line with a neighbouring segment: a wall seen at a grazing angle); a lone
+    return (no neighbour on its surface) is left out beyond `lone_range`, as a point it would
+    pull a later scan's returns of that surface towards where they were sampled; returns
     within `max_range` + `map_margin` only."""
     mount = se2.mount_pose(laser)
     a = laser.angles + mount[2]
-    r = np.asarray(ranges, dtype=np.float64)
-    x = mount[0] + r * np.cos(a)
-    y = mount[1] + r * np.sin(a)
-    ok = np.isfinite(r) & (r > 0) & (r <= config.max_range + config.map_margin)
-    p = np.column_stack([x, y])
-    seg = p[1:] - p[:-1]
-    length = np.hypot(seg[:, 0], seg[:, 1])
-    reach = 0.05 + config.join * np.abs(laser.angle_increment) * np.fmin(r[1:], r[:-1])
-    both = ok[1:] & ok[:-1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = seg / length[:, None]
-    cos_prev = np.nan_to_num(np.abs(np.einsum("ij,ij->i", u[1:], u[:-1])))
-    limit = math.cos(config.join_angle)
-    in_line = np.zeros(len(seg), dtype=bool)
-    in_line[1:] |= cos_prev > limit
-    in_line[:-1] |= cos_prev > limit
-    join = both & ((length < reach) | (in_line & (length < config.join_max)))
-    joined = np.zeros(len(r), dtype=bool)
-    joined[1:] |= join
-    joined[:-1] |= join
-    # a lone return (no neighbour on its surface) is left out: as a point it would pull a
-    # later scan's returns of the same surface towards the place they were sampled from
-    lone = ok & ~joined & (r <= config.lone_range)
-    k = np.nonzero(join)[0]
-    return np.concatenate([np.column_stack([p[k], p[k + 1]]), np.column_stack([p[lone], p[lone]])])
+    return _placed_surfaces(
+        np.asarray(ranges, dtype=np.float64),
+        np.cos(a),
+        np.sin(a),
+        mount,
+        config.max_range + config.map_margin,
+        config.join * abs(laser.angle_increment),
+        math.cos(config.join_angle),
+        config.join_max,
+        config.lone_range,
+        np.zeros(3) if pose is None else np.asarray(pose, dtype=np.float64),
+    )
 
 
 @nb.njit(cache=True, nogil=True)
@@ -331,10 +325,9 @@ def _placed_surfaces(
     lone_range: float,
     pose: np.ndarray,
 ) -> np.ndarray:
-    """`_place(pose, surfaces(...))` in one pass (numba): the same arithmetic, to the bit
-    (tests/slam/test_scanmap.py compares them), without numpy's dozen temporaries per
-    keyframe. `cos_a`, `sin_a`: the beams' directions (numpy's, as `surfaces` computes
-    them); `limit`: max_range + map_margin; `reach_per_m`: join * |angle increment|."""
+    """`surfaces` placed at `pose`, in one pass (numba; tests/slam/test_fast_paths.py checks
+    it against the numpy computation it replaced, to the bit). `cos_a`, `sin_a`: the beams'
+    directions; `limit`: max_range + map_margin; `reach_per_m`: join * |angle increment|."""
     n = r.shape[0]
     x = np.empty(n)
     y = np.empty(n)
@@ -409,15 +402,6 @@ def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     c, s = math.cos(a[2]), math.sin(a[2])
     inv = np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]])
     return _compose(inv, b)
-
-
-def _place(pose: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Segments (N x 4) or points (N x 2) moved from the robot frame at `pose` to the world."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    out = np.empty_like(seg)
-    out[:, 0::2] = pose[0] + c * seg[:, 0::2] - s * seg[:, 1::2]
-    out[:, 1::2] = pose[1] + s * seg[:, 0::2] + c * seg[:, 1::2]
-    return out
 
 
 class MapMatcher:
