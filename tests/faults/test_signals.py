@@ -275,3 +275,52 @@ def test_a_stop_wrapped_by_an_import_is_still_a_stop(
         cli.main()
     assert stop.value.code == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip() == "interrupted (SIGTERM); no output written"
+
+
+def _python(code: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-c", code], env=ENV, capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+
+
+def test_a_stop_swallowed_by_a_callback_from_c_still_stops() -> None:
+    """Ctrl-C landing in a callback from C (llvmlite's object cache while numba compiles, on
+    a cold start) cannot propagate there: Python printed "Exception ignored" and the command
+    ran on to the end. The stop is raised again where Python code runs next."""
+    res = _python(
+        "import ctypes, signal, time\n"
+        "from toolkit.app import signals\n"
+        "signals.install()\n"
+        "callback = ctypes.CFUNCTYPE(None)(lambda: signal.raise_signal(signal.SIGINT))\n"
+        "try:\n"
+        "    callback()\n"
+        "    for _ in range(500):\n"
+        "        time.sleep(0.01)\n"
+        "    print('ran on')\n"
+        "except KeyboardInterrupt:\n"
+        "    print('stopped')\n"
+    )
+    assert res.stdout.strip() == "stopped", res.stdout + res.stderr
+    assert "Exception ignored" not in res.stderr, res.stderr
+
+
+def test_a_stop_that_broke_an_import_keeps_its_status_whatever_the_teardown() -> None:
+    """A stop inside open3d's initialisation (ImportError "initialization failed") left a
+    half-made extension whose teardown at exit turned 143 into status 1 (a cold clone under
+    load); the process now ends after the exit handlers, without that teardown. A teardown
+    that fails stands in for the broken extension."""
+    res = _python(
+        "import os, signal, sys\n"
+        "import toolkit.app.cli as cli\n"
+        "from toolkit.app import entry, signals\n"
+        "class Extension:\n"
+        "    def __del__(self):\n"
+        "        os._exit(1)\n"
+        "sys.modules['half_made'] = Extension()  # torn down with the modules\n"
+        "def app(**_):\n"
+        "    signals.received = signal.SIGTERM\n"
+        "    raise ImportError('initialization failed')\n"
+        "cli.app = app\n"
+        "entry.main()\n"
+    )
+    assert res.returncode == 128 + signal.SIGTERM, res.stderr
+    assert res.stderr.strip() == "interrupted (SIGTERM); no output written"

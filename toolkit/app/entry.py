@@ -9,6 +9,7 @@ def main() -> None:
     """Install the signal handlers before typer, numpy or pandas load, so that Ctrl-C or
     SIGTERM at any moment ends with one line and the cleanup, never a traceback."""
     import os
+    import sys
 
     # Arrow's allocator (mimalloc) keeps freed memory for a while and commits its arenas
     # eagerly: an import that writes row group after row group peaks 45-55 MB higher with
@@ -28,10 +29,15 @@ def main() -> None:
     except Exception:  # a stop wrapped by an import (see `toolkit.app.cli.main`)
         if signals.received is None:
             raise
-        signals.exit_stopped()
+        print(signals.stopped_message(), file=sys.stderr)
+        signals.end_now(signals.exit_code())  # the broken extension's teardown may fail
         return
     try:
         cli_main()
+    except SystemExit as stop:
+        if signals.broken_import:  # the interpreter's teardown may fail: skip it
+            signals.end_now(stop.code if isinstance(stop.code, int) else 1)
+        raise
     finally:
         # The command is done, its outputs written and closed. Python's shutdown would now
         # walk every object the libraries made (numba's typing registries above all) in its

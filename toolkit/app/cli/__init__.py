@@ -103,6 +103,7 @@ def main() -> None:
         if signals.received is not None:
             # the stop landed inside an import or a library's C code, which wrapped it (an
             # extension module's "initialization failed"): a stopped command all the same
+            signals.broken_import = isinstance(e, ImportError)
             signals.exit_stopped()
         show = getattr(e, "format_message", None)
         if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
