@@ -397,9 +397,7 @@ def slipped(odometry_step: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, fl
     and the rest of the step with it, by at most that much; it does not move the robot
     sideways by a metre. The search's aliases in a sparse map do (freiburg-campus: 0.2-1.9 m
     off a prediction right within 3 cm, with a heading change of a few degrees)."""
-    dth = math.atan2(
-        math.sin(step[2] - odometry_step[2]), math.cos(step[2] - odometry_step[2])
-    )
+    dth = math.atan2(math.sin(step[2] - odometry_step[2]), math.cos(step[2] - odometry_step[2]))
     lo, hi = min(0.0, dth), max(0.0, dth)
     free = math.atan2(step[1], step[0]) - math.atan2(odometry_step[1], odometry_step[0])
     free = math.atan2(math.sin(free), math.cos(free))
