@@ -18,7 +18,10 @@ corridor's axis) keeps the prediction. The covariance of each estimate is (H / s
 When few returns fit (`min_inliers` of them within `inlier_distance` of the map: the
 prediction was off by more than the distance field reaches), a coarse-to-fine correlative
 search over a bounded window around the prediction (`toolkit.slam.grid.correlative_search`,
-the loop closer's, on likelihood grids of the window) gives a new start.
+the loop closer's, on likelihood grids of the window) gives a new start. With odometry, a start
+that no heading slip of the odometry's step explains (`slipped`: its translation more than
+`search_gate` sigmas of the prior from the odometry's, turned by at most the heading change)
+is an alias of a sparse map: the fit starts again from the nearest slip instead.
 
 `MapMatcher` is the streaming form (one scan at a time, memory bounded by the window);
 `scan_to_map` runs it over a log.
