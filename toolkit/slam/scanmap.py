@@ -95,6 +95,7 @@ class MapConfig:
 # ---------------------------------------------------------------- the kernel
 
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
+_HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
 
 
 @nb.njit(cache=True, nogil=True)
@@ -562,14 +563,34 @@ class MapMatcher:
             if by_odometry and cfg.search_gate > 0:
                 # the odometry's prior: its translation error is small (the prior's spread),
                 # its heading may slip. A jump that no slip explains is an alias: the fit
-                # starts again from the slip nearest to it (its heading, the odometry's
-                # translation turned), held to that translation by the prior
-                near, residual = slipped(
-                    _between(self._last, predicted), _between(self._last, out2[:3])
-                )
-                if residual > cfg.search_gate / math.sqrt(info[0]):
-                    start = _compose(self._last, near)
-                    fit(start, info * np.array([1.0, 1.0, 1e-3]), out2, cov2)
+                # starts again from the slips with its heading (the odometry's translation
+                # turned by none, half or all of the heading change: where in the step the
+                # wheel slipped is not known), each held to its translation by the prior; the
+                # best of those whose result a slip explains is the search's result
+                odo_step = _between(self._last, predicted)
+                gate = cfg.search_gate / math.sqrt(info[0])
+                _, residual = slipped(odo_step, _between(self._last, out2[:3]))
+                if residual > gate:
+                    out2[4] = -1.0
+                    turn = math.atan2(
+                        math.sin(out2[2] - predicted[2]), math.cos(out2[2] - predicted[2])
+                    )
+                    heading = odo_step[2] + turn
+                    for share in (0.0, 0.5, 1.0):
+                        c, s = math.cos(share * turn), math.sin(share * turn)
+                        step = np.array(
+                            [
+                                c * odo_step[0] - s * odo_step[1],
+                                s * odo_step[0] + c * odo_step[1],
+                                heading,
+                            ]
+                        )
+                        out3 = np.zeros(_OUT)
+                        cov3 = np.zeros((3, 3))
+                        fit(_compose(self._last, step), info * _HEADING_FREE, out3, cov3)
+                        _, residual = slipped(odo_step, _between(self._last, out3[:3]))
+                        if residual <= gate and out3[4] > out2[4]:
+                            out2, cov2 = out3, cov3
             if out2[4] > out[4] + 0.1:
                 out, cov = out2, cov2
         self.stats = out
