@@ -566,7 +566,8 @@ class MapMatcher:
                 # starts again from the slips with its heading (the odometry's translation
                 # turned by none, half or all of the heading change: where in the step the
                 # wheel slipped is not known), each held to its translation by the prior; the
-                # best of those whose result a slip explains is the search's result
+                # best is the search's result (not gated itself: where an earlier step went
+                # wrong, the fit's jump repairs the previous pose, not the odometry)
                 odo_step = _between(self._last, predicted)
                 gate = cfg.search_gate / math.sqrt(info[0])
                 _, residual = slipped(odo_step, _between(self._last, out2[:3]))
@@ -588,8 +589,7 @@ class MapMatcher:
                         out3 = np.zeros(_OUT)
                         cov3 = np.zeros((3, 3))
                         fit(_compose(self._last, step), info * _HEADING_FREE, out3, cov3)
-                        _, residual = slipped(odo_step, _between(self._last, out3[:3]))
-                        if residual <= gate and out3[4] > out2[4]:
+                        if out3[4] > out2[4]:
                             out2, cov2 = out3, cov3
             if out2[4] > out[4] + 0.1:
                 out, cov = out2, cov2
