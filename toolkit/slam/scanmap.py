@@ -21,7 +21,7 @@ search over a bounded window around the prediction (`toolkit.slam.grid.correlati
 the loop closer's, on likelihood grids of the window) gives a new start. With odometry, a start
 that no heading slip of the odometry's step explains (`slipped`: its translation more than
 `search_gate` sigmas of the prior from the odometry's, turned by at most the heading change)
-is an alias of a sparse map: the fit starts again from the nearest slip instead.
+is an alias of a sparse map: the fit starts again from the slips with its heading instead.
 
 `MapMatcher` is the streaming form (one scan at a time, memory bounded by the window);
 `scan_to_map` runs it over a log.
@@ -84,9 +84,9 @@ class MapConfig:
     min_inliers: float = 0.75  # fewer returns within inlier_distance: correlative search
     search_window: float = 1.0  # its window (+-m) ...
     search_turn: float = 1.0  # ... and turn (+-rad)
-    search_gate: float = 5.0  # a search result whose step the odometry's cannot reach by a
-    # heading slip within this many sigmas of the prior's translation spread is not taken
-    # (`slipped`; 0: off)
+    search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
+    # explains (beyond this many sigmas of the prior's translation spread: `slipped`) is an
+    # alias: the fit restarts from the slips with its heading instead (0: off)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
