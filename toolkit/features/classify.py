@@ -190,7 +190,10 @@ def class_scores(
         if model.places is None or not cfg.descriptors:
             scores = per_class(model, loglik(model, block, chunk) * model.temperature)
         else:
-            x = features(ranges, model.laser, columns, along, cfg.context, rows, cfg.beside)
+            x = features(
+                ranges, model.laser, columns, along, cfg.context, rows, cfg.beside, poses,
+                cfg.local_map,
+            )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
