@@ -542,18 +542,16 @@ def local_map(
     """Descriptors of the place around each scan of `rows` (default all), not of one view:
     the end points of `LOCAL_SCANS` scans within `half` metres of path before and after it,
     drawn by their `poses` into the scan's own frame (without poses: overlaid where they
-    are), described without regard to left and right or ahead and behind. A hall is then
-    wide around the robot wherever it stands in it, and a door (a short opening on one side)
-    differs from the mouth of a side corridor or a hall (an opening that stays). Columns
-    (`local_names`): the local free width (the median over `LOCAL_BIN` bins along the path,
-    `LOCAL_REACH` ahead and behind, of the nearest end points left and right, summed); per
-    side (as the smaller and the larger of the two): the share of bins open (farther than
-    `LOCAL_OPEN` widths), the longest open run (m), the number of open runs, the median and
-    largest lateral reach (log, in widths); the share of bins open on both sides, the spread
-    of the two-sided width; the log area of the free space around the robot (in widths
-    squared); and per 22.5° of bearing from the heading, the nearest end point (log, in
-    widths) in the four mirror images (ahead left, ahead right, behind left, behind right),
-    sorted."""
+    are), described without regard to left and right or ahead and behind. Where the scans
+    are too far apart for the context (its window would hold the neighbouring places'
+    descriptors), their end points still show the walls and openings around the robot.
+    Columns (`local_names`), in metres (log): per side, the more open one first, over bins
+    of `LOCAL_BIN` along the path `LOCAL_REACH` ahead and behind: the share of bins whose
+    nearest end point is beyond `LOCAL_OPEN` (open), the longest open run (m), the median
+    and largest lateral reach; the share of bins open on both sides; the median and spread
+    of the two-sided width; the area of the free space around the robot (from the nearest
+    end point per 22.5° of bearing); and per 22.5° from the heading, the nearest end point
+    in the four mirror images (ahead left and right, behind left and right), sorted."""
     rows = rows or slice(0, len(ranges))
     lo, hi = context_windows(along, half, rows)
     own = np.arange(rows.start or 0, (rows.start or 0) + len(lo))
