@@ -83,17 +83,26 @@ def names() -> list[str]:
         for k in range(SECTORS // 2):
             a = 90 - 15 * k
             out += [f"{what}_{a - 15}_{a}deg_min", f"{what}_{a - 15}_{a}deg_max"]
-    return out
+    return out + list(ABSOLUTE)
 
 
-def place_columns() -> np.ndarray:
-    """Indices of the descriptors the place classifier uses (all but the view ahead)."""
+#: the reach beside the laser in metres (log), not in units of the free width: the nearer
+#: side's nearest end point, the farther side's, and the farthest end point of either side
+#: (a hall is metres deep beside the robot whether it opens on one side or both)
+ABSOLUTE = ("beside_abs_near_min", "beside_abs_near_max", "beside_abs_far_max")
+
+
+def place_columns(absolute: bool = True) -> np.ndarray:
+    """Indices of the descriptors the place classifier uses (all but the view ahead; without
+    `absolute`, not the reach beside the laser in metres either)."""
     ahead = ("0_15deg", "15_30deg", "range_mean", "range_std", "major", "area", "perimeter")
     return np.array(
         [
             i
             for i, n in enumerate(names())
-            if not any(a in n for a in ahead) and not n.startswith("hist_")
+            if not any(a in n for a in ahead)
+            and not n.startswith("hist_")
+            and (absolute or n not in ABSOLUTE)
         ]
     )
 
@@ -275,6 +284,9 @@ def _finish(sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams:
         for k in range(SECTORS // 2):
             a, b = values[:, SECTORS - 1 - k], values[:, k]  # left and its mirror, right
             cols += [np.minimum(a, b), np.maximum(a, b)]
+    near_m = np.log(np.maximum(beside[:, :, 0], 0.05))
+    far_m = np.log(np.maximum(beside[:, :, 1], 0.05))
+    cols += [near_m.min(axis=1), near_m.max(axis=1), far_m.max(axis=1)]
     return np.column_stack(cols)
 
 
@@ -357,6 +369,11 @@ def _finish_compiled(  # pragma: no cover - numba
                 out[s, c] = min(vals[0], vals[1])
                 out[s, c + 1] = max(vals[0], vals[1])
                 c += 2
+        near0, near1 = np.log(max(beside[s, 0, 0], 0.05)), np.log(max(beside[s, 1, 0], 0.05))
+        far0, far1 = np.log(max(beside[s, 0, 1], 0.05)), np.log(max(beside[s, 1, 1], 0.05))
+        out[s, c] = min(near0, near1)
+        out[s, c + 1] = max(near0, near1)
+        out[s, c + 2] = max(far0, far1)
 
 
 # ---------------------------------------------------------------- context along the path
@@ -462,11 +479,16 @@ def _window_moments(  # pragma: no cover - numba
             out[s, 2 * d + j] = np.sqrt(max((c2[b, j] - c2[a, j]) / count - mean * mean, 0.0))
 
 
-def chosen_columns(view_ahead: bool = False, mozos: bool = False) -> np.ndarray:
-    """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place."""
+def chosen_columns(
+    view_ahead: bool = False, mozos: bool = False, absolute: bool = True
+) -> np.ndarray:
+    """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place
+    (`absolute`: with the reach beside the laser in metres)."""
     if mozos:
         return mozos_columns()
-    return np.arange(len(names())) if view_ahead else place_columns()
+    if view_ahead:
+        return np.arange(len(names()))
+    return place_columns(absolute)
 
 
 def features(
@@ -559,7 +581,7 @@ def local_map(
     pose = np.zeros((n, 3)) if poses is None or len(poses) != n else np.nan_to_num(poses)
     beams = np.arange(0, laser.beams, LOCAL_BEAM_STEP)
     bearing = laser.angles[beams] + laser.yaw
-    nbin = int(round(2 * LOCAL_REACH / LOCAL_BIN))
+    nbin = round(2 * LOCAL_REACH / LOCAL_BIN)
     lateral = np.empty((len(lo), 2, nbin))
     polar = np.empty((len(lo), 4, 4))
     _local_points(

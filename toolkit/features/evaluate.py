@@ -69,6 +69,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: leaf shares not mixed with uniform (leaf_mix 0, the last session's; default 0.1)", dataclasses.replace(FULL, leaf_mix=0.0)),
     ("alternative: no context, the local map over 2 m of path instead (what logs with sparse scans get)", dataclasses.replace(FULL, context=0.0, local_map=FULL.sparse_local_map)),
     ("alternative: + the local map over 2 m of path beside the context", dataclasses.replace(FULL, local_map=FULL.sparse_local_map)),
+    ("alternative: without the reach beside the laser in metres (the last session's default)", dataclasses.replace(FULL, absolute_reach=False)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

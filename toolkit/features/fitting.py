@@ -201,7 +201,7 @@ def _fit_places(
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
-    columns = chosen_columns(config.view_ahead, config.mozos)
+    columns = chosen_columns(config.view_ahead, config.mozos, config.absolute_reach)
     along = path_length(len(ranges), poses)
     x = features(
         ranges, laser, columns, along, config.context, None, config.beside, poses, config.local_map

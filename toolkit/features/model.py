@@ -109,6 +109,8 @@ class Config:
     view_ahead: bool = False  # also the descriptors of the view ahead (the next place)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
+    absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
+    # units of the free width (descriptors.ABSOLUTE)
     beside: float = BESIDE  # m ahead and behind the laser whose end points are beside it
     # (the descriptors of the place's width, its doors' and windows' openings; 1.0 before)
     context: float = 1.0  # m of path before and after a scan whose descriptors' mean and
