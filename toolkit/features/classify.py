@@ -182,7 +182,7 @@ def class_scores(
     in blocks of `SCANS_PER_STEP` scans, `progress(m)` after each."""
     cfg = model.config
     out = np.empty((len(ranges), len(model.classes)))
-    columns = chosen_columns(cfg.view_ahead, cfg.mozos)
+    columns = chosen_columns(cfg.view_ahead, cfg.mozos, cfg.absolute_reach)
     along = path_length(len(ranges), poses)
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
@@ -190,7 +190,17 @@ def class_scores(
         if model.places is None or not cfg.descriptors:
             scores = per_class(model, loglik(model, block, chunk) * model.temperature)
         else:
-            x = features(ranges, model.laser, columns, along, cfg.context, rows, cfg.beside)
+            x = features(
+                ranges,
+                model.laser,
+                columns,
+                along,
+                cfg.context,
+                rows,
+                cfg.beside,
+                poses,
+                cfg.local_map,
+            )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)

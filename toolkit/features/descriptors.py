@@ -83,17 +83,26 @@ def names() -> list[str]:
         for k in range(SECTORS // 2):
             a = 90 - 15 * k
             out += [f"{what}_{a - 15}_{a}deg_min", f"{what}_{a - 15}_{a}deg_max"]
-    return out
+    return out + list(ABSOLUTE)
 
 
-def place_columns() -> np.ndarray:
-    """Indices of the descriptors the place classifier uses (all but the view ahead)."""
+#: the reach beside the laser in metres (log), not in units of the free width: the nearer
+#: side's nearest end point, the farther side's, and the farthest end point of either side
+#: (a hall is metres deep beside the robot whether it opens on one side or both)
+ABSOLUTE = ("beside_abs_near_min", "beside_abs_near_max", "beside_abs_far_max")
+
+
+def place_columns(absolute: bool = True) -> np.ndarray:
+    """Indices of the descriptors the place classifier uses (all but the view ahead; without
+    `absolute`, not the reach beside the laser in metres either)."""
     ahead = ("0_15deg", "15_30deg", "range_mean", "range_std", "major", "area", "perimeter")
     return np.array(
         [
             i
             for i, n in enumerate(names())
-            if not any(a in n for a in ahead) and not n.startswith("hist_")
+            if not any(a in n for a in ahead)
+            and not n.startswith("hist_")
+            and (absolute or n not in ABSOLUTE)
         ]
     )
 
@@ -275,6 +284,9 @@ def _finish(sums: np.ndarray, per_sector: np.ndarray, beside: np.ndarray, beams:
         for k in range(SECTORS // 2):
             a, b = values[:, SECTORS - 1 - k], values[:, k]  # left and its mirror, right
             cols += [np.minimum(a, b), np.maximum(a, b)]
+    near_m = np.log(np.maximum(beside[:, :, 0], 0.05))
+    far_m = np.log(np.maximum(beside[:, :, 1], 0.05))
+    cols += [near_m.min(axis=1), near_m.max(axis=1), far_m.max(axis=1)]
     return np.column_stack(cols)
 
 
@@ -357,6 +369,11 @@ def _finish_compiled(  # pragma: no cover - numba
                 out[s, c] = min(vals[0], vals[1])
                 out[s, c + 1] = max(vals[0], vals[1])
                 c += 2
+        near0, near1 = np.log(max(beside[s, 0, 0], 0.05)), np.log(max(beside[s, 1, 0], 0.05))
+        far0, far1 = np.log(max(beside[s, 0, 1], 0.05)), np.log(max(beside[s, 1, 1], 0.05))
+        out[s, c] = min(near0, near1)
+        out[s, c + 1] = max(near0, near1)
+        out[s, c + 2] = max(far0, far1)
 
 
 # ---------------------------------------------------------------- context along the path
@@ -462,11 +479,16 @@ def _window_moments(  # pragma: no cover - numba
             out[s, 2 * d + j] = np.sqrt(max((c2[b, j] - c2[a, j]) / count - mean * mean, 0.0))
 
 
-def chosen_columns(view_ahead: bool = False, mozos: bool = False) -> np.ndarray:
-    """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place."""
+def chosen_columns(
+    view_ahead: bool = False, mozos: bool = False, absolute: bool = True
+) -> np.ndarray:
+    """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place
+    (`absolute`: with the reach beside the laser in metres)."""
     if mozos:
         return mozos_columns()
-    return np.arange(len(names())) if view_ahead else place_columns()
+    if view_ahead:
+        return np.arange(len(names()))
+    return place_columns(absolute)
 
 
 def features(
@@ -477,16 +499,194 @@ def features(
     context: float,
     rows: slice | None = None,
     strip: float = BESIDE,
+    poses: np.ndarray | None = None,
+    local: float = 0.0,
 ) -> np.ndarray:
     """The classifier's input for scans `rows` (default all) of a log: their descriptors
     `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
     `context` metres of path (`along`, see `path_length`) before and after each; only the
-    scans those windows reach are described. `strip`: see `describe`."""
+    scans those windows reach are described. `strip`: see `describe`. With `local` > 0, the
+    descriptors of the local map of the scans within `local` metres of path (`local_map`,
+    drawn by `poses`) follow."""
     rows = rows or slice(0, len(ranges))
     if context <= 0:
-        return describe(ranges[rows], laser, strip)[:, columns]
-    lo, hi = context_windows(along, context, rows)
-    first, last = int(lo.min()), int(hi.max())
-    x = describe(ranges[first:last], laser, strip)[:, columns]
-    own = np.arange(len(lo)) + (rows.start or 0) - first
-    return with_context(x, lo - first, hi - first, own)
+        x = describe(ranges[rows], laser, strip)[:, columns]
+    else:
+        lo, hi = context_windows(along, context, rows)
+        first, last = int(lo.min()), int(hi.max())
+        own = np.arange(len(lo)) + (rows.start or 0) - first
+        x = describe(ranges[first:last], laser, strip)[:, columns]
+        x = with_context(x, lo - first, hi - first, own)
+    if local <= 0:
+        return x
+    return np.hstack([x, local_map(ranges, laser, poses, along, local, rows)])
+
+
+# ------------------------------------------------------- the local map along the path
+
+#: m of path either side of a scan whose scans make its local map where the scans are too
+#: far apart for the context (`Config.sparse_local_map`; development seeds 0-19 without the
+#: context: 2 m against 1.5 and 3 m)
+SPARSE_LOCAL_MAP = 2.0
+#: scans of the local map's window drawn into it, evenly spaced along the window
+LOCAL_SCANS = 5
+#: every this many beams of each drawn scan (the map is dense enough with a third of them)
+LOCAL_BEAM_STEP = 3
+#: m ahead and behind the robot that the map's lateral profile covers, in bins of this
+LOCAL_REACH, LOCAL_BIN = 2.0, 0.25
+#: m: farther end points (and no-returns) are open space in the local map
+LOCAL_FAR = 8.0
+#: m: a side of a bin is open where its nearest end point is farther than this from the
+#: path: beyond the wall of any corridor (1.6-4 m wide), into a room, a hall, a side corridor
+LOCAL_OPEN = 3.0
+
+
+def local_names() -> list[str]:
+    """The local map's descriptors' names, in column order (`local_map`)."""
+    out = []
+    for side in ("open", "closed"):  # the more open side, the other
+        for what in ("open_share", "open_run", "log_median", "log_max"):
+            out.append(f"local_{side}_{what}")
+    out += ["local_both_open", "local_log_width", "local_width_spread", "local_log_area"]
+    for k in range(4):
+        out += [f"local_polar_{22.5 * k:g}deg_{rank}" for rank in range(4)]
+    return out
+
+
+def local_map(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray | None,
+    along: np.ndarray,
+    half: float,
+    rows: slice | None = None,
+) -> np.ndarray:
+    """Descriptors of the place around each scan of `rows` (default all), not of one view:
+    the end points of `LOCAL_SCANS` scans within `half` metres of path before and after it,
+    drawn by their `poses` into the scan's own frame (without poses: overlaid where they
+    are), described without regard to left and right or ahead and behind. Where the scans
+    are too far apart for the context (its window would hold the neighbouring places'
+    descriptors), their end points still show the walls and openings around the robot.
+    Columns (`local_names`), in metres (log): per side, the more open one first, over bins
+    of `LOCAL_BIN` along the path `LOCAL_REACH` ahead and behind: the share of bins whose
+    nearest end point is beyond `LOCAL_OPEN` (open), the longest open run (m), the median
+    and largest lateral reach; the share of bins open on both sides; the median and spread
+    of the two-sided width; the area of the free space around the robot (from the nearest
+    end point per 22.5° of bearing); and per 22.5° from the heading, the nearest end point
+    in the four mirror images (ahead left and right, behind left and right), sorted."""
+    rows = rows or slice(0, len(ranges))
+    lo, hi = context_windows(along, half, rows)
+    own = np.arange(rows.start or 0, (rows.start or 0) + len(lo))
+    n = len(ranges)
+    pose = np.zeros((n, 3)) if poses is None or len(poses) != n else np.nan_to_num(poses)
+    beams = np.arange(0, laser.beams, LOCAL_BEAM_STEP)
+    bearing = laser.angles[beams] + laser.yaw
+    nbin = round(2 * LOCAL_REACH / LOCAL_BIN)
+    lateral = np.empty((len(lo), 2, nbin))
+    polar = np.empty((len(lo), 4, 4))
+    _local_points(
+        np.ascontiguousarray(ranges, dtype=np.float32),
+        beams,
+        np.cos(bearing),
+        np.sin(bearing),
+        laser.x,
+        laser.y,
+        np.ascontiguousarray(pose, dtype=np.float64),
+        lo,
+        hi,
+        own,
+        LOCAL_SCANS,
+        LOCAL_REACH,
+        LOCAL_FAR,
+        lateral,
+        polar,
+    )
+    return _local_finish(lateral, polar)
+
+
+def _local_finish(lateral: np.ndarray, polar: np.ndarray) -> np.ndarray:
+    """The local map's descriptors from its nearest end points per side and bin along the
+    path (S, 2, N) and per quadrant and 22.5° sector (S, 4, 4), in metres: a hall is as wide
+    beside the robot in a building of narrow corridors as of wide ones."""
+    open_ = lateral > LOCAL_OPEN
+    run = np.zeros(open_.shape[:2])
+    best = np.zeros(open_.shape[:2])
+    for b in range(open_.shape[2]):  # a dozen bins: vectorised over scans and sides
+        run = np.where(open_[:, :, b], run + 1, 0)
+        best = np.maximum(best, run)
+    log_reach = np.log(np.maximum(lateral, 0.05))
+    per_side = np.stack(
+        [open_.mean(axis=2), best * LOCAL_BIN, np.median(log_reach, axis=2), log_reach.max(axis=2)],
+        axis=2,
+    )  # (S, 2 sides, 4)
+    first = (per_side[:, 1, 0] > per_side[:, 0, 0]) | (
+        (per_side[:, 1, 0] == per_side[:, 0, 0]) & (per_side[:, 1, 2] > per_side[:, 0, 2])
+    )
+    rows = np.arange(len(lateral))
+    more, other = per_side[rows, first.astype(int)], per_side[rows, 1 - first.astype(int)]
+    two = np.log(np.maximum(lateral.sum(axis=1), 0.05))
+    cols = [*more.T, *other.T]
+    cols.append((open_[:, 0] & open_[:, 1]).mean(axis=1))
+    cols += [np.median(two, axis=1), two.std(axis=1)]
+    cols.append(np.log(0.5 * (polar**2).sum(axis=(1, 2)) * (np.pi / 8)))
+    ranked = np.sort(np.log(np.maximum(polar, 0.05)), axis=1)
+    for k in range(4):
+        cols += [ranked[:, r, k] for r in range(4)]
+    return np.column_stack(cols)
+
+
+@numba.njit(parallel=True, cache=True)
+def _local_points(  # pragma: no cover - numba
+    ranges: np.ndarray,
+    beams: np.ndarray,
+    cos: np.ndarray,
+    sin: np.ndarray,
+    lx: float,
+    ly: float,
+    poses: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    own: np.ndarray,
+    k_scans: int,
+    reach: float,
+    far: float,
+    lateral: np.ndarray,
+    polar: np.ndarray,
+) -> None:
+    """Per scan `own[i]`: the end points of `k_scans` scans of its window [lo, hi), in its
+    frame; the nearest |y| per bin along the path and side, the nearest distance per
+    quadrant and 22.5° sector (no end point: `far`)."""
+    nbin = lateral.shape[2]
+    t1, t3 = np.tan(np.pi / 8), np.tan(3 * np.pi / 8)
+    scale = nbin / (2 * reach)
+    for i in numba.prange(len(own)):
+        lateral[i] = far
+        polar[i] = far
+        s = own[i]
+        x0, y0, th0 = poses[s, 0], poses[s, 1], poses[s, 2]
+        c0, s0 = np.cos(th0), np.sin(th0)
+        a, n = lo[i], hi[i] - lo[i]
+        m_count = min(k_scans, n)
+        for m in range(m_count):
+            j = a + (m * (n - 1)) // max(m_count - 1, 1)
+            dx, dy = poses[j, 0] - x0, poses[j, 1] - y0
+            tx, ty = c0 * dx + s0 * dy, -s0 * dx + c0 * dy
+            dth = poses[j, 2] - th0
+            cj, sj = np.cos(dth), np.sin(dth)
+            for k in range(len(beams)):
+                r = ranges[j, beams[k]]
+                if not (r < far and r > 0.0):  # no return (NaN) or far: open space
+                    continue
+                px, py = lx + r * cos[k], ly + r * sin[k]
+                qx, qy = tx + cj * px - sj * py, ty + sj * px + cj * py
+                ax, ay = abs(qx), abs(qy)
+                if ax < reach:
+                    b = min(int((qx + reach) * scale), nbin - 1)
+                    side = 1 if qy > 0 else 0
+                    if ay < lateral[i, side, b]:
+                        lateral[i, side, b] = ay
+                d = np.sqrt(qx * qx + qy * qy)
+                quad = 2 * (qx < 0) + (qy > 0)
+                sec = 0 if ay < t1 * ax else (1 if ay < ax else (2 if ay < t3 * ax else 3))
+                if d < polar[i, quad, sec]:
+                    polar[i, quad, sec] = d

@@ -142,8 +142,8 @@ def fit(
     the path for the descriptors' context (without: `STEP_WITHOUT_POSES` per scan)."""
     config = config or Config()
     sparse = config.descriptors and config.context > 0 and _sparse(len(ranges), poses, config)
-    if sparse:  # no context to pool: each scan alone (recorded in the fit report)
-        config = replace(config, context=0.0)
+    if sparse:  # no context to pool: the local map instead (recorded in the fit report)
+        config = replace(config, context=0.0, local_map=config.sparse_local_map)
     if not training:
         raise ToolkitError("no features to learn")
     components = list(training.items()) if isinstance(training, dict) else list(training)
@@ -171,6 +171,7 @@ def fit(
         model.fit_report["context"] = (
             f"off: fewer than {MIN_CONTEXT_SCANS} scans within the context's path on the "
             "median scan (scans far apart)"
+            + (f"; the local map over {config.local_map:g} m instead" if config.local_map else "")
         )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
@@ -200,9 +201,11 @@ def _fit_places(
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
-    columns = chosen_columns(config.view_ahead, config.mozos)
+    columns = chosen_columns(config.view_ahead, config.mozos, config.absolute_reach)
     along = path_length(len(ranges), poses)
-    x = features(ranges, laser, columns, along, config.context, strip=config.beside)
+    x = features(
+        ranges, laser, columns, along, config.context, None, config.beside, poses, config.local_map
+    )
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
     open_set = config.open_set if config.none_class else "never"

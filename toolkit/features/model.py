@@ -63,12 +63,13 @@ import numpy as np
 from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
-from toolkit.features.descriptors import BESIDE
+from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP
 from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
-#: 4: the forest's leaf shares mixed with uniform (`leaf_mix`); 3: the 0.45 m strip beside
-#: the laser; 2: the context and the forest (older: learn anew)
-MODEL_VERSION = 4
+#: 5: the local map's descriptors (`local_map`, on sparse scans by default); 4: the forest's
+#: leaf shares mixed with uniform (`leaf_mix`); 3: the 0.45 m strip beside the laser; 2: the
+#: context and the forest (older: learn anew)
+MODEL_VERSION = 5
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -108,6 +109,8 @@ class Config:
     view_ahead: bool = False  # also the descriptors of the view ahead (the next place)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
+    absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
+    # units of the free width (descriptors.ABSOLUTE)
     beside: float = BESIDE  # m ahead and behind the laser whose end points are beside it
     # (the descriptors of the place's width, its doors' and windows' openings; 1.0 before)
     context: float = 1.0  # m of path before and after a scan whose descriptors' mean and
@@ -119,6 +122,11 @@ class Config:
     # of the log (taught spots in an untaught background), "always", "never"
     beam_term: float = 0.0  # weight of the per-beam model's log-posterior added to the
     # descriptors' (0: not used)
+    local_map: float = 0.0  # m of path before and after a scan whose scans' end points,
+    # drawn by the poses into its frame, make the local map described (0: not used)
+    sparse_local_map: float = SPARSE_LOCAL_MAP  # the local map's m either side where the
+    # scans are too far apart for the context (it is then off): the end points of the
+    # neighbouring scans pool what their descriptors cannot (0: each scan alone)
     leaf_mix: float = LEAF_MIX  # share of uniform mixed into each leaf's class shares (a
     # leaf of a few training scans of one place does not rule the others out; 0: unmixed)
 
