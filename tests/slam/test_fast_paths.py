@@ -1,8 +1,9 @@
 """The mapper's fast paths give, to the bit, what the plain computations they replace give,
 on the simulator's building with drifted odometry: a keyframe's surfaces placed in one numba
 pass, the loop closer's fine grid stamped only where no occupied neighbour is nearer, the
-scan-to-map search's fine grid computed over the searched box only, and the grid rebuilt in
-the old grid's memory. (Identical results are what lets a speed-up keep every ATE and loop.)"""
+scan-to-map search's fine grid computed over the searched box only, the grid rebuilt in
+the old grid's memory, and the correlative search's coarse level by branch and bound.
+(Identical results are what lets a speed-up keep every ATE and loop.)"""
 
 from __future__ import annotations
 
@@ -16,9 +17,19 @@ from scipy.ndimage import distance_transform_edt
 from toolkit import se2
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.poses import odometry_poses, truth_poses, with_drift
+from toolkit.se2 import between
 from toolkit.sim import Simulation
-from toolkit.slam.grid import LikelihoodGrid, _disc_field, correlative_search, stamp_segments
-from toolkit.slam.loops import LoopCloser
+from toolkit.slam import grid as grid_mod
+from toolkit.slam.grid import (
+    LikelihoodGrid,
+    SearchResult,
+    _disc_field,
+    correlative_search,
+    stamp_segments,
+    voxel_subsample,
+)
+from toolkit.slam.loops import LoopCloser, candidates, path_length
+from toolkit.slam.pipeline import keyframes_of
 from toolkit.slam.scanmap import MapConfig, MapMatcher, _placed_surfaces
 
 
@@ -198,3 +209,121 @@ def test_a_recentred_grid_equals_a_fresh_grid_of_the_window(drifted: Dataset) ->
             checked += 1
         centre = m._centre.copy()
     assert checked >= 5
+
+
+def _pyramid_numpy(like_t: np.ndarray, levels: int) -> np.ndarray:
+    """Level L, cell (x + P, y + P): the largest of like_t over [x, x + 2^L) x [y, y + 2^L),
+    0 off the grid (the plain computation `_pyramid` does in one pass per level)."""
+    w, h = like_t.shape
+    p = 1 << (levels - 1)
+    big = np.zeros((w + 3 * p, h + 3 * p), dtype=np.float32)
+    big[p : p + w, p : p + h] = like_t
+    out = np.zeros((levels, w + 2 * p, h + 2 * p), dtype=np.float32)
+    for lv in range(levels):
+        s = 1 << lv
+        for dx in range(s):
+            for dy in range(s):
+                out[lv] = np.maximum(out[lv], big[dx : dx + w + 2 * p, dy : dy + h + 2 * p])
+    return out
+
+
+def _same(a: SearchResult, b: SearchResult) -> None:
+    np.testing.assert_array_equal(a.pose, b.pose)
+    assert (a.score, a.coarse_score, a.runner_up, a.inliers) == (
+        b.score,
+        b.coarse_score,
+        b.runner_up,
+        b.inliers,
+    )
+
+
+def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
+    drifted: Dataset, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The coarse level by branch and bound (poses best first, blocks bounded by max-pooled
+    grids) against scoring every coarse pose: the same starts, winner's score and runner-up,
+    so the same search result to the bit, for the loop closer's searches (a 3 m window at
+    the building's loop candidates, predictions off by up to a metre) and the front end's (a
+    1 m, 1 rad window at random predictions); and it did bound (no fallback to the
+    exhaustive search in most of them)."""
+    ds = drifted
+    odo = odometry_poses(ds)
+    assert odo is not None
+    bounded = []
+    real = grid_mod._bounded_starts
+
+    def spy(*args: object, **kwargs: object) -> object:
+        out = real(*args, **kwargs)  # type: ignore[arg-type]
+        bounded.append(out is not None)
+        return out
+
+    monkeypatch.setattr(grid_mod, "_bounded_starts", spy)
+    rng = np.random.default_rng(3)
+    wins = 0
+    # the loop closer's: the building's loop candidates, scans placed by the truth
+    truth = truth_poses(ds)
+    assert truth is not None
+    closer = LoopCloser(ds.ranges, ds.laser)
+    cfg = closer.config
+    keys = keyframes_of(truth, 0.5, 0.3)
+    along = path_length(truth)
+    pairs = candidates(keys, truth, along, cfg)
+    assert len(pairs) >= 8
+    for a, b, _ in pairs[:12]:
+        query = voxel_subsample(closer._local(b, np.array([b - 2, b, b + 2]), truth), 0.1)
+        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
+        ref = closer._local(a, near_a, truth)
+        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+        fine = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        prediction = between(truth[a], truth[b]) + np.array([*rng.normal(0, 0.5, 2), 0.1])
+        found = [
+            correlative_search(
+                coarse,
+                fine,
+                query,
+                prediction,
+                window=3.0,
+                turn=cfg.turn,
+                turn_step=cfg.turn_step,
+                coarse_voxel=cfg.coarse_voxel,
+                exhaustive=full,
+            )
+            for full in (False, True)
+        ]
+        _same(*found)
+        wins += found[0].inliers > 0.6
+    assert wins >= 6  # real matches, not empty searches compared
+    # the front end's
+    config = MapConfig()
+    for stop in (300, 1200, 2400):
+        m = _matcher_until(ds, odo, stop, config)
+        coarse, fine_over = m._search_grids()
+        r = ds.ranges[stop].astype(np.float64)
+        ok = np.isfinite(r) & (r > 0) & (r <= config.max_range)
+        pts = np.column_stack([r[ok] * m._cos[ok], r[ok] * m._sin[ok]]) + m._mount[:2]
+        for _ in range(4):
+            predicted = m._last + np.array([*rng.normal(0.0, 0.4, 2), rng.normal(0.0, 0.3)])
+            found = [
+                correlative_search(
+                    coarse,
+                    fine_over,
+                    pts,
+                    predicted,
+                    window=config.search_window,
+                    turn=config.search_turn,
+                    turn_step=0.02,
+                    coarse_voxel=0.2,
+                    fine_resolution=config.resolution,
+                    exhaustive=full,
+                )
+                for full in (False, True)
+            ]
+            _same(*found)
+    assert len(bounded) == min(len(pairs), 12) + 12
+    assert sum(bounded) >= len(bounded) - 3
+    # the pyramid it bounds with
+    for levels in (1, 3, 5):
+        np.testing.assert_array_equal(
+            grid_mod._pyramid(coarse.likelihood_t, levels),
+            _pyramid_numpy(coarse.likelihood_t, levels),
+        )
