@@ -858,9 +858,12 @@ def _cells(
             t = min(max(((cx - ax) * dx + (cy - ay) * dy) / ll, 0.0), 1.0)
         ex = cx - ax - t * dx
         ey = cy - ay - t * dy
-        d = math.sqrt(ex * ex + ey * ey)
-        if d < dist[j, i]:
-            dist[j, i] = d
+        e2 = ex * ex + ey * ey
+        now = np.float64(dist[j, i])
+        if e2 < now * now:  # else sqrt(e2) >= now: the square of a float32 is exact
+            d = math.sqrt(e2)
+            if d < now:
+                dist[j, i] = d
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
