@@ -327,3 +327,50 @@ def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
             grid_mod._pyramid(coarse.likelihood_t, levels),
             _pyramid_numpy(coarse.likelihood_t, levels),
         )
+
+
+def _build_edt(
+    points: np.ndarray, resolution: float, sigma: float, margin: float, cap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`LikelihoodGrid.build` by scipy's distance transform of the whole grid (what the disc
+    stamping replaced): its corner, distances and likelihoods."""
+    pts = np.asarray(points, dtype=np.float64)
+    lo = pts.min(axis=0) - margin
+    shape = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(np.int64) + 1
+    ij = np.floor((pts - lo) / resolution).astype(np.int64)
+    free = np.ones((shape[1], shape[0]), dtype=bool)
+    free[ij[:, 1], ij[:, 0]] = False
+    dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
+    like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
+    return lo, dist, like
+
+
+def test_coarse_grid_by_discs_equals_the_distance_transform(drifted: Dataset) -> None:
+    """`LikelihoodGrid.build` stamping the disc within the cap around each occupied cell, to
+    the bit what the distance transform of the whole grid gives, on a loop test's reference
+    map (a few keyframes' returns) at the searches' 0.2 m and at resolutions where the cap is
+    not a whole number of cells."""
+    ds = drifted
+    truth = truth_poses(ds)
+    assert truth is not None
+    closer = LoopCloser(ds.ranges, ds.laser)
+    checked = 0
+    for centre in (400, 1500, 2600):
+        ref = closer._local(centre, np.arange(centre - 40, centre + 40, 8), truth)
+        for res, sigma, margin, cap in (
+            (0.2, 0.25, 1.0, 2.0),
+            (0.2, 0.25, 1.5, 2.0),
+            (0.15, 0.3, 1.0, 2.0),
+            (0.3, 0.25, 0.5, 1.0),
+        ):
+            assert math.ceil(cap / res) <= grid_mod._DISC_CELLS  # the disc path
+            grid = LikelihoodGrid.build(ref, res, sigma, margin=margin, cap=cap)
+            lo, dist, like = _build_edt(ref, res, sigma, margin, cap)
+            np.testing.assert_array_equal(grid.origin, lo)
+            np.testing.assert_array_equal(grid.distance, dist)
+            np.testing.assert_array_equal(grid.likelihood, like)
+            np.testing.assert_array_equal(grid.likelihood_t, like.T)
+            assert grid.likelihood.flags.c_contiguous and grid.likelihood_t.flags.c_contiguous
+            assert (dist == 0).mean() > 0.01 and len(np.unique(dist)) > 5  # walls, not a blank
+            checked += 1
+    assert checked == 12
