@@ -1,8 +1,9 @@
 """The mapper's fast paths give, to the bit, what the plain computations they replace give,
 on the simulator's building with drifted odometry: a keyframe's surfaces placed in one numba
 pass, the loop closer's fine grid stamped only where no occupied neighbour is nearer, the
-scan-to-map search's fine grid computed over the searched box only, and the grid rebuilt in
-the old grid's memory. (Identical results are what lets a speed-up keep every ATE and loop.)"""
+scan-to-map search's fine grid computed over the searched box only, the grid rebuilt in
+the old grid's memory, and the correlative search's coarse level by branch and bound.
+(Identical results are what lets a speed-up keep every ATE and loop.)"""
 
 from __future__ import annotations
 
@@ -16,9 +17,19 @@ from scipy.ndimage import distance_transform_edt
 from toolkit import se2
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.poses import odometry_poses, truth_poses, with_drift
+from toolkit.se2 import between
 from toolkit.sim import Simulation
-from toolkit.slam.grid import LikelihoodGrid, _disc_field, correlative_search, stamp_segments
-from toolkit.slam.loops import LoopCloser
+from toolkit.slam import grid as grid_mod
+from toolkit.slam.grid import (
+    LikelihoodGrid,
+    SearchResult,
+    _disc_field,
+    correlative_search,
+    stamp_segments,
+    voxel_subsample,
+)
+from toolkit.slam.loops import LoopCloser, candidates, path_length
+from toolkit.slam.pipeline import keyframes_of
 from toolkit.slam.scanmap import MapConfig, MapMatcher, _placed_surfaces
 
 
@@ -198,3 +209,168 @@ def test_a_recentred_grid_equals_a_fresh_grid_of_the_window(drifted: Dataset) ->
             checked += 1
         centre = m._centre.copy()
     assert checked >= 5
+
+
+def _pyramid_numpy(like_t: np.ndarray, levels: int) -> np.ndarray:
+    """Level L, cell (x + P, y + P): the largest of like_t over [x, x + 2^L) x [y, y + 2^L),
+    0 off the grid (the plain computation `_pyramid` does in one pass per level)."""
+    w, h = like_t.shape
+    p = 1 << (levels - 1)
+    big = np.zeros((w + 3 * p, h + 3 * p), dtype=np.float32)
+    big[p : p + w, p : p + h] = like_t
+    out = np.zeros((levels, w + 2 * p, h + 2 * p), dtype=np.float32)
+    for lv in range(levels):
+        s = 1 << lv
+        for dx in range(s):
+            for dy in range(s):
+                out[lv] = np.maximum(out[lv], big[dx : dx + w + 2 * p, dy : dy + h + 2 * p])
+    return out
+
+
+def _same(a: SearchResult, b: SearchResult) -> None:
+    np.testing.assert_array_equal(a.pose, b.pose)
+    assert (a.score, a.coarse_score, a.runner_up, a.inliers) == (
+        b.score,
+        b.coarse_score,
+        b.runner_up,
+        b.inliers,
+    )
+
+
+def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
+    drifted: Dataset, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The coarse level by branch and bound (poses best first, blocks bounded by max-pooled
+    grids) against scoring every coarse pose: the same starts, winner's score and runner-up,
+    so the same search result to the bit, for the loop closer's searches (a 3 m window at
+    the building's loop candidates, predictions off by up to a metre) and the front end's (a
+    1 m, 1 rad window at random predictions); and it did bound (no fallback to the
+    exhaustive search in most of them)."""
+    ds = drifted
+    odo = odometry_poses(ds)
+    assert odo is not None
+    bounded = []
+    real = grid_mod._bounded_starts
+
+    def spy(*args: object, **kwargs: object) -> object:
+        out = real(*args, **kwargs)  # type: ignore[arg-type]
+        bounded.append(out is not None)
+        return out
+
+    monkeypatch.setattr(grid_mod, "_bounded_starts", spy)
+    rng = np.random.default_rng(3)
+    wins = 0
+    # the loop closer's: the building's loop candidates, scans placed by the truth
+    truth = truth_poses(ds)
+    assert truth is not None
+    closer = LoopCloser(ds.ranges, ds.laser)
+    cfg = closer.config
+    keys = keyframes_of(truth, 0.5, 0.3)
+    along = path_length(truth)
+    pairs = candidates(keys, truth, along, cfg)
+    assert len(pairs) >= 8
+    for a, b, _ in pairs[:12]:
+        query = voxel_subsample(closer._local(b, np.array([b - 2, b, b + 2]), truth), 0.1)
+        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
+        ref = closer._local(a, near_a, truth)
+        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+        fine = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        prediction = between(truth[a], truth[b]) + np.array([*rng.normal(0, 0.5, 2), 0.1])
+        found = [
+            correlative_search(
+                coarse,
+                fine,
+                query,
+                prediction,
+                window=3.0,
+                turn=cfg.turn,
+                turn_step=cfg.turn_step,
+                coarse_voxel=cfg.coarse_voxel,
+                exhaustive=full,
+            )
+            for full in (False, True)
+        ]
+        _same(*found)
+        wins += found[0].inliers > 0.6
+    assert wins >= 6  # real matches, not empty searches compared
+    # the front end's
+    config = MapConfig()
+    for stop in (300, 1200, 2400):
+        m = _matcher_until(ds, odo, stop, config)
+        coarse, fine_over = m._search_grids()
+        r = ds.ranges[stop].astype(np.float64)
+        ok = np.isfinite(r) & (r > 0) & (r <= config.max_range)
+        pts = np.column_stack([r[ok] * m._cos[ok], r[ok] * m._sin[ok]]) + m._mount[:2]
+        for _ in range(4):
+            predicted = m._last + np.array([*rng.normal(0.0, 0.4, 2), rng.normal(0.0, 0.3)])
+            found = [
+                correlative_search(
+                    coarse,
+                    fine_over,
+                    pts,
+                    predicted,
+                    window=config.search_window,
+                    turn=config.search_turn,
+                    turn_step=0.02,
+                    coarse_voxel=0.2,
+                    fine_resolution=config.resolution,
+                    exhaustive=full,
+                )
+                for full in (False, True)
+            ]
+            _same(*found)
+    assert len(bounded) == min(len(pairs), 12) + 12
+    assert sum(bounded) >= len(bounded) - 3
+    # the pyramid it bounds with
+    for levels in (1, 3, 5):
+        np.testing.assert_array_equal(
+            grid_mod._pyramid(coarse.likelihood_t, levels),
+            _pyramid_numpy(coarse.likelihood_t, levels),
+        )
+
+
+def _build_edt(
+    points: np.ndarray, resolution: float, sigma: float, margin: float, cap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`LikelihoodGrid.build` by scipy's distance transform of the whole grid (what the disc
+    stamping replaced): its corner, distances and likelihoods."""
+    pts = np.asarray(points, dtype=np.float64)
+    lo = pts.min(axis=0) - margin
+    shape = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(np.int64) + 1
+    ij = np.floor((pts - lo) / resolution).astype(np.int64)
+    free = np.ones((shape[1], shape[0]), dtype=bool)
+    free[ij[:, 1], ij[:, 0]] = False
+    dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
+    like = np.exp(-(dist.astype(np.float64) ** 2) / (2 * sigma * sigma)).astype(np.float32)
+    return lo, dist, like
+
+
+def test_coarse_grid_by_discs_equals_the_distance_transform(drifted: Dataset) -> None:
+    """`LikelihoodGrid.build` stamping the disc within the cap around each occupied cell, to
+    the bit what the distance transform of the whole grid gives, on a loop test's reference
+    map (a few keyframes' returns) at the searches' 0.2 m and at resolutions where the cap is
+    not a whole number of cells."""
+    ds = drifted
+    truth = truth_poses(ds)
+    assert truth is not None
+    closer = LoopCloser(ds.ranges, ds.laser)
+    checked = 0
+    for centre in (400, 1500, 2600):
+        ref = closer._local(centre, np.arange(centre - 40, centre + 40, 8), truth)
+        for res, sigma, margin, cap in (
+            (0.2, 0.25, 1.0, 2.0),
+            (0.2, 0.25, 1.5, 2.0),
+            (0.15, 0.3, 1.0, 2.0),
+            (0.3, 0.25, 0.5, 1.0),
+        ):
+            assert math.ceil(cap / res) <= grid_mod._DISC_CELLS  # the disc path
+            grid = LikelihoodGrid.build(ref, res, sigma, margin=margin, cap=cap)
+            lo, dist, like = _build_edt(ref, res, sigma, margin, cap)
+            np.testing.assert_array_equal(grid.origin, lo)
+            np.testing.assert_array_equal(grid.distance, dist)
+            np.testing.assert_array_equal(grid.likelihood, like)
+            np.testing.assert_array_equal(grid.likelihood_t, like.T)
+            assert grid.likelihood.flags.c_contiguous and grid.likelihood_t.flags.c_contiguous
+            assert (dist == 0).mean() > 0.01 and len(np.unique(dist)) > 5  # walls, not a blank
+            checked += 1
+    assert checked == 12

@@ -20,6 +20,8 @@ import numba as nb
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+_DISC_CELLS = 16  # `LikelihoodGrid.build` stamps discs up to this radius (cells)
+
 
 @dataclass(frozen=True)
 class LikelihoodGrid:
@@ -40,8 +42,25 @@ class LikelihoodGrid:
         margin: float = 1.0,
         cap: float = 2.0,
     ) -> LikelihoodGrid:
-        """The grid of `points` (N x 2, finite) with `margin` m around their bounding box."""
+        """The grid of `points` (N x 2, finite) with `margin` m around their bounding box.
+
+        Distances within the cap are stamped around each occupied cell (`_disc_field`, from
+        tables of the distance transform's own values by squared cell distance) when the cap
+        is at most `_DISC_CELLS` cells, else by scipy's distance transform: the same grid to
+        the bit either way (the cells beyond the disc are beyond the cap in both), the first
+        a fraction of the transform's time on the coarse grids the searches use."""
         lo, shape, ij = _raster(points, resolution, margin)
+        r = math.ceil(cap / resolution)
+        if r <= _DISC_CELLS:
+            # squared cell distances 0 .. r*r (the disc), then one entry for beyond it
+            dist_of = np.minimum(np.sqrt(np.arange(r * r + 2, dtype=np.float64)) * resolution, cap)
+            dist_of = dist_of.astype(np.float32)
+            dist_of[-1] = cap  # sqrt(r*r + 1) * resolution > cap
+            like_of = np.exp(-(dist_of.astype(np.float64) ** 2) / (2 * sigma * sigma))
+            cells = np.ascontiguousarray(ij)
+            like_of = like_of.astype(np.float32)
+            dist, like_t = _disc_field(cells, int(shape[1]), int(shape[0]), r, dist_of, like_of)
+            return cls(lo, resolution, np.ascontiguousarray(like_t.T), like_t, dist)
         free = np.ones((shape[1], shape[0]), dtype=bool)
         free[ij[:, 1], ij[:, 0]] = False
         dist = np.minimum(distance_transform_edt(free) * resolution, cap).astype(np.float32)
@@ -334,6 +353,188 @@ def _search(
     return out
 
 
+# ------------------------------------------------------- branch and bound (the coarse level)
+
+_WORK_LIMIT = 0.5  # share of the exhaustive search's lookups after which bounding gives up
+
+
+@nb.njit(cache=True, nogil=True)
+def _cells_of(
+    origin: np.ndarray, res: float, pts: np.ndarray, centre: np.ndarray, thetas: np.ndarray
+) -> np.ndarray:
+    """Each point's cell (column, row) at every heading, the offsets (0, 0): A x N x 2, with
+    `_search`'s arithmetic (so that the scores are its own, to the bit)."""
+    out = np.empty((thetas.shape[0], pts.shape[0], 2), dtype=np.int64)
+    inv = 1.0 / res
+    for a in range(thetas.shape[0]):
+        th = centre[2] + thetas[a]
+        c, s = math.cos(th), math.sin(th)
+        for k in range(pts.shape[0]):
+            out[a, k, 0] = math.floor((centre[0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv)
+            out[a, k, 1] = math.floor((centre[1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv)
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _pyramid(like_t: np.ndarray, levels: int) -> np.ndarray:
+    """Max-pooled grids: level L, cell (x + P, y + P), P = 2^(levels - 1), holds the largest
+    likelihood of the 2^L x 2^L cells from (x, y) up (0 off the grid): an upper bound of the
+    likelihood anywhere a point lands when its offset moves within a block of 2^L x 2^L."""
+    w, h = like_t.shape
+    p = 1 << (levels - 1)
+    out = np.zeros((levels, w + 2 * p, h + 2 * p), dtype=np.float32)
+    for x in range(w):
+        for y in range(h):
+            out[0, x + p, y + p] = like_t[x, y]
+    for lv in range(1, levels):
+        s = 1 << (lv - 1)
+        prev = out[lv - 1]
+        cur = out[lv]
+        for x in range(w + 2 * p):
+            for y in range(h + 2 * p):
+                m = prev[x, y]
+                if x + s < w + 2 * p:
+                    m = max(m, prev[x + s, y])
+                    if y + s < h + 2 * p:
+                        m = max(m, prev[x + s, y + s])
+                if y + s < h + 2 * p:
+                    m = max(m, prev[x, y + s])
+                cur[x, y] = m
+    return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _sum_at(grid: np.ndarray, cells: np.ndarray, a: int, dx: int, dy: int, pad: int) -> float:
+    """Sum over the points of grid[cell + (dx, dy) + pad] (0 off the grid), in point order."""
+    w, h = grid.shape
+    total = 0.0
+    for k in range(cells.shape[1]):
+        x = cells[a, k, 0] + dx + pad
+        y = cells[a, k, 1] + dy + pad
+        if 0 <= x < w and 0 <= y < h:
+            total += grid[x, y]
+    return total
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _push(heap: np.ndarray, key: np.ndarray, state: np.ndarray, k: float, row: np.ndarray) -> None:
+    """Push (k, row) on the max-heap `key` / `heap` (rows: heading, level, x, y)."""
+    m = state[0]
+    key[m] = k
+    heap[m] = row
+    while m > 0:
+        up = (m - 1) // 2
+        if key[up] >= key[m]:
+            break
+        key[up], key[m] = key[m], key[up]
+        for c in range(4):
+            heap[up, c], heap[m, c] = heap[m, c], heap[up, c]
+        m = up
+    state[0] += 1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _pop(heap: np.ndarray, key: np.ndarray, state: np.ndarray, row: np.ndarray) -> float:
+    """Pop the largest key of the heap into `row`; return it."""
+    top: float = key[0]
+    row[:] = heap[0]
+    m = state[0] - 1
+    state[0] = m
+    key[0] = key[m]
+    heap[0] = heap[m]
+    k = 0
+    while True:
+        c = 2 * k + 1
+        if c >= m:
+            break
+        if c + 1 < m and key[c + 1] > key[c]:
+            c += 1
+        if key[k] >= key[c]:
+            break
+        key[k], key[c] = key[c], key[k]
+        for q in range(4):
+            heap[k, q], heap[c, q] = heap[c, q], heap[k, q]
+        k = c
+    return top
+
+
+@nb.njit(cache=True, nogil=True)
+def _bnb_start(
+    pyramid: np.ndarray,
+    cells: np.ndarray,
+    half: int,
+    heap: np.ndarray,
+    key: np.ndarray,
+    state: np.ndarray,
+) -> None:
+    """The roots: one block of 2^L x 2^L offsets per heading, bounded by the top level."""
+    levels = pyramid.shape[0]
+    pad = 1 << (levels - 1)
+    div = max(cells.shape[1], 1)
+    row = np.zeros(4, dtype=np.int64)
+    for a in range(cells.shape[0]):
+        row[0], row[1] = a, levels - 1
+        _push(
+            heap, key, state, _sum_at(pyramid[levels - 1], cells, a, -half, -half, pad) / div, row
+        )
+        state[1] += cells.shape[1]
+
+
+@nb.njit(cache=True, nogil=True)
+def _bnb_next(
+    like_t: np.ndarray,
+    pyramid: np.ndarray,
+    cells: np.ndarray,
+    half: int,
+    heap: np.ndarray,
+    key: np.ndarray,
+    state: np.ndarray,
+    seen: np.ndarray,
+    seen_key: np.ndarray,
+) -> bool:
+    """Expand the heap's best blocks until its best entry is one offset (scored: its key is
+    `_search`'s score); move it to `seen`. Offsets so come out best first: a block's key
+    bounds each of its offsets' scores (a leaf is `_search`'s sum in its order, the bound
+    the same sum over the pyramid's larger values, and rounding is monotone). False when the
+    heap is empty. state: heap size, lookups made, offsets seen."""
+    n = 2 * half + 1
+    npts = cells.shape[1]
+    div = max(npts, 1)
+    pad = 1 << (pyramid.shape[0] - 1)
+    row = np.zeros(4, dtype=np.int64)
+    child = np.zeros(4, dtype=np.int64)
+    while state[0] > 0:
+        k = _pop(heap, key, state, row)
+        a, lv, x0, y0 = row[0], row[1], row[2], row[3]
+        if lv < 0:  # an offset, scored
+            m = state[2]
+            seen[m] = row
+            seen_key[m] = k
+            state[2] = m + 1
+            return True
+        if lv == 0:  # the whole window is one offset: score it
+            child[0], child[1], child[2], child[3] = a, -1, x0, y0
+            _push(heap, key, state, _sum_at(like_t, cells, a, x0 - half, y0 - half, 0) / div, child)
+            state[1] += npts
+            continue
+        s = 1 << (lv - 1)
+        for dx in range(2):
+            for dy in range(2):
+                xx, yy = x0 + dx * s, y0 + dy * s
+                if xx >= n or yy >= n:
+                    continue
+                child[0], child[2], child[3] = a, xx, yy
+                if lv == 1:
+                    child[1] = -1
+                    k = _sum_at(like_t, cells, a, xx - half, yy - half, 0) / div
+                else:
+                    child[1] = lv - 1
+                    k = _sum_at(pyramid[lv - 1], cells, a, xx - half, yy - half, pad) / div
+                state[1] += npts
+                _push(heap, key, state, k, child)
+    return False
+
+
 @dataclass(frozen=True)
 class SearchResult:
     """The best pose of a correlative search and how clearly it won."""
@@ -403,6 +604,105 @@ def _starts_sorted(
     return tops
 
 
+def _far(
+    offsets: np.ndarray,
+    thetas: np.ndarray,
+    a: int,
+    i: int,
+    j: int,
+    away: float,
+    away_turn: float,
+) -> np.ndarray:
+    """The coarse poses (heading, x, y) at least `away` m or `away_turn` rad from pose
+    (a, i, j): where the runner-up is looked for."""
+    d_theta = np.abs(thetas - thetas[a])[:, None, None]
+    d_xy = np.hypot((offsets - offsets[i])[:, None], (offsets - offsets[j])[None, :])[None]
+    out: np.ndarray = (d_xy > away) | (d_theta > away_turn)
+    return np.ascontiguousarray(np.broadcast_to(out, (len(thetas), len(offsets), len(offsets))))
+
+
+def _bounded_starts(
+    coarse: LikelihoodGrid,
+    pts: np.ndarray,
+    prediction: np.ndarray,
+    thetas: np.ndarray,
+    half: int,
+    offsets: np.ndarray,
+    turn_step: float,
+    count: int,
+    away: float,
+    away_turn: float,
+) -> tuple[list[tuple[int, int, int]], float, float] | None:
+    """What the exhaustive coarse level gives (`_starts`' picks, the winner's score, the
+    runner-up), by branch and bound: the coarse poses come out best first (`_bnb_next`), the
+    picks are the first not next to one picked before, the runner-up the first far from the
+    winner; only blocks that could hold a better pose than those are ever scored. None when a
+    pick has an equal score elsewhere (the sorted walk's order then needs the whole volume)
+    or when bounding prunes too little (more than `_WORK_LIMIT` of the exhaustive lookups)."""
+    step = coarse.resolution
+    n = 2 * half + 1
+    n_a = len(thetas)
+    levels = max(math.ceil(math.log2(n)), 0) + 1
+    cells = _cells_of(coarse.origin, step, pts, prediction, thetas)
+    pyramid = _pyramid(coarse.likelihood_t, levels)
+    like_t = coarse.likelihood_t
+    budget = _WORK_LIMIT * n_a * n * n * max(len(pts), 1)
+    size = n_a * (2 * n * n + 8 * levels * n + 8)  # every block and offset, once
+    heap = np.empty((size, 4), dtype=np.int64)
+    key = np.empty(size)
+    seen = np.empty((n_a * n * n, 4), dtype=np.int64)
+    seen_key = np.empty(n_a * n * n)
+    state = np.zeros(3, dtype=np.int64)
+    _bnb_start(pyramid, cells, half, heap, key, state)
+
+    def after(k: int) -> bool:
+        """Offset number k has come out (False: none left or over budget)."""
+        while state[2] <= k:
+            if state[1] > budget or not _bnb_next(
+                like_t, pyramid, cells, half, heap, key, state, seen, seen_key
+            ):
+                return False
+        return True
+
+    free = np.ones((n_a, n, n), dtype=bool)
+    tops: list[tuple[int, int, int]] = []
+    scores: list[float] = []
+    k = 0
+    for _ in range(min(count, free.size)):
+        while after(k) and not free[seen[k, 0], seen[k, 2], seen[k, 3]]:
+            k += 1
+        if state[2] <= k:  # none left (every pose is next to a pick) or over budget
+            if state[1] > budget:
+                return None
+            break
+        a, i, j = int(seen[k, 0]), int(seen[k, 2]), int(seen[k, 3])
+        score = seen_key[k]
+        m = k + 1  # an equal score among the free poses: the sorted walk decides
+        while after(m) and seen_key[m] == score:
+            if free[seen[m, 0], seen[m, 2], seen[m, 3]]:
+                return None
+            m += 1
+        if state[1] > budget:
+            return None
+        tops.append((a, i, j))
+        scores.append(float(score))
+        near_xy = np.hypot((offsets - offsets[i])[:, None], (offsets - offsets[j])[None, :])
+        near_t = np.abs(thetas - thetas[a]) <= 1.5 * turn_step
+        free &= ~(near_t[:, None, None] & (near_xy <= 1.5 * step)[None])
+        k += 1
+    a, i, j = tops[0]
+    far = _far(offsets, thetas, a, i, j, away, away_turn)
+    runner_up = 0.0
+    if far.any():
+        k = 0
+        while after(k) and not far[seen[k, 0], seen[k, 2], seen[k, 3]]:
+            k += 1
+        if state[2] <= k:
+            return None  # over budget (a far pose exists)
+        runner_up = float(seen_key[k])
+    return tops, scores[0], runner_up
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
     fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
@@ -417,13 +717,18 @@ def correlative_search(
     inlier_distance: float = 0.1,
     candidates: int = 3,
     fine_resolution: float = 0.0,
+    exhaustive: bool = False,
 ) -> SearchResult:
     """Exhaustive coarse search of the window (+-`window` m, +-`turn` rad around
     `prediction`), then a fine search around the `candidates` best coarse poses. The runner-up
     is the best coarse score at least `away` m or `away_turn` rad from the winner: a
     repetitive place (a corridor) has one close to the winner's. `fine` may be a function of
     a box (lo, hi) that gives the fine grid over it (`LikelihoodGrid.window`): it is asked for
-    the box where the points land in the fine search, once the coarse poses are known."""
+    the box where the points land in the fine search, once the coarse poses are known.
+
+    The coarse level is searched by branch and bound (`_bounded_starts`: the same starts,
+    winner's score and runner-up, to the bit, from a fraction of the lookups); `exhaustive`
+    scores every coarse pose instead (what the bounding is checked against)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     coarse_pts = (
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
@@ -431,21 +736,42 @@ def correlative_search(
     coarse_step = coarse.resolution
     half = max(round(window / coarse_step), 0)
     thetas = np.arange(-turn, turn + 1e-9, turn_step)
-    vol = _search(
-        coarse.likelihood_t, coarse.origin, coarse.resolution, coarse_pts, prediction, thetas, half
-    )
     offsets = (np.arange(2 * half + 1) - half) * coarse_step
-    starts = _starts(vol, offsets, thetas, coarse_step, turn_step, candidates)
-    if starts is None:  # equal scores among the picks: as the sorted walk orders them
-        starts = _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
-    best_a, best_i, best_j = starts[0]  # the winner
+    bounded = None
+    if not exhaustive:
+        bounded = _bounded_starts(
+            coarse,
+            coarse_pts,
+            prediction,
+            thetas,
+            half,
+            offsets,
+            turn_step,
+            candidates,
+            away,
+            away_turn,
+        )
+    if bounded is not None:
+        starts, coarse_score, runner_up = bounded
+    else:  # the whole volume: asked for, or equal scores among the picks
+        vol = _search(
+            coarse.likelihood_t,
+            coarse.origin,
+            coarse.resolution,
+            coarse_pts,
+            prediction,
+            thetas,
+            half,
+        )
+        picks = _starts(vol, offsets, thetas, coarse_step, turn_step, candidates)
+        if picks is None:  # equal scores among the picks: as the sorted walk orders them
+            picks = _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
+        starts = picks
+        best_a, best_i, best_j = starts[0]  # the winner
+        far = _far(offsets, thetas, best_a, best_i, best_j, away, away_turn)
+        runner_up = float(vol[far].max()) if far.any() else 0.0
+        coarse_score = float(vol[best_a, best_i, best_j])
     tops = [np.array([offsets[i], offsets[j], thetas[a]]) for a, i, j in starts]
-    d_theta = np.abs(thetas - thetas[best_a])[:, None, None]
-    d_xy = np.hypot((offsets - offsets[best_i])[:, None], (offsets - offsets[best_j])[None, :])[
-        None
-    ]
-    far = (d_xy > away) | (d_theta > away_turn)
-    runner_up = float(vol[far].max()) if far.any() else 0.0
     if callable(fine):
         fine_res = fine_resolution
         fine_half = math.ceil(coarse_step / fine_res)
@@ -479,7 +805,7 @@ def correlative_search(
     pose = best[1].copy()
     pose[2] = math.atan2(math.sin(pose[2]), math.cos(pose[2]))
     inliers = float(np.mean(fine.distances(pts, pose) <= inlier_distance))
-    return SearchResult(pose, best[0], float(vol[best_a, best_i, best_j]), runner_up, inliers)
+    return SearchResult(pose, best[0], coarse_score, runner_up, inliers)
 
 
 def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
@@ -551,9 +877,12 @@ def _cells(
             t = min(max(((cx - ax) * dx + (cy - ay) * dy) / ll, 0.0), 1.0)
         ex = cx - ax - t * dx
         ey = cy - ay - t * dy
-        d = math.sqrt(ex * ex + ey * ey)
-        if d < dist[j, i]:
-            dist[j, i] = d
+        e2 = ex * ex + ey * ey
+        now = np.float64(dist[j, i])
+        if e2 < now * now:  # else sqrt(e2) >= now: the square of a float32 is exact
+            d = math.sqrt(e2)
+            if d < now:
+                dist[j, i] = d
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
