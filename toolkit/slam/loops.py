@@ -12,7 +12,9 @@ those a reference scan could have seen (`seen_only`: a revisit the other way see
 what the reference never looked at), and a clear winner: the best pose elsewhere in the
 window (0.6 m or 0.15 rad away) scores at most `max_ambiguity` of the winner (a corridor,
 where a shift along it scores alike, fails it). Whether the loops agree with each other is
-`toolkit.slam.consistency`'s test.
+`toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
+(`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
+last one up to `SlamConfig.wide_window` where no loop closed yet).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ class LoopConfig:
     gap: float = 8.0  # candidates lie at least this far back along the path
     radius: float = 1.0  # position uncertainty at no path between (m) ...
     growth: float = 0.03  # ... plus this per metre of path between them
-    window: float = 3.0  # ... at most (the search window, +-)
+    window: float = 3.0  # ... at most (the search window, +-; the mapper's rounds set their own)
     turn: float = 0.35  # heading window (+-)
     query_path: float = 1.0  # query: scans within this path distance of the keyframe
     reference_path: float = 4.0  # reference map: keyframes within this path distance
