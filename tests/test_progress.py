@@ -52,6 +52,7 @@ def bars(monkeypatch: pytest.MonkeyPatch) -> dict[str, Recording]:
     """Progress forced on: every bar a command opens, by its task's description."""
     made: dict[str, Recording] = {}
     monkeypatch.setattr(toolkit.progress, "bar", lambda: Recording(made))
+    monkeypatch.setattr(toolkit.progress, "enabled", lambda: True)  # as on a terminal
     return made
 
 
