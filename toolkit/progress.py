@@ -19,12 +19,16 @@ def enabled() -> bool:
 
 
 class _Silent:
-    """What a disabled bar does (nothing), without importing rich: `add_task`, `advance`."""
+    """What a disabled bar does (nothing), without importing rich: the `Progress` methods the
+    commands call (`add_task`, `advance`, `update`)."""
 
     def add_task(self, description: str, total: float | None = None, **_: object) -> int:
         return 0
 
     def advance(self, task: int, advance: float = 1) -> None:
+        pass
+
+    def update(self, task: int, **fields: object) -> None:
         pass
 
 
