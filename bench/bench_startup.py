@@ -51,7 +51,10 @@ if TYPE_CHECKING:
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 3
-HEAVY = ("pandas", "numba", "scipy", "gtsam", "matplotlib", "open3d", "distributed", "sklearn")
+HEAVY = (
+    *("pandas", "numba", "scipy", "scipy.ndimage", "gtsam", "matplotlib", "open3d", "distributed"),
+    *("sklearn", "rich"),
+)
 # where import time goes: libraries and the toolkit's own modules, by cumulative time
 SHOWN = (
     *HEAVY,

@@ -52,6 +52,7 @@ def bars(monkeypatch: pytest.MonkeyPatch) -> dict[str, Recording]:
     """Progress forced on: every bar a command opens, by its task's description."""
     made: dict[str, Recording] = {}
     monkeypatch.setattr(toolkit.progress, "bar", lambda: Recording(made))
+    monkeypatch.setattr(toolkit.progress, "enabled", lambda: True)  # as on a terminal
     return made
 
 
@@ -103,3 +104,19 @@ def test_label_bar_counts_scans(
     code, _, err = cli("label", corridor, "--model", run / "model.json", "--out", tmp_path / "b")
     assert code == 0, err
     assert bars["label: outputs"].steps == [600, 600, 300, 1]
+
+
+def test_bars_off_a_terminal_take_every_call_the_commands_make_without_rich(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Off a terminal `task` yields a silent bar (no rich `Progress` built): it takes what
+    the importers, the simulator and the report call on a bar."""
+    monkeypatch.setattr(toolkit.progress, "enabled", lambda: False)
+    with toolkit.progress.task("import", total=10) as (bar, job):
+        bar.advance(job, 3)
+        bar.update(job, completed=7)
+        bar.update(job, description="import: done")
+    assert list(toolkit.progress.track(range(4), "items")) == [0, 1, 2, 3]
+    with toolkit.progress.counted("map", 5, "pairs", "outputs", 2) as (count, step):
+        count(5)
+        step()

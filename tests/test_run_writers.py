@@ -199,3 +199,17 @@ def test_returns_box_is_world_points_extent(dataset: toolkit.Dataset, reach: flo
     assert box is not None
     assert np.array_equal(box[0], xy.min(axis=0)) and np.array_equal(box[1], xy.max(axis=0))
     assert raster.returns_box(ds.ranges, robot, ds.laser, 0.01) is None  # no return that near
+
+
+def test_tum_is_numpy_savetxt_byte_for_byte(tmp_path: Path) -> None:
+    """`write_tum` formats every row at once: the same bytes as np.savetxt's row loop, also
+    for NaN, infinities, -0.0 and large times."""
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0, 2e9, 500))
+    poses = rng.normal(0, 1e3, (500, 3))
+    poses[:4] = [[np.nan, 1.0, 0.5], [np.inf, -np.inf, 1.0], [-0.0, 0.0, -0.0], [1, 2, np.nan]]
+    mapping.write_tum(tmp_path / "a.tum", t, poses)
+    half, zero = poses[:, 2] / 2, np.zeros(len(t))
+    table = np.column_stack([t, poses[:, :2], zero, zero, zero, np.sin(half), np.cos(half)])
+    np.savetxt(tmp_path / "b.tum", table, fmt=["%.6f"] + ["%.9f"] * 7, delimiter=" ")
+    assert (tmp_path / "a.tum").read_bytes() == (tmp_path / "b.tum").read_bytes()

@@ -1,6 +1,7 @@
 """Each command loads only the libraries it uses, checked in a new process as a user runs it:
 `map` without loops (or by odometry) needs neither GTSAM nor scipy.ndimage nor the simulator,
-`map` with loops needs GTSAM and scipy.ndimage, and nothing loads a plotting or 3D library."""
+`map` with loops needs GTSAM, scipy.ndimage only when a grid needs its distance transform,
+nothing loads a plotting or 3D library, and rich only for a progress bar on a terminal."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from toolkit.sim import simulate
 
 WATCHED = (
     "pandas", "numba", "scipy.ndimage", "gtsam", "toolkit.sim", "toolkit.slam.pipeline",
-    "matplotlib", "open3d", "sklearn", "distributed",
+    "matplotlib", "open3d", "sklearn", "distributed", "rich",
 )  # fmt: skip
 
 RUN = (
@@ -64,7 +65,27 @@ def test_map_with_loops_loads_the_pose_graph_and_nothing_to_plot(
 ) -> None:
     mods = loaded("map", dataset, "--out", tmp_path / "run", "-q")
     assert (tmp_path / "run" / "graph.g2o").is_file()
-    assert mods == {"pandas", "numba", "scipy.ndimage", "gtsam", "toolkit.slam.pipeline"}
+    # this log's grids are all stamped (`_disc_field`): no distance transform, no scipy.ndimage
+    assert mods == {"pandas", "numba", "gtsam", "toolkit.slam.pipeline"}
+
+
+def test_scipy_ndimage_loads_when_a_grid_needs_the_distance_transform() -> None:
+    """A grid whose cap is wider than the stamped discs is scipy's transform: imported then,
+    and the distances are scipy's own."""
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from toolkit.slam.grid import LikelihoodGrid\n"
+        "assert 'scipy.ndimage' not in sys.modules\n"
+        "pts = np.array([[0.0, 0.0], [1.0, 0.5], [2.0, 2.0]])\n"
+        "grid = LikelihoodGrid.build(pts, 0.05, 0.1, cap=2.0)\n"
+        "assert 'scipy.ndimage' in sys.modules\n"
+        "print(float(grid.distance.max()), float(grid.distance.min()))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    top, bottom = map(float, out.stdout.split())
+    assert bottom == 0.0 and top == pytest.approx(2.0)  # zero on the points, capped far away
 
 
 def test_info_loads_numpy_and_pyarrow_only(dataset: Path) -> None:

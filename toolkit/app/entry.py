@@ -11,6 +11,13 @@ def main() -> None:
     import os
     import sys
 
+    # The imports and numba's first calls make about a million objects that live to the
+    # end; Python's collector, by default after every 700 new ones, walks them again and
+    # again (0.1-0.3 s of a map run, a tenth of its start). Collections of the young
+    # generation after 50,000 instead: the garbage with cycles waits a little longer, the
+    # results are the same.
+    gc.set_threshold(50_000, 50, 50)
+
     # Arrow's allocator (mimalloc) keeps freed memory for a while and commits its arenas
     # eagerly: an import that writes row group after row group peaks 45-55 MB higher with
     # its defaults (bench_import_memory: CARMEN 85 MB 236 -> 180 MB, Rawseeds 1 GB 376 ->
