@@ -281,21 +281,16 @@ def close_loops(
                 poses = solve()
                 index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
-    # further rounds from the optimised trajectory, smaller windows, where no loop closed yet
-    loop_cfg = replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)
-    for _ in range(config.rounds - 1):
+    # further rounds from the optimised trajectory where no loop closed yet: smaller windows,
+    # then a last one as wide as the drift along the path between
+    later = [replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)] * (config.rounds - 1)
+    if config.wide_window > 0:
+        later.append(replace(config.loop, growth=config.wide_growth, window=config.wide_window))
+    for round_cfg in later:
         t0 = time.perf_counter()
         closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
         # a pair verified before keeps its first verdict: not verified again
-        for lp in closer.find(keys, poses, loop_cfg, closed, known=found.keys()):
-            found.setdefault((lp.a, lp.b), lp)
-        timings["loops"] += time.perf_counter() - t0
-        poses = solve()
-    if config.wide_window > 0:
-        wide = replace(config.loop, growth=config.wide_growth, window=config.wide_window)
-        t0 = time.perf_counter()
-        closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
-        for lp in closer.find(keys, poses, wide, closed, known=found.keys()):
+        for lp in closer.find(keys, poses, round_cfg, closed, known=found.keys()):
             found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
