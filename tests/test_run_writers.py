@@ -201,9 +201,12 @@ def test_returns_box_is_world_points_extent(dataset: toolkit.Dataset, reach: flo
     assert raster.returns_box(ds.ranges, robot, ds.laser, 0.01) is None  # no return that near
 
 
-def test_tum_is_numpy_savetxt_byte_for_byte(tmp_path: Path) -> None:
-    """`write_tum` formats every row at once: the same bytes as np.savetxt's row loop, also
-    for NaN, infinities, -0.0 and large times."""
+def test_tum_is_numpy_savetxt_byte_for_byte(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`write_tum` formats blocks of rows at once: the same bytes as np.savetxt's row loop,
+    across block boundaries, also for NaN, infinities, -0.0 and large times."""
+    monkeypatch.setattr(mapping, "TUM_BLOCK", 64)  # 500 rows: 8 blocks, the last one short
     rng = np.random.default_rng(3)
     t = np.sort(rng.uniform(0, 2e9, 500))
     poses = rng.normal(0, 1e3, (500, 3))
