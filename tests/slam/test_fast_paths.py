@@ -8,6 +8,7 @@ the old grid's memory, and the correlative search's coarse level by branch and b
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -144,6 +145,37 @@ def _matcher_until(ds: Dataset, odo: np.ndarray, stop: int, config: MapConfig) -
     return m
 
 
+def _returns(m: MapMatcher, ranges: np.ndarray) -> np.ndarray:
+    """A scan's returns in the robot frame, as the front end places them."""
+    r = ranges.astype(np.float64)
+    ok = np.isfinite(r) & (r > 0) & (r <= m.config.max_range)
+    return np.column_stack([r[ok] * m._cos[ok], r[ok] * m._sin[ok]]) + m._mount[:2]
+
+
+def _front_search(
+    m: MapMatcher,
+    fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
+    pts: np.ndarray,
+    predicted: np.ndarray,
+    **kw: bool,
+) -> SearchResult:
+    """The front end's correlative search on `m`'s coarse grid and `fine`."""
+    config = m.config
+    coarse, _ = m._search_grids()
+    return correlative_search(
+        coarse,
+        fine,
+        pts,
+        predicted,
+        window=config.search_window,
+        turn=config.search_turn,
+        turn_step=0.02,
+        coarse_voxel=0.2,
+        fine_resolution=config.resolution,
+        **kw,
+    )
+
+
 def test_search_on_the_box_grid_finds_what_the_whole_grid_finds(drifted: Dataset) -> None:
     ds = drifted
     odo = odometry_poses(ds)
@@ -154,28 +186,13 @@ def test_search_on_the_box_grid_finds_what_the_whole_grid_finds(drifted: Dataset
     searched = 0
     for stop in (400, 1500, 2600):
         m = _matcher_until(ds, odo, stop, config)
-        coarse, fine = m._search_grids()
+        _, fine = m._search_grids()
         _, crop, corner = m._search_maps()
         whole = LikelihoodGrid.from_distance(crop, corner, config.resolution, 0.08, config.cap)
-        r = ds.ranges[stop].astype(np.float64)
-        ok = np.isfinite(r) & (r > 0) & (r <= config.max_range)
-        pts = np.column_stack([r[ok] * m._cos[ok], r[ok] * m._sin[ok]]) + m._mount[:2]
+        pts = _returns(m, ds.ranges[stop])
         for _ in range(4):
             predicted = m._last + np.array([*rng.normal(0.0, 0.4, 2), rng.normal(0.0, 0.3)])
-            found = [
-                correlative_search(
-                    coarse,
-                    grid,
-                    pts,
-                    predicted,
-                    window=config.search_window,
-                    turn=config.search_turn,
-                    turn_step=0.02,
-                    coarse_voxel=0.2,
-                    fine_resolution=config.resolution,
-                )
-                for grid in (whole, fine)
-            ]
+            found = [_front_search(m, grid, pts, predicted) for grid in (whole, fine)]
             np.testing.assert_array_equal(found[0].pose, found[1].pose)
             assert found[0].score == found[1].score
             assert found[0].coarse_score == found[1].coarse_score
@@ -297,25 +314,12 @@ def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
     config = MapConfig()
     for stop in (300, 1200, 2400):
         m = _matcher_until(ds, odo, stop, config)
-        coarse, fine_over = m._search_grids()
-        r = ds.ranges[stop].astype(np.float64)
-        ok = np.isfinite(r) & (r > 0) & (r <= config.max_range)
-        pts = np.column_stack([r[ok] * m._cos[ok], r[ok] * m._sin[ok]]) + m._mount[:2]
+        _, fine_over = m._search_grids()
+        pts = _returns(m, ds.ranges[stop])
         for _ in range(4):
             predicted = m._last + np.array([*rng.normal(0.0, 0.4, 2), rng.normal(0.0, 0.3)])
             found = [
-                correlative_search(
-                    coarse,
-                    fine_over,
-                    pts,
-                    predicted,
-                    window=config.search_window,
-                    turn=config.search_turn,
-                    turn_step=0.02,
-                    coarse_voxel=0.2,
-                    fine_resolution=config.resolution,
-                    exhaustive=full,
-                )
+                _front_search(m, fine_over, pts, predicted, exhaustive=full)
                 for full in (False, True)
             ]
             _same(*found)
