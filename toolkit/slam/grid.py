@@ -428,6 +428,14 @@ def _sum_at(grid: np.ndarray, cells: np.ndarray, a: int, dx: int, dy: int, pad: 
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _swap(heap: np.ndarray, key: np.ndarray, a: int, b: int) -> None:
+    """Swap entries `a` and `b` of the heap (their keys and rows)."""
+    key[a], key[b] = key[b], key[a]
+    for c in range(heap.shape[1]):
+        heap[a, c], heap[b, c] = heap[b, c], heap[a, c]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _push(heap: np.ndarray, key: np.ndarray, state: np.ndarray, k: float, row: np.ndarray) -> None:
     """Push (k, row) on the max-heap `key` / `heap` (rows: heading, level, x, y)."""
     m = state[0]
@@ -437,9 +445,7 @@ def _push(heap: np.ndarray, key: np.ndarray, state: np.ndarray, k: float, row: n
         up = (m - 1) // 2
         if key[up] >= key[m]:
             break
-        key[up], key[m] = key[m], key[up]
-        for c in range(4):
-            heap[up, c], heap[m, c] = heap[m, c], heap[up, c]
+        _swap(heap, key, up, m)
         m = up
     state[0] += 1
 
@@ -462,9 +468,7 @@ def _pop(heap: np.ndarray, key: np.ndarray, state: np.ndarray, row: np.ndarray) 
             c += 1
         if key[k] >= key[c]:
             break
-        key[k], key[c] = key[c], key[k]
-        for q in range(4):
-            heap[k, q], heap[c, q] = heap[c, q], heap[k, q]
+        _swap(heap, key, k, c)
         k = c
     return top
 

@@ -407,13 +407,17 @@ def slipped(odometry_step: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, fl
     free = math.atan2(math.sin(free), math.cos(free))
     best, near = math.inf, np.asarray(step, dtype=np.float64).copy()
     for a in (min(max(free, lo), hi), lo, hi):
-        c, s = math.cos(a), math.sin(a)
-        tx = c * odometry_step[0] - s * odometry_step[1]
-        ty = s * odometry_step[0] + c * odometry_step[1]
-        d = math.hypot(step[0] - tx, step[1] - ty)
+        candidate = _turned(odometry_step, a, step[2])
+        d = math.hypot(step[0] - candidate[0], step[1] - candidate[1])
         if d < best:
-            best, near = d, np.array([tx, ty, step[2]])
+            best, near = d, candidate
     return near, best
+
+
+def _turned(step: np.ndarray, angle: float, heading: float) -> np.ndarray:
+    """`step`'s translation turned by `angle`, with `heading`: a heading slip's step."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * step[0] - s * step[1], s * step[0] + c * step[1], heading])
 
 
 def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -578,14 +582,7 @@ class MapMatcher:
                     )
                     heading = odo_step[2] + turn
                     for share in (0.0, 0.5, 1.0):
-                        c, s = math.cos(share * turn), math.sin(share * turn)
-                        step = np.array(
-                            [
-                                c * odo_step[0] - s * odo_step[1],
-                                s * odo_step[0] + c * odo_step[1],
-                                heading,
-                            ]
-                        )
+                        step = _turned(odo_step, share * turn, heading)
                         out3 = np.zeros(_OUT)
                         cov3 = np.zeros((3, 3))
                         fit(_compose(self._last, step), info * _HEADING_FREE, out3, cov3)
