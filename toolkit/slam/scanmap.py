@@ -22,6 +22,10 @@ the loop closer's, on likelihood grids of the window) gives a new start. With od
 that no heading slip of the odometry's step explains (`slipped`: its translation more than
 `search_gate` sigmas of the prior from the odometry's, turned by at most the heading change)
 is an alias of a sparse map: the fit starts again from the slips with its heading instead.
+A scan too sparse to search (fewer than 20 returns within `max_range`) whose fit fails is no
+keyframe (`defer_sparse`): its pose may carry a slip the fit could not see, and placed in the
+map the slip would turn the map, so that the next scans matched it; the next scan with returns
+enough fails its fit against the map as it was and its search finds the slip.
 
 `MapMatcher` is the streaming form (one scan at a time, memory bounded by the window);
 `scan_to_map` runs it over a log.
@@ -87,6 +91,7 @@ class MapConfig:
     search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
     # explains (beyond this many sigmas of the prior's translation spread: `slipped`) is an
     # alias: the fit restarts from the slips with its heading instead (0: off)
+    defer_sparse: bool = True  # a scan too sparse to search whose fit fails is no keyframe
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -94,6 +99,7 @@ class MapConfig:
 
 # ---------------------------------------------------------------- the kernel
 
+_SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
 
@@ -511,8 +517,10 @@ class MapMatcher:
         self._finish(pose, odo, t)
         assert self._key_pose is not None
         since = _between(self._key_pose, pose)
-        if math.hypot(since[0], since[1]) >= cfg.keyframe_distance or abs(since[2]) >= (
-            cfg.keyframe_angle
+        unverified = self.stats[4] < cfg.min_inliers and len(pts) < _SEARCH_MIN
+        if not (unverified and cfg.defer_sparse) and (
+            math.hypot(since[0], since[1]) >= cfg.keyframe_distance
+            or abs(since[2]) >= cfg.keyframe_angle
         ):
             self._add_key(pose, ranges)
         return pose
@@ -546,7 +554,7 @@ class MapMatcher:
             )
 
         fit(predicted, info, out, cov)
-        if out[4] < cfg.min_inliers and len(pts) >= 20:
+        if out[4] < cfg.min_inliers and len(pts) >= _SEARCH_MIN:
             coarse, fine = self._search_grids()
             found = correlative_search(
                 coarse,
