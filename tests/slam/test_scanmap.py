@@ -202,3 +202,35 @@ def test_real_a_slip_with_an_alias_or_an_earlier_error_is_still_repaired(real: P
         ds = Carmen().read([base / f"{name}-corrected.log.gz"], CarmenOptions(poses="groundtruth"))
         ds = with_drift(ds, seed=seed)
         assert _ate(scan_to_map(ds).poses, ds) < bound, name
+
+
+@pytest.mark.real
+@pytest.mark.parametrize("thinned", [0, 6])
+def test_real_a_slip_on_a_scan_too_sparse_to_search_is_repaired_by_a_later_one(
+    real: Path, thinned: int
+) -> None:
+    """freiburg-campus seed 1, scan 1052: the odometry's heading slips 30.7 degrees on a scan
+    with 11 returns within 25 m, too few to search; its failed fit keeps the slip. Made a
+    keyframe, it turned the local map with it, and the next scans matched the turned map
+    (front end 32.8 m off). Not made one, the next scan (32 returns) fails its fit against
+    the map as it was, and its search finds the slip. With the next `thinned` scans cut to 15
+    returns within 25 m as well, the first scan searched is 6 m on; the slip's turn moved it
+    2-3 m, beyond the search's 1 m window (59.6 m off): the search starts from the scan that
+    slipped and its window grows with the path since."""
+    from importers.carmen import Carmen, CarmenOptions
+
+    path = real / "carmen_radish_corrected" / "freiburg-campus-corrected.log.gz"
+    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=1)
+    ranges = ds.ranges.copy()
+    for k in range(1053, 1053 + thinned):
+        near = np.flatnonzero(np.isfinite(ranges[k]) & (ranges[k] > 0) & (ranges[k] <= 25.0))
+        ranges[k, near[15:]] = np.nan
+    ds = replace(ds, ranges=ranges)
+    poses = scan_to_map(ds).poses
+    assert _ate(poses, ds) < 5.0
+    truth = truth_poses(ds)
+    assert truth is not None
+    # the heading is right again once a scan could be searched, to within 3 degrees
+    k = 1054 + thinned
+    turn = se2.between(truth[1051], truth[k])[2] - se2.between(poses[1051], poses[k])[2]
+    assert abs(np.degrees(np.arctan2(np.sin(turn), np.cos(turn)))) < 3.0

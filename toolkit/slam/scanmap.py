@@ -22,6 +22,10 @@ the loop closer's, on likelihood grids of the window) gives a new start. With od
 that no heading slip of the odometry's step explains (`slipped`: its translation more than
 `search_gate` sigmas of the prior from the odometry's, turned by at most the heading change)
 is an alias of a sparse map: the fit starts again from the slips with its heading instead.
+A scan too sparse to search (fewer than 20 returns within `max_range`) whose fit fails is no
+keyframe (`defer_sparse`): its pose may carry a slip the fit could not see, and placed in the
+map the slip would turn the map, so that the next scans matched it; the next scan with returns
+enough fails its fit against the map as it was and its search finds the slip.
 
 `MapMatcher` is the streaming form (one scan at a time, memory bounded by the window);
 `scan_to_map` runs it over a log.
@@ -87,6 +91,9 @@ class MapConfig:
     search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
     # explains (beyond this many sigmas of the prior's translation spread: `slipped`) is an
     # alias: the fit restarts from the slips with its heading instead (0: off)
+    defer_sparse: bool = True  # a scan too sparse to search whose fit fails is no keyframe,
+    # and the next search starts from it with a window grown by the path since (`_match`) ...
+    deferred_window: float = 8.0  # ... up to this (+-m)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -94,6 +101,7 @@ class MapConfig:
 
 # ---------------------------------------------------------------- the kernel
 
+_SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
 
@@ -448,6 +456,7 @@ class MapMatcher:
         self._keys: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # path, pose, points
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # origin, distances
         self._coarse: tuple[LikelihoodGrid, np.ndarray, np.ndarray] | None = None
+        self._coarse_window = 0.0
         self._centre = np.zeros(2)
         self._last = np.zeros(3)
         self._step = np.zeros(3)
@@ -460,6 +469,8 @@ class MapMatcher:
         self.covariance = np.zeros((3, 3))
         self.stats = np.zeros(_OUT)
         self.searches = 0
+        self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
+        # pose and path: where a slip that its fit could not see happened
         self._motion = MotionMatcher(laser, gain=1.0)  # as measured (docs/maps.md)
         self._mount = se2.mount_pose(laser)
         self._cos = np.cos(laser.angles + self._mount[2])  # the beams' directions, once
@@ -511,8 +522,14 @@ class MapMatcher:
         self._finish(pose, odo, t)
         assert self._key_pose is not None
         since = _between(self._key_pose, pose)
-        if math.hypot(since[0], since[1]) >= cfg.keyframe_distance or abs(since[2]) >= (
-            cfg.keyframe_angle
+        unverified = self.stats[4] < cfg.min_inliers and len(pts) < _SEARCH_MIN
+        if not (unverified and cfg.defer_sparse):
+            self._anchor = None
+        elif self._anchor is None:
+            self._anchor = (pose.copy(), self._path)
+        if not (unverified and cfg.defer_sparse) and (
+            math.hypot(since[0], since[1]) >= cfg.keyframe_distance
+            or abs(since[2]) >= cfg.keyframe_angle
         ):
             self._add_key(pose, ranges)
         return pose
@@ -546,14 +563,23 @@ class MapMatcher:
             )
 
         fit(predicted, info, out, cov)
-        if out[4] < cfg.min_inliers and len(pts) >= 20:
-            coarse, fine = self._search_grids()
+        if out[4] < cfg.min_inliers and len(pts) >= _SEARCH_MIN:
+            # after scans too sparse to verify, a slip may lie back at the first of them (its
+            # fit failed): the step is taken from its pose (its position is right, its heading
+            # may not be), the window widened by how far a turn within the search's moves the
+            # path since
+            base, window = self._last, cfg.search_window
+            if self._anchor is not None:
+                base = self._anchor[0]
+                window += (self._path - self._anchor[1]) * 2.0 * math.sin(cfg.search_turn / 2)
+                window = min(window, max(cfg.deferred_window, cfg.search_window))
+            coarse, fine = self._search_grids(window)
             found = correlative_search(
                 coarse,
                 fine,
                 pts,
                 predicted,
-                window=cfg.search_window,
+                window=window,
                 turn=cfg.search_turn,
                 turn_step=0.02,
                 coarse_voxel=0.2,
@@ -572,9 +598,9 @@ class MapMatcher:
                 # wheel slipped is not known), each held to its translation by the prior; the
                 # best is the search's result (not gated itself: where an earlier step went
                 # wrong, the fit's jump repairs the previous pose, not the odometry)
-                odo_step = _between(self._last, predicted)
+                odo_step = _between(base, predicted)
                 gate = cfg.search_gate / math.sqrt(info[0])
-                _, residual = slipped(odo_step, _between(self._last, out2[:3]))
+                _, residual = slipped(odo_step, _between(base, out2[:3]))
                 if residual > gate:
                     out2[4] = -1.0
                     turn = math.atan2(
@@ -585,7 +611,7 @@ class MapMatcher:
                         step = _turned(odo_step, share * turn, heading)
                         out3 = np.zeros(_OUT)
                         cov3 = np.zeros((3, 3))
-                        fit(_compose(self._last, step), info * _HEADING_FREE, out3, cov3)
+                        fit(_compose(base, step), info * _HEADING_FREE, out3, cov3)
                         if out3[4] > out2[4]:
                             out2, cov2 = out3, cov3
             if out2[4] > out[4] + 0.1:
@@ -647,14 +673,14 @@ class MapMatcher:
         self._centre = pose[:2].copy()
 
     def _search_grids(
-        self,
+        self, window: float | None = None
     ) -> tuple[LikelihoodGrid, Callable[[np.ndarray, np.ndarray], LikelihoodGrid]]:
         """Likelihood grids of the window's keyframes near the robot, for the search: the
         coarse one from their returns (a distance transform of 0.2 m cells), the fine one
         cut from the distance grid (no distance transform of 5 cm cells: it was most of a
         search's time), as a function of the box the fine search needs (its likelihood is
         computed there only: `LikelihoodGrid.from_distance`)."""
-        coarse, crop, corner = self._search_maps()
+        coarse, crop, corner = self._search_maps(window)
         cfg = self.config
 
         def fine(lo: np.ndarray, hi: np.ndarray) -> LikelihoodGrid:
@@ -664,16 +690,21 @@ class MapMatcher:
 
         return coarse, fine
 
-    def _search_maps(self) -> tuple[LikelihoodGrid, np.ndarray, np.ndarray]:
+    def _search_maps(
+        self, window: float | None = None
+    ) -> tuple[LikelihoodGrid, np.ndarray, np.ndarray]:
         """The search's coarse grid, and the crop of the distance grid (and its corner) that
-        the fine grid is cut from; kept until the next keyframe."""
-        if self._coarse is None:
-            cfg = self.config
+        the fine grid is cut from, for a search of `window` (default `search_window`); kept
+        until the next keyframe or another window."""
+        cfg = self.config
+        window = cfg.search_window if window is None else window
+        if self._coarse is None or self._coarse_window != window:
+            self._coarse_window = window
             assert self._grid is not None
             origin, dist = self._grid
             seg = np.concatenate([q for _, _, q in self._keys])
             world = np.concatenate([seg[:, :2], seg[:, 2:]])
-            reach = cfg.max_range + cfg.search_window + 1.0
+            reach = cfg.max_range + window + 1.0
             world = world[np.hypot(*(world - self._last[:2]).T) <= reach]
             if len(world) == 0:
                 world = self._last[None, :2]
