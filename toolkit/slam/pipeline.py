@@ -211,7 +211,6 @@ def close_loops(
         before = hang(keys, before, pg.optimise(graph, values, keys))
         timings["optimisation"] += time.perf_counter() - t0
     closer = LoopCloser(ds.ranges, ds.laser, config.loop)
-    loop_cov = np.diag([config.loop_sigma[0] ** 2] * 2 + [config.loop_sigma[1] ** 2])
     found: dict[tuple[int, int], Loop] = {}
     along = path_length(before)
 
@@ -228,7 +227,7 @@ def close_loops(
             before,
             along,
             sequential_only,
-            loop_cov,
+            np.array([lp.covariance(config.loop_sigma) for lp in fit]).reshape(-1, 3, 3),
             config.consistency_path,
             config.consistency_chi2,
             config.confirm,
@@ -238,7 +237,10 @@ def close_loops(
         accepted = [lp for lp in fit if lp.accepted]
         current = before[keys]
         for _ in range(3):
-            loop_edges = [pg.Edge(lp.a, lp.b, lp.pose, loop_cov, loop=True) for lp in accepted]
+            loop_edges = [
+                pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True)
+                for lp in accepted
+            ]
             graph, values = pg.factor_graph(keys, before[keys], edges + loop_edges, config.robust)
             current = pg.optimise(graph, values, keys)
             if not loop_edges:
@@ -285,7 +287,10 @@ def close_loops(
     # then a last one as wide as the drift along the path between
     later = [replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)] * (config.rounds - 1)
     if config.wide_window > 0:
-        later.append(replace(config.loop, growth=config.wide_growth, window=config.wide_window))
+        # no corridor loops there: across a window that wide, a corridor alongside the true
+        # one fits as well, and the true one may lie beyond it (infinite-corridor seed 0: 13.6 m)
+        wide = replace(config.loop, growth=config.wide_growth, window=config.wide_window)
+        later.append(replace(wide, corridor=False))
     for round_cfg in later:
         t0 = time.perf_counter()
         closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
@@ -295,5 +300,7 @@ def close_loops(
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
     accepted = [lp for lp in found.values() if lp.accepted]
-    edges = edges + [pg.Edge(lp.a, lp.b, lp.pose, loop_cov, loop=True) for lp in accepted]
+    edges = edges + [
+        pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True) for lp in accepted
+    ]
     return poses, keys, edges, list(found.values()), timings, before
