@@ -123,6 +123,13 @@ def check(
         ok = cycle_chi2(loops[i], loops[j], poses, index, prefix, covs[i], covs[j]) <= chi2
         agree[i, j] = agree[j, i] = ok
     disagree = near & ~agree
+    # a corridor loop says nothing along its axis: it neither confirms nor contradicts a full
+    # loop (one that is metres off along the corridor would agree with it), only the reverse
+    corridor = np.array([lp.axis is not None for lp in loops])
+    links = agree.copy()
+    voice = ~(~corridor[:, None] & corridor[None, :])  # row i counts column j's vote
+    agree &= voice
+    disagree &= voice
     alive = np.ones(n, dtype=bool)
     out: dict[int, str] = {}
     while True:
@@ -143,10 +150,9 @@ def check(
         # a corridor loop is right across its axis only if its corridor is: a group of corridor
         # loops that agree with each other but with no full loop (a place the match pins down)
         # may all sit in the corridor alongside, when the true one lies beyond the window
-        corridor = np.array([lp.axis is not None for lp in loops])
         if corridor.any():
-            links = csr_matrix(agree & alive[:, None] & alive[None, :])
-            _, group = connected_components(links, directed=False)
+            live = csr_matrix(links & alive[:, None] & alive[None, :])
+            _, group = connected_components(live, directed=False)
             anchored = np.unique(group[alive & ~corridor])
             for i in np.nonzero(alive & corridor & ~np.isin(group, anchored))[0]:
                 out[int(i)] = "unanchored: no full loop agrees with its corridor's loops"
