@@ -18,7 +18,7 @@ from toolkit.sim import simulate
 from toolkit.slam import consistency
 from toolkit.slam.loops import Loop, loop_truth_error, path_length
 from toolkit.slam.pipeline import SlamConfig, keyframes_of, sequential_edges
-from toolkit.slam.run import slam_trajectory
+from toolkit.slam.run import SlamRun, slam_trajectory
 
 
 def _is_false(lp: Loop, truth: np.ndarray) -> bool:
@@ -32,13 +32,13 @@ def building() -> toolkit.Dataset:
 
 
 @pytest.fixture(scope="module")
-def building_run(building: toolkit.Dataset):  # type: ignore[no-untyped-def]
+def building_run(building: toolkit.Dataset) -> SlamRun:
     return slam_trajectory(building)[1]
 
 
 def test_the_buildings_corridor_revisit_is_a_corridor_loop_along_its_corridor(
-    building: toolkit.Dataset, building_run
-) -> None:  # type: ignore[no-untyped-def]
+    building: toolkit.Dataset, building_run: SlamRun
+) -> None:
     """The building's start lies in a corridor along the world's x axis: its revisits match
     as well metres along it (rejected as ambiguous before), so they come back as corridor
     loops whose free axis is that corridor's, right across it and in heading."""
@@ -47,6 +47,7 @@ def test_the_buildings_corridor_revisit_is_a_corridor_loop_along_its_corridor(
     corridor = [lp for lp in building_run.loops if lp.accepted and lp.axis is not None]
     assert len(corridor) >= 2
     for lp in corridor:
+        assert lp.axis is not None
         world = np.arctan2(lp.axis[1], lp.axis[0]) + truth[lp.a, 2]
         assert abs(np.sin(world)) < np.sin(np.deg2rad(3.0)), np.rad2deg(world)
         across, turn = loop_truth_error(lp, truth)
@@ -67,8 +68,8 @@ def test_the_buildings_corridor_revisit_is_a_corridor_loop_along_its_corridor(
 
 
 def test_a_corridor_loop_does_not_confirm_a_full_loop_off_along_its_axis(
-    building: toolkit.Dataset, building_run
-) -> None:  # type: ignore[no-untyped-def]
+    building: toolkit.Dataset, building_run: SlamRun
+) -> None:
     """A full loop 1.5 m along the corridor (a corridor's alias) beside a true corridor loop:
     the corridor loop agrees with it (it claims nothing along the axis), but that is no
     confirmation; the full loop is dropped as unconfirmed, and the corridor loop, with no

@@ -212,10 +212,18 @@ class LoopCloser:
         return np.column_stack([wx[ok], wy[ok]])
 
     def verify(
-        self, a: int, b: int, radius: float, poses: np.ndarray, along: np.ndarray, keys: np.ndarray
+        self,
+        a: int,
+        b: int,
+        radius: float,
+        poses: np.ndarray,
+        along: np.ndarray,
+        keys: np.ndarray,
+        config: LoopConfig | None = None,
     ) -> Loop | None:
-        """Match scan `b`'s local scans against scan `a`'s local map over the window."""
-        cfg = self.config
+        """Match scan `b`'s local scans against scan `a`'s local map over the window
+        (`config`: a round's own, default the closer's)."""
+        cfg = config or self.config
         near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
         near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
         query = voxel_subsample(self._local(b, near_b, poses), cfg.query_voxel)
@@ -316,7 +324,7 @@ class LoopCloser:
         for a, b, radius in candidates(keys, poses, along, cfg, skip):
             if (a, b) in known:
                 continue
-            loop = self.verify(a, b, radius, poses, along, keys)
+            loop = self.verify(a, b, radius, poses, along, keys, cfg)
             if loop is not None:
                 out.append(loop)
         return out

@@ -63,6 +63,7 @@ class SlamConfig:
     # (freiburg-campus seed 0: the start's revisit 11-12 m off before loops; docs/maps.md)
     wide_window: float = 12.0
     wide_growth: float = 0.05
+    wide_skip_ambiguous: bool = True  # the wide round leaves out queries found ambiguous before
     incremental: bool = False  # re-optimise as soon as a loop moves its scan (round 1)
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
     # earlier ones (0: none); the scan-to-map front end has its own local map
@@ -287,13 +288,18 @@ def close_loops(
     # then a last one as wide as the drift along the path between
     later = [replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)] * (config.rounds - 1)
     if config.wide_window > 0:
-        # no corridor loops there: across a window that wide, a corridor alongside the true
-        # one fits as well, and the true one may lie beyond it (infinite-corridor seed 0: 13.6 m)
+        # no corridor loops there: a window that wide across a corridor holds the corridors
+        # alongside it too, and the true one may lie beyond it
         wide = replace(config.loop, growth=config.wide_growth, window=config.wide_window)
         later.append(replace(wide, corridor=False))
-    for round_cfg in later:
+    for n_round, round_cfg in enumerate(later):
         t0 = time.perf_counter()
-        closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
+        skip = [lp.b for lp in found.values() if lp.accepted]
+        if config.wide_skip_ambiguous and n_round == len(later) - 1 and config.wide_window > 0:
+            # where one scan was ambiguous (a corridor's match or another), a wider window
+            # only holds more places alike: those queries are not searched wide again
+            skip += [lp.b for lp in found.values() if lp.axis is not None or "ambig" in lp.reason]
+        closed = np.array(skip, dtype=np.int64)
         # a pair verified before keeps its first verdict: not verified again
         for lp in closer.find(keys, poses, round_cfg, closed, known=found.keys()):
             found.setdefault((lp.a, lp.b), lp)
