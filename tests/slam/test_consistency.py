@@ -45,7 +45,8 @@ def test_a_wrong_loop_among_true_ones_is_dropped_and_the_true_ones_kept(
 
     def alias(self: LoopCloser, *args: object) -> Loop | None:
         lp = verify(self, *args)  # type: ignore[arg-type]
-        if lp is not None and lp.accepted and not tampered and (lp.a, lp.b) in kept:
+        full = lp is not None and lp.axis is None  # a corridor loop claims nothing along
+        if lp is not None and lp.accepted and full and not tampered and (lp.a, lp.b) in kept:
             # the same fitness, the pose 1.5 m along the robot's heading: a corridor's alias
             lp.pose = compose(lp.pose, np.array([1.5, 0.0, 0.0]))
             tampered.append(lp)
