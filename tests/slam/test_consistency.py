@@ -124,4 +124,6 @@ def test_real_corridor_alias_is_not_accepted_the_true_loops_are(real: Path) -> N
     assert not any(_is_false(lp, truth) for lp in accepted)
     aliases = [lp for lp in slam.loops if lp.fit and _is_false(lp, truth)]
     assert aliases, "the corridor gave no alias that passed the fitness test alone"
-    assert all(lp.reason.split(":")[0] in {"unconfirmed", "inconsistent"} for lp in aliases)
+    reasons = {lp.reason.split(":")[0] for lp in aliases}
+    # a corridor loop off across its corridor: left out by its group or by the graph's residual
+    assert reasons <= {"unconfirmed", "inconsistent", "unanchored", "residual"}, reasons
