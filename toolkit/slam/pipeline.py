@@ -109,6 +109,10 @@ class SlamResult:
                 "ambiguity": lp.ambiguity,
                 "accepted": lp.accepted,
                 "reason": lp.reason,
+                # a corridor loop: the axis (a's frame) along which it claims nothing
+                "corridor": lp.axis is not None,
+                "axis_x": float(lp.axis[0]) if lp.axis is not None else 0.0,
+                "axis_y": float(lp.axis[1]) if lp.axis is not None else 0.0,
             }
             if truth is not None:
                 et, er = loop_truth_error(lp, truth)
