@@ -95,7 +95,7 @@ class Loop:
             u = np.array(
                 [c * self.axis[0] + s * self.axis[1], -s * self.axis[0] + c * self.axis[1]]
             )
-            cov[:2, :2] += (self.along**2 - sigma[0] ** 2) * np.outer(u, u)
+            cov[:2, :2] += (max(self.along, sigma[0]) ** 2 - sigma[0] ** 2) * np.outer(u, u)
         return cov
 
 
