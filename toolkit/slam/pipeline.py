@@ -63,7 +63,7 @@ class SlamConfig:
     # (freiburg-campus seed 0: the start's revisit 11-12 m off before loops; docs/maps.md)
     wide_window: float = 12.0
     wide_growth: float = 0.05
-    wide_skip_ambiguous: bool = True  # the wide round leaves out corridor loops' queries
+    wide_skip_corridors: bool = True  # the wide round leaves out corridor loops' queries
     incremental: bool = False  # re-optimise as soon as a loop moves its scan (round 1)
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
     # earlier ones (0: none); the scan-to-map front end has its own local map
@@ -299,7 +299,7 @@ def close_loops(
     for n_round, round_cfg in enumerate(later):
         t0 = time.perf_counter()
         skip = [lp.b for lp in found.values() if lp.accepted]
-        if config.wide_skip_ambiguous and n_round == len(later) - 1 and config.wide_window > 0:
+        if config.wide_skip_corridors and n_round == len(later) - 1 and config.wide_window > 0:
             # a corridor loop's query: a wider window only holds more of the same corridor
             # (queries ambiguous otherwise are searched wide again: infinite-corridor seed 0,
             # draw 2, 1.36 m without them against 1.03 m with them)
