@@ -11,7 +11,9 @@ The fitness test: enough of the query's points close to the map (`min_inliers`),
 those a reference scan could have seen (`seen_only`: a revisit the other way sees behind it
 what the reference never looked at), and a clear winner: the best pose elsewhere in the
 window (0.6 m or 0.15 rad away) scores at most `max_ambiguity` of the winner (a corridor,
-where a shift along it scores alike, fails it). Whether the loops agree with each other is
+where a shift along it scores alike, fails it). A match that fails only that test, and whose
+alike poses lie along one axis with none across it (`corridor_axis`), is kept as a corridor
+loop: trusted across the axis and in heading only (`Loop.covariance`). Whether the loops agree with each other is
 `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
