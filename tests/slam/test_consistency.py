@@ -45,7 +45,8 @@ def test_a_wrong_loop_among_true_ones_is_dropped_and_the_true_ones_kept(
 
     def alias(self: LoopCloser, *args: object) -> Loop | None:
         lp = verify(self, *args)  # type: ignore[arg-type]
-        if lp is not None and lp.accepted and not tampered and (lp.a, lp.b) in kept:
+        full = lp is not None and lp.axis is None  # a corridor loop claims nothing along
+        if lp is not None and lp.accepted and full and not tampered and (lp.a, lp.b) in kept:
             # the same fitness, the pose 1.5 m along the robot's heading: a corridor's alias
             lp.pose = compose(lp.pose, np.array([1.5, 0.0, 0.0]))
             tampered.append(lp)
@@ -123,4 +124,6 @@ def test_real_corridor_alias_is_not_accepted_the_true_loops_are(real: Path) -> N
     assert not any(_is_false(lp, truth) for lp in accepted)
     aliases = [lp for lp in slam.loops if lp.fit and _is_false(lp, truth)]
     assert aliases, "the corridor gave no alias that passed the fitness test alone"
-    assert all(lp.reason.split(":")[0] in {"unconfirmed", "inconsistent"} for lp in aliases)
+    reasons = {lp.reason.split(":")[0] for lp in aliases}
+    # a corridor loop off across its corridor: left out by its group or by the graph's residual
+    assert reasons <= {"unconfirmed", "inconsistent", "unanchored", "residual"}, reasons

@@ -17,6 +17,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from toolkit import se2
 from toolkit.slam.graph import Edge
@@ -59,9 +61,12 @@ def cycle_chi2(
     index: dict[int, int],
     prefix: np.ndarray,
     loop_cov: np.ndarray,
+    second_cov: np.ndarray | None = None,
 ) -> float:
     """Mahalanobis distance squared of the cycle first.a -> first.b -> second.b -> second.a ->
-    first.a from the identity (loops measured, chains from the sequential `poses`)."""
+    first.a from the identity (loops measured, chains from the sequential `poses`); `loop_cov`
+    is the first loop's covariance, `second_cov` the second's (default: the same)."""
+    second_cov = loop_cov if second_cov is None else second_cov
     pa, pb, qa, qb = (poses[x] for x in (first.a, first.b, second.a, second.b))
     s_b = se2.between(pb, qb)
     s_a = se2.between(qa, pa)
@@ -82,7 +87,7 @@ def cycle_chi2(
     cov = (
         moved(loop_cov, suffix1)
         + moved(chain_covariance(prefix, index[first.b], index[second.b], qb), suffix2)
-        + moved(ad_z @ loop_cov @ ad_z.T, suffix3)
+        + moved(ad_z @ second_cov @ ad_z.T, suffix3)
         + chain_covariance(prefix, index[second.a], index[first.a], pa)
     )
     return float(err @ np.linalg.solve(cov, err))
@@ -100,12 +105,14 @@ def check(
     confirm: bool = True,
 ) -> dict[int, str]:
     """Reasons to drop, by position in `loops` (the loops to check: those that passed the
-    fitness test); loops not in the answer are consistent. `poses` is the sequential estimate
+    fitness test); loops not in the answer are consistent. `loop_cov`: one covariance for
+    every loop, or one per loop (a corridor loop's is long along its axis). `poses` is the sequential estimate
     the `sequential` edges were taken from (keyframes `keys`), `along` its path length."""
     n = len(loops)
     if n == 0:
         return {}
     index = {int(k): m for m, k in enumerate(keys)}
+    covs = np.broadcast_to(np.asarray(loop_cov, np.float64), (n, 3, 3))
     prefix = chain_prefix(keys, poses, sequential)
     la = np.array([along[lp.a] for lp in loops])
     lb = np.array([along[lp.b] for lp in loops])
@@ -113,9 +120,16 @@ def check(
     np.fill_diagonal(near, False)
     agree = np.zeros((n, n), dtype=bool)
     for i, j in zip(*np.nonzero(np.triu(near)), strict=True):
-        ok = cycle_chi2(loops[i], loops[j], poses, index, prefix, loop_cov) <= chi2
+        ok = cycle_chi2(loops[i], loops[j], poses, index, prefix, covs[i], covs[j]) <= chi2
         agree[i, j] = agree[j, i] = ok
     disagree = near & ~agree
+    # a corridor loop says nothing along its axis: it neither confirms nor contradicts a full
+    # loop (one that is metres off along the corridor would agree with it), only the reverse
+    corridor = np.array([lp.axis is not None for lp in loops])
+    links = agree.copy()
+    voice = ~(~corridor[:, None] & corridor[None, :])  # row i counts column j's vote
+    agree &= voice
+    disagree &= voice
     alive = np.ones(n, dtype=bool)
     out: dict[int, str] = {}
     while True:
@@ -132,6 +146,16 @@ def check(
         n_ok = (agree & alive[None, :]).sum(axis=1)
         for i in np.nonzero(alive & (n_ok == 0))[0]:
             out[int(i)] = f"unconfirmed: no loop within {path:g} m agrees"
+            alive[i] = False
+        # a corridor loop is right across its axis only if its corridor is: a group of corridor
+        # loops that agree with each other but with no full loop (a place the match pins down)
+        # may all sit in the corridor alongside, when the true one lies beyond the window
+        if corridor.any():
+            live = csr_matrix(links & alive[:, None] & alive[None, :])
+            _, group = connected_components(live, directed=False)
+            anchored = np.unique(group[alive & ~corridor])
+            for i in np.nonzero(alive & corridor & ~np.isin(group, anchored))[0]:
+                out[int(i)] = "unanchored: no full loop agrees with its corridor's loops"
     return out
 
 

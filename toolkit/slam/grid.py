@@ -823,6 +823,27 @@ def correlative_search(
     return SearchResult(pose, best[0], coarse_score, runner_up, inliers)
 
 
+def coarse_scores(
+    coarse: LikelihoodGrid,
+    points: np.ndarray,
+    prediction: np.ndarray,
+    window: float,
+    turn: float,
+    turn_step: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The coarse level of `correlative_search` scored whole: the volume (heading, x, y) of
+    mean likelihoods at prediction + (x, y, theta), its x = y offsets and its headings (the
+    shape of the score surface: which way a corridor's match is free)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    half = max(round(window / coarse.resolution), 0)
+    thetas = np.arange(-turn, turn + 1e-9, turn_step)
+    offsets = (np.arange(2 * half + 1) - half) * coarse.resolution
+    vol = _search(
+        coarse.likelihood_t, coarse.origin, coarse.resolution, pts, prediction, thetas, half
+    )
+    return vol, offsets, thetas
+
+
 def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
     """One point per `size` m cell (the first), in the points' order."""
     if len(points) == 0:

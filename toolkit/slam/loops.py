@@ -11,7 +11,9 @@ The fitness test: enough of the query's points close to the map (`min_inliers`),
 those a reference scan could have seen (`seen_only`: a revisit the other way sees behind it
 what the reference never looked at), and a clear winner: the best pose elsewhere in the
 window (0.6 m or 0.15 rad away) scores at most `max_ambiguity` of the winner (a corridor,
-where a shift along it scores alike, fails it). Whether the loops agree with each other is
+where a shift along it scores alike, fails it). A match that fails only that test, and whose
+alike poses lie along one axis with none across it (`corridor_axis`), is kept as a corridor
+loop: trusted across the axis and in heading only (`Loop.covariance`). Whether the loops agree with each other is
 `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
@@ -27,7 +29,12 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.se2 import between, compose, mount_pose, wrap
-from toolkit.slam.grid import LikelihoodGrid, correlative_search, voxel_subsample
+from toolkit.slam.grid import (
+    LikelihoodGrid,
+    coarse_scores,
+    correlative_search,
+    voxel_subsample,
+)
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,11 @@ class LoopConfig:
     max_ambiguity: float = 0.85  # runner-up / winner of the coarse search
     min_points: int = 60  # fewer query points: no test
     seen_only: bool = True  # inliers among the query points the reference's scans could see
+    # a match ambiguous only along one axis (a corridor: its coarse scores as high along a line,
+    # and low across it and at other headings) is kept as a corridor loop, trusted across the
+    # axis and in heading only (`Loop.covariance`); False: rejected as ambiguous
+    corridor: bool = True
+    corridor_along: float = 100.0  # a corridor loop's spread along its axis (m): no pull there
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -73,6 +85,20 @@ class Loop:
     accepted: bool
     fit: bool = True  # passed the fitness test (`accepted` may still be withdrawn later)
     reason: str = ""  # why it is not accepted: fitness, consistency or the graph's residual
+    axis: np.ndarray | None = None  # a corridor loop: unit vector (a's frame) it leaves free
+    along: float = 0.0  # ... and its spread along that axis (m)
+
+    def covariance(self, sigma: tuple[float, float]) -> np.ndarray:
+        """The loop edge's covariance (GTSAM's tangent order, in `b`'s frame): `sigma`
+        (m, rad) in every direction, or for a corridor loop `along` m along its axis."""
+        cov = np.diag([sigma[0] ** 2, sigma[0] ** 2, sigma[1] ** 2])
+        if self.axis is not None:
+            c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
+            u = np.array(
+                [c * self.axis[0] + s * self.axis[1], -s * self.axis[0] + c * self.axis[1]]
+            )
+            cov[:2, :2] += (max(self.along, sigma[0]) ** 2 - sigma[0] ** 2) * np.outer(u, u)
+        return cov
 
 
 def path_length(poses: np.ndarray) -> np.ndarray:
@@ -188,10 +214,18 @@ class LoopCloser:
         return np.column_stack([wx[ok], wy[ok]])
 
     def verify(
-        self, a: int, b: int, radius: float, poses: np.ndarray, along: np.ndarray, keys: np.ndarray
+        self,
+        a: int,
+        b: int,
+        radius: float,
+        poses: np.ndarray,
+        along: np.ndarray,
+        keys: np.ndarray,
+        config: LoopConfig | None = None,
     ) -> Loop | None:
-        """Match scan `b`'s local scans against scan `a`'s local map over the window."""
-        cfg = self.config
+        """Match scan `b`'s local scans against scan `a`'s local map over the window
+        (`config`: a round's own, default the closer's)."""
+        cfg = config or self.config
         near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
         near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
         query = voxel_subsample(self._local(b, near_b, poses), cfg.query_voxel)
@@ -241,10 +275,20 @@ class LoopCloser:
                 why.append(f"overlap {int(seen.sum())} points < {cfg.min_points}")
         if inliers < cfg.min_inliers:
             why.append(f"inliers {inliers:.2f} < {cfg.min_inliers}")
+        pose, axis = found.pose, None
         if ambiguity > cfg.max_ambiguity:
-            why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
+            if not why and cfg.corridor:
+                axis = corridor_axis(coarse, query, prediction, radius, cfg)
+            if axis is None:
+                why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
+            else:  # along the axis the match says nothing: keep the trajectory's position
+                pose = pose.copy()
+                pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
         ok = not why
-        return Loop(a, b, found.pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
+        loop = Loop(a, b, pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
+        if axis is not None:
+            loop.axis, loop.along = axis, cfg.corridor_along
+        return loop
 
     def seen(
         self, query: np.ndarray, pose: np.ndarray, a: int, refs: np.ndarray, poses: np.ndarray
@@ -282,15 +326,60 @@ class LoopCloser:
         for a, b, radius in candidates(keys, poses, along, cfg, skip):
             if (a, b) in known:
                 continue
-            loop = self.verify(a, b, radius, poses, along, keys)
+            loop = self.verify(a, b, radius, poses, along, keys, cfg)
             if loop is not None:
                 out.append(loop)
         return out
 
 
+def corridor_axis(
+    coarse: LikelihoodGrid,
+    query: np.ndarray,
+    prediction: np.ndarray,
+    radius: float,
+    config: LoopConfig,
+    away: float = 0.6,
+    away_turn: float = 0.15,
+) -> np.ndarray | None:
+    """The axis (unit vector, `a`'s frame) along which an ambiguous match is free, or None
+    when it is not a corridor's: the coarse poses near the winner's heading that score within
+    `max_ambiguity` of it lie along a line (their principal axis through the winner), and no
+    pose `away` m across that line or `away_turn` rad off in heading does (another corridor
+    alongside, or a turn, is a real ambiguity)."""
+    pts = voxel_subsample(query, config.coarse_voxel)
+    vol, offsets, thetas = coarse_scores(
+        coarse, pts, prediction, radius, config.turn, config.turn_step
+    )
+    best = float(vol.max())
+    if best <= 0:
+        return None
+    wa, wi, wj = np.unravel_index(int(np.argmax(vol)), vol.shape)
+    dx = (offsets - offsets[wi])[:, None] + 0 * offsets[None, :]
+    dy = 0 * offsets[:, None] + (offsets - offsets[wj])[None, :]
+    near_turn = np.abs(thetas - thetas[wa]) <= away_turn
+    high = (vol >= config.max_ambiguity * best) & near_turn[:, None, None]
+    _, hi, hj = np.nonzero(high)
+    d = np.column_stack([dx[hi, hj], dy[hi, hj]])
+    _, vec = np.linalg.eigh(d.T @ d)
+    axis = vec[:, 1]
+    if np.abs(d @ axis).max() <= away:  # no second mode along a line
+        return None
+    across = np.abs(dx * axis[1] - dy * axis[0])[None] > away
+    far = across | ~near_turn[:, None, None]
+    if far.any() and vol[far].max() > config.max_ambiguity * best:
+        return None
+    out: np.ndarray = axis
+    return out
+
+
 def loop_truth_error(loop: Loop, truth: np.ndarray) -> tuple[float, float]:
-    """A loop's residual against the truth: translation (m) and |rotation| (deg)."""
+    """A loop's residual against the truth: translation (m) and |rotation| (deg); a corridor
+    loop's translation across its axis only (along it the loop claims nothing)."""
     err = between(between(truth[loop.a], truth[loop.b]), loop.pose)
+    if loop.axis is not None:
+        c, s = np.cos(loop.pose[2]), np.sin(loop.pose[2])
+        u = np.array([c * loop.axis[0] + s * loop.axis[1], -s * loop.axis[0] + c * loop.axis[1]])
+        err[:2] -= (err[:2] @ u) * u
     return float(np.hypot(err[0], err[1])), float(
         np.rad2deg(abs((err[2] + np.pi) % (2 * np.pi) - np.pi))
     )
@@ -303,5 +392,6 @@ __all__ = [
     "LoopConfig",
     "candidates",
     "compose",
+    "corridor_axis",
     "loop_truth_error",
 ]

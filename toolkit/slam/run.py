@@ -69,6 +69,9 @@ class SlamRun:
             "ambiguity",
             "accepted",
             "reason",
+            "corridor",
+            "axis_x",
+            "axis_y",
         ]
         pd.DataFrame(table, columns=None if table else columns).to_csv(
             out / "loops.csv", index=False
