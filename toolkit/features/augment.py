@@ -8,6 +8,8 @@ corridor or on both; taught with one kind and met with the other, the hall was f
 0.12 and 0.00 of its scans (docs/places.md, session 4). Both copies keep what is on the
 more open side of the path (the place's own opening) and vary the other side. They are
 whole logs, so the context along the path is described on the copied neighbours too.
+The default learns the closed copies (`Config.augment_closed`); the opened ones cost the
+same world's runs more than they gained (docs/places.md, session 11) and are an option.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ LATERAL = np.sin(np.radians(30.0))  # beams at 30-150 degrees either side decide
 #: (development seeds 0-19: 0 cost (a) 0.009 and (b) 0.018; 0.15 / 0.3 / 0.5 gave (c) 0.844
 #: / 0.847 / 0.833 and (b) 0.912 / 0.921 / 0.925; 0.5 kept (a) and (b) as they were)
 CHANGED = 0.5
-OPEN_LATERAL = 0.0  # sin of the bearing from which the opened copy mirrors the beams
 
 
 def changed(ranges: np.ndarray, copy: np.ndarray, laser: LaserGeometry) -> np.ndarray:
@@ -52,8 +53,6 @@ def opened(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
     m = r[:, mirror_index(laser)]
     out = np.fmax(r, m)
     out[np.isnan(r) | np.isnan(m)] = np.nan
-    keep = np.abs(np.sin(laser.angles)) < OPEN_LATERAL  # the view ahead and behind as it was
-    out[:, keep] = r[:, keep]
     return out
 
 
