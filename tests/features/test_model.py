@@ -224,11 +224,11 @@ def test_model_json_round_trip_and_sensor_check(world, tmp_path: Path) -> None: 
         again.check_laser(dataclasses.replace(LASER, beams=180))
     with pytest.raises(ToolkitError, match="angle_increment"):
         again.check_laser(dataclasses.replace(LASER, angle_increment=LASER.angle_increment / 2))
-    (tmp_path / "bad.json").write_text('{"version": 5, "features": 3}')
+    (tmp_path / "bad.json").write_text('{"version": 6, "features": 3}')
     with pytest.raises(ToolkitError, match="not a feature model"):
         FeatureModel.load(tmp_path / "bad.json")
     (tmp_path / "bad.json").write_text('{"version": 1, "features": []}')  # learn anew
-    with pytest.raises(ToolkitError, match="model version 1, this toolkit reads 5"):
+    with pytest.raises(ToolkitError, match="model version 1, this toolkit reads 6"):
         FeatureModel.load(tmp_path / "bad.json")
 
 

@@ -14,6 +14,8 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
+from toolkit.features import augment
+from toolkit.features.augment import closed, opened
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -213,10 +215,24 @@ def _fit_places(
     if open_set != "never" and config.classifier == "trees":  # the claims' wider strip
         wide = describe(ranges, laser, CLAIM_BESIDE)[:, columns]
         claim = (wide[idx], wide[rest])
+    # the taught scans' copies with the less open side of the path closed (or opened): what
+    # lies across the path from a place is that spot's accident (a hall opens on one side or
+    # on both); copies that are the scan again are left out (`augment.changed`)
+    extra = []
+    for weight, copy in ((config.augment_closed, closed), (config.augment_open, opened)):
+        if weight > 0 and config.classifier == "trees":
+            copied = copy(ranges, laser)
+            xa = features(
+                copied, laser, columns, along, config.context, None, config.beside, poses,
+                config.local_map,
+            )  # fmt: skip
+            new = augment.changed(ranges[idx], copied[idx], laser)  # not the scan again
+            extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=len(columns),
         open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
+        extra=tuple(np.concatenate(v) for v in zip(*extra, strict=True)) if extra else None,
     )  # fmt: skip
 
 

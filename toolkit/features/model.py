@@ -66,10 +66,11 @@ from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP
 from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
-#: 5: the local map's descriptors (`local_map`, on sparse scans by default); 4: the forest's
+#: 6: the trees also learn the taught scans' copies with the less open side walled
+#: (`augment_closed`, augment.py); 5: the local map's descriptors (`local_map`, on sparse scans by default); 4: the forest's
 #: leaf shares mixed with uniform (`leaf_mix`); 3: the 0.45 m strip beside the laser; 2: the
 #: context and the forest (older: learn anew)
-MODEL_VERSION = 5
+MODEL_VERSION = 6
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -129,6 +130,11 @@ class Config:
     # neighbouring scans pool what their descriptors cannot (0: each scan alone)
     leaf_mix: float = LEAF_MIX  # share of uniform mixed into each leaf's class shares (a
     # leaf of a few training scans of one place does not rule the others out; 0: unmixed)
+    augment_closed: float = 1.0  # weight of the taught scans' copies with the less open
+    # side of the path walled at the log's usual distance from a wall (augment.py: a hall
+    # open on both sides taught, one open on one side met; 0: none)
+    augment_open: float = 0.0  # weight of their copies with the less open side opened (the
+    # more open side mirrored onto it; 0: none, measured and not kept)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""

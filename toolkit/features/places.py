@@ -359,6 +359,7 @@ def fit_places(
     open_set: str = "auto",
     claim: tuple[np.ndarray, np.ndarray] | None = None,
     leaf_mix: float = LEAF_MIX,
+    extra: tuple[np.ndarray, ...] | None = None,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -382,7 +383,10 @@ def fit_places(
     `BACKGROUND_SHARE` of the log). `claim`: the descriptors the claims are tested on, of
     the training scans and of the rest of the log (default: the gate's columns of `x` and
     `unlabelled`). `leaf_mix`: the share of uniform mixed into every leaf's class shares
-    (trees only; folded into the saved shares, so applying the model costs nothing more)."""
+    (trees only; folded into the saved shares, so applying the model costs nothing more).
+    `extra`: descriptors (m, D), places (m,) and weights (m,) of more training examples for
+    the trees only (the taught scans' copies of `toolkit.features.augment`): not in the
+    scaler, the claims, the class centres or the gate."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
@@ -404,6 +408,10 @@ def fit_places(
             return ExtraTreesClassifier(TREES, min_samples_leaf=LEAF, random_state=0)
         return LogisticRegression(C=c, max_iter=2000)
 
+    za, ya, wa = np.zeros((0, z.shape[1])), np.zeros(0, dtype=str), np.zeros(0)
+    if extra is not None and forest:
+        za = (extra[0][:, columns] - scaler.mean_) / scale
+        ya, wa = np.asarray(extra[1]).astype(str), np.asarray(extra[2], dtype=np.float64)
     zu = np.zeros((0, z.shape[1]))
     if unlabelled is not None:
         zu = (unlabelled[:, columns] - scaler.mean_) / scale
@@ -411,6 +419,8 @@ def fit_places(
     # the open-set test on the rest of the log: which scans some taught place claims
     claimed = np.ones(len(zu), dtype=bool)
     est = learner().fit(z, y)
+    if len(za):  # the taught scans' copies join the trees' first fit too
+        est = learner().fit(np.vstack([z, za]), np.r_[y, ya], np.r_[np.ones(len(y)), wa])
     if forest and open_set != "never" and len(zu):
         cz, cu = claim if claim is not None else (z[:, :g], zu[:, :g])
         claimed, testable = log_claims(cz, y, groups, cu)
@@ -426,7 +436,7 @@ def fit_places(
         for _ in range(max(rounds, int(learn_none))):  # "none" is learnt even without rounds
             prob = est.predict_proba(zu)
             label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
-            zs, ys, ws = [z], [y], [np.ones(len(y))]
+            zs, ys, ws = [z, za], [y, ya], [np.ones(len(y)), wa]
             for k in classes if rounds > 0 else ():
                 pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE) & claimed)
                 if len(pick):

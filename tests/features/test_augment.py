@@ -1,0 +1,52 @@
+"""The taught scans' copies with the less open side opened or closed (augment.py), on the
+ray-cast test world: a 2 m corridor, a room opening on its left (x 12-16) and an 8 m hall
+open on both sides (x 26-34)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tests.features.world import LASER, cast, drive
+from toolkit.features.augment import changed, closed, mirror_index, opened, usual_wall
+
+
+def _scans() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    _, poses, label = drive()
+    return cast(poses), poses, label
+
+
+def test_mirror_index_pairs_opposite_bearings() -> None:
+    j = mirror_index(LASER)
+    assert np.allclose(LASER.angles[j], -LASER.angles, atol=1e-9)
+
+
+def test_opened_copies_the_room_onto_the_wall_side() -> None:
+    r, poses, _ = _scans()
+    at = np.argmin(np.abs(poses[:, 0] - 14.0))  # beside the room's opening (left, +y)
+    left, right = LASER.angles > np.radians(60), LASER.angles < -np.radians(60)
+    assert np.nanmedian(r[at, right]) < 1.5  # the corridor's right wall
+    o = opened(r, LASER)[at]
+    assert np.nanmedian(o[right]) > 2.5  # the room on both sides now
+    assert np.allclose(o[left], r[at, left], equal_nan=True)  # the open side as it was
+    assert changed(r[[at]], o[None], LASER)[0]
+
+
+def test_closed_walls_the_less_open_side_at_the_usual_distance() -> None:
+    r, poses, label = _scans()
+    wall = usual_wall(r, LASER)
+    assert 0.8 < wall < 1.2  # the 2 m corridor's walls, 1 m either side of the path
+    c = closed(r, LASER)
+    hall = np.flatnonzero(label == "hall")
+    left, right = LASER.angles > np.radians(60), LASER.angles < -np.radians(60)
+    lateral = np.abs(c[hall] * np.sin(LASER.angles))
+    near = np.minimum(
+        np.nanmedian(lateral[:, left], axis=1), np.nanmedian(lateral[:, right], axis=1)
+    )
+    far = np.maximum(
+        np.nanmedian(lateral[:, left], axis=1), np.nanmedian(lateral[:, right], axis=1)
+    )
+    assert np.all(near < 1.3) and np.median(far) > 3.0  # one side walled, the other open
+    # a corridor scan is its own closed copy: its walls are nearer than the usual wall
+    corridor = np.flatnonzero((label == "corridor") & (poses[:, 0] < 11))
+    assert changed(r[corridor], c[corridor], LASER).mean() < 0.1
+    assert changed(r[hall], c[hall], LASER).mean() > 0.5  # (the hall walled: a new kind)
