@@ -18,11 +18,18 @@ import shutil
 import signal
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import TYPE_CHECKING, ParamSpec, TypeVar, cast
 
 from toolkit.errors import OutputExistsError, ToolkitError
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
+
+P = ParamSpec("P")
+T = TypeVar("T")
 
 _STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -195,6 +202,61 @@ def atomic_dir(out: str | Path, force: bool = False, update: bool = False) -> It
             if isinstance(e, OSError) and (tmp is None or e.errno in _WRITE_ERRORS):
                 raise _write_error(e, out, tmp) from None
             raise
+
+
+class WriterPool:
+    """Threads for writers into an `atomic_dir`, which keep the futures of what they were
+    given, so that `writer_threads` can wait for all of it."""
+
+    def __init__(self, workers: int) -> None:
+        # deferred: `toolkit info` imports this module and needs no threads
+        from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
+
+        self._pool = ThreadPoolExecutor(workers)
+        self.submitted: list[Future[object]] = []
+
+    def submit(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> Future[T]:
+        future = self._pool.submit(fn, *args, **kwargs)
+        self.submitted.append(cast("Future[object]", future))
+        return future
+
+    def wait(self, cancel: bool) -> None:
+        """Wait for every task (cancelling those not started when `cancel`)."""
+        from concurrent.futures import wait  # noqa: PLC0415  (loaded with the pool)
+
+        if cancel:
+            for future in self.submitted:
+                future.cancel()
+        wait(self.submitted)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False)
+
+
+@contextmanager
+def writer_threads(workers: int) -> Iterator[WriterPool]:
+    """A thread pool for writers into an `atomic_dir`, used inside it: every task it was given
+    has ended when the block is left, however it is left. A plain pool's exit joins its
+    threads, but a Ctrl-C that lands in that join leaves them writing while `atomic_dir`
+    removes the temporary directory (a late file then keeps it), and an interrupted
+    `Thread.join` cannot be taken again (CPython marks the thread stopped). So the tasks'
+    futures are waited on, again after a stop (a second signal is ignored by
+    `toolkit.app.signals` during the cleanup), and tasks not started yet are cancelled."""
+    pool = WriterPool(workers)
+    stopped = False
+    try:
+        yield pool
+    except BaseException:
+        stopped = True
+        raise
+    finally:
+        try:
+            pool.wait(cancel=stopped)
+        except BaseException:  # the stop landed in the wait: the writers first, then go on
+            pool.wait(cancel=True)
+            raise
+        finally:
+            pool.close()
 
 
 def _link_or_copy(src: str, dst: str) -> None:

@@ -29,7 +29,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Collection
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +39,7 @@ import numba as nb
 import numpy as np
 
 from toolkit.align import scan as sc
-from toolkit.atomic import atomic_dir, check_output
+from toolkit.atomic import atomic_dir, check_output, writer_threads
 from toolkit.dataset import META, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
@@ -316,11 +316,11 @@ def map_run(
         step()
         robot = result.poses
         truth = truth_poses(ds)
-        with atomic_dir(out, force=force) as tmp, ThreadPoolExecutor(WRITER_THREADS) as pool:
+        with atomic_dir(out, force=force) as tmp, writer_threads(WRITER_THREADS) as pool:
             # the outputs are written side by side in threads (the clouds, the map and the
             # occupancy grid spend their time in numpy, zlib, file writes and a nogil numba
-            # kernel, which release the GIL); metrics are computed here meanwhile. The
-            # executor's exit waits for every writer before atomic_dir commits or cleans up.
+            # kernel, which release the GIL); metrics are computed here meanwhile. Every writer
+            # has ended before atomic_dir commits or cleans up, even if a stop lands in the wait.
             writers: dict[str, Future[float]] = {}
             t_outputs = time.perf_counter()
 

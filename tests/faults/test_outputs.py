@@ -9,6 +9,8 @@ import os
 import shutil
 import signal
 import tempfile
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
@@ -19,7 +21,7 @@ import pytest
 
 from tests.conftest import Cli
 from tests.faults.conftest import digest, hidden
-from toolkit.atomic import atomic_dir, atomic_file, output_lock
+from toolkit.atomic import atomic_dir, atomic_file, output_lock, writer_threads
 from toolkit.errors import OutputExistsError, ToolkitError
 
 T = TypeVar("T")
@@ -158,6 +160,34 @@ def test_a_signal_between_the_renames_keeps_the_output(
         (tmp / "v").write_text("new")
     assert (out / "v").read_text() in ("old", "new")
     assert hidden(tmp_path) == []
+
+
+def test_a_signal_while_writers_finish_waits_for_them(tmp_path: Path) -> None:
+    """`toolkit map` writes its outputs in threads. A Ctrl-C that lands while the block waits
+    for them must not leave a writer running while `atomic_dir` removes the temporary
+    directory: its late file would keep the directory (make test once saw that). The stop
+    comes from a second thread while the main thread waits in the pool's exit."""
+    done = threading.Event()
+
+    def late_writer(folder: Path) -> None:
+        time.sleep(0.4)
+        (folder / "late.bin").write_bytes(b"x")
+        done.set()
+
+    def stop_soon() -> None:
+        time.sleep(0.1)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    with (
+        pytest.raises(KeyboardInterrupt),
+        atomic_dir(tmp_path / "out") as tmp,
+        writer_threads(2) as pool,
+    ):
+        pool.submit(late_writer, tmp)
+        threading.Thread(target=stop_soon).start()
+    assert done.is_set()  # the writer had ended before the cleanup
+    assert hidden(tmp_path) == []
+    assert not (tmp_path / "out").exists()
 
 
 def test_an_output_created_meanwhile_is_not_replaced(tmp_path: Path) -> None:
