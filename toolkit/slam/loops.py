@@ -92,13 +92,17 @@ class Loop:
         """The loop edge's covariance (GTSAM's tangent order, in `b`'s frame): `sigma`
         (m, rad) in every direction, or for a corridor loop `along` m along its axis."""
         cov = np.diag([sigma[0] ** 2, sigma[0] ** 2, sigma[1] ** 2])
-        if self.axis is not None:
-            c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
-            u = np.array(
-                [c * self.axis[0] + s * self.axis[1], -s * self.axis[0] + c * self.axis[1]]
-            )
+        u = self.free_axis()
+        if u is not None:
             cov[:2, :2] += (max(self.along, sigma[0]) ** 2 - sigma[0] ** 2) * np.outer(u, u)
         return cov
+
+    def free_axis(self) -> np.ndarray | None:
+        """A corridor loop's axis in `b`'s frame (the edge's), None for a full loop."""
+        if self.axis is None:
+            return None
+        c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
+        return np.array([c * self.axis[0] + s * self.axis[1], -s * self.axis[0] + c * self.axis[1]])
 
 
 def path_length(poses: np.ndarray) -> np.ndarray:
@@ -376,9 +380,8 @@ def loop_truth_error(loop: Loop, truth: np.ndarray) -> tuple[float, float]:
     """A loop's residual against the truth: translation (m) and |rotation| (deg); a corridor
     loop's translation across its axis only (along it the loop claims nothing)."""
     err = between(between(truth[loop.a], truth[loop.b]), loop.pose)
-    if loop.axis is not None:
-        c, s = np.cos(loop.pose[2]), np.sin(loop.pose[2])
-        u = np.array([c * loop.axis[0] + s * loop.axis[1], -s * loop.axis[0] + c * loop.axis[1]])
+    u = loop.free_axis()
+    if u is not None:
         err[:2] -= (err[:2] @ u) * u
     return float(np.hypot(err[0], err[1])), float(
         np.rad2deg(abs((err[2] + np.pi) % (2 * np.pi) - np.pi))
