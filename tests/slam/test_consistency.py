@@ -14,21 +14,10 @@ import pytest
 import toolkit
 from toolkit.poses import truth_poses, with_drift
 from toolkit.se2 import compose
-from toolkit.sim import simulate
 from toolkit.slam import consistency
-from toolkit.slam.loops import Loop, LoopCloser, loop_truth_error, path_length
+from toolkit.slam.loops import Loop, LoopCloser, is_false_loop, path_length
 from toolkit.slam.pipeline import SlamConfig, keyframes_of, sequential_edges
 from toolkit.slam.run import slam_trajectory
-
-
-def _is_false(lp: Loop, truth: np.ndarray) -> bool:
-    t, r = loop_truth_error(lp, truth)
-    return t > 0.5 or r > 5.0
-
-
-@pytest.fixture(scope="module")
-def building() -> toolkit.Dataset:
-    return simulate("building", seed=0).dataset
 
 
 def test_a_wrong_loop_among_true_ones_is_dropped_and_the_true_ones_kept(
@@ -38,7 +27,7 @@ def test_a_wrong_loop_among_true_ones_is_dropped_and_the_true_ones_kept(
     assert truth is not None
     _, clean = slam_trajectory(building)
     kept = {(lp.a, lp.b) for lp in clean.loops if lp.accepted}
-    assert len(kept) >= 3 and not any(_is_false(lp, truth) for lp in clean.loops if lp.accepted)
+    assert len(kept) >= 3 and not any(is_false_loop(lp, truth) for lp in clean.loops if lp.accepted)
 
     verify = LoopCloser.verify
     tampered: list[Loop] = []
@@ -56,11 +45,11 @@ def test_a_wrong_loop_among_true_ones_is_dropped_and_the_true_ones_kept(
     _, slam = slam_trajectory(building)
     assert len(tampered) == 1
     wrong = tampered[0]
-    assert _is_false(wrong, truth)
+    assert is_false_loop(wrong, truth)
     assert not wrong.accepted and wrong.fit
     assert wrong.reason.startswith("inconsistent"), wrong.reason  # its neighbours disagree
     accepted = [lp for lp in slam.loops if lp.accepted]
-    assert not any(_is_false(lp, truth) for lp in accepted)
+    assert not any(is_false_loop(lp, truth) for lp in accepted)
     assert len(accepted) >= len(kept) - 2  # the true loops stay
     table = {(r["a"], r["b"]): r for r in slam_table(slam, truth)}
     assert table[(wrong.a, wrong.b)]["false"] and not table[(wrong.a, wrong.b)]["accepted"]
@@ -93,11 +82,11 @@ def test_a_single_unconfirmed_match_is_dropped_a_confirmed_group_kept(
     earlier = int(keys[np.searchsorted(along[keys], along[first.b] - 20.0)])
     assert along[earlier] - along[first.a] > 8.0
     lone = replace(first, b=earlier)
-    assert _is_false(lone, truth)
+    assert is_false_loop(lone, truth)
     # and a wrong twin beside a true loop: same keyframes' neighbours, pose 1 m off sideways
     twin_b = int(keys[np.searchsorted(keys, first.b) + 1])
     twin = replace(first, b=twin_b, pose=compose(first.pose, np.array([0.0, 1.0, 0.0])))
-    assert _is_false(twin, truth)
+    assert is_false_loop(twin, truth)
     loops = [*true_loops, lone, twin]
     drops = consistency.check(loops, keys, before, along, seq, loop_cov)
     assert len(loops) - 2 in drops and drops[len(loops) - 2].startswith("unconfirmed")
@@ -121,8 +110,8 @@ def test_real_corridor_alias_is_not_accepted_the_true_loops_are(real: Path) -> N
     assert truth is not None
     accepted = [lp for lp in slam.loops if lp.accepted]
     assert len(accepted) >= 20
-    assert not any(_is_false(lp, truth) for lp in accepted)
-    aliases = [lp for lp in slam.loops if lp.fit and _is_false(lp, truth)]
+    assert not any(is_false_loop(lp, truth) for lp in accepted)
+    aliases = [lp for lp in slam.loops if lp.fit and is_false_loop(lp, truth)]
     assert aliases, "the corridor gave no alias that passed the fitness test alone"
     reasons = {lp.reason.split(":")[0] for lp in aliases}
     # a corridor loop off across its corridor: left out by its group or by the graph's residual

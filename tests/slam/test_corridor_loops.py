@@ -14,21 +14,10 @@ import toolkit
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses, with_drift
 from toolkit.se2 import compose
-from toolkit.sim import simulate
 from toolkit.slam import consistency
-from toolkit.slam.loops import Loop, loop_truth_error, path_length
+from toolkit.slam.loops import is_false_loop, loop_truth_error, path_length
 from toolkit.slam.pipeline import SlamConfig, keyframes_of, sequential_edges
 from toolkit.slam.run import SlamRun, slam_trajectory
-
-
-def _is_false(lp: Loop, truth: np.ndarray) -> bool:
-    t, r = loop_truth_error(lp, truth)
-    return t > 0.5 or r > 5.0
-
-
-@pytest.fixture(scope="module")
-def building() -> toolkit.Dataset:
-    return simulate("building", seed=0).dataset
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +77,7 @@ def test_a_corridor_loop_does_not_confirm_a_full_loop_off_along_its_axis(
     corridor = replace(first, axis=axis, along=config.loop.corridor_along)
     twin_b = int(keys[np.searchsorted(keys, first.b) + 1])
     alias = replace(first, b=twin_b, pose=compose(first.pose, np.array([1.5, 0.0, 0.0])))
-    assert _is_false(alias, truth) and not _is_false(corridor, truth)
+    assert is_false_loop(alias, truth) and not is_false_loop(corridor, truth)
     loops = [corridor, alias]
     covs = np.array([lp.covariance(config.loop_sigma) for lp in loops])
     drops = consistency.check(loops, keys, before, along, seq, covs)
@@ -115,5 +104,5 @@ def test_real_infinite_corridor_revisits_close_as_corridor_loops(real: Path) -> 
     assert truth is not None
     accepted = [lp for lp in slam.loops if lp.accepted]
     assert sum(lp.axis is not None for lp in accepted) >= 50
-    assert not any(_is_false(lp, truth) for lp in accepted)
+    assert not any(is_false_loop(lp, truth) for lp in accepted)
     assert evaluate(result.poses, truth)["ate"]["rmse"] < 1.0

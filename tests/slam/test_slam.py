@@ -28,11 +28,6 @@ def _false(slam, truth: np.ndarray) -> list[tuple[float, float]]:  # type: ignor
     return [e for e in errors if e[0] > 0.5 or e[1] > 5.0]
 
 
-@pytest.fixture(scope="module")
-def building() -> toolkit.Dataset:
-    return simulate("building", seed=0).dataset
-
-
 def test_building_loop_is_closed_and_improves_the_map(building: toolkit.Dataset) -> None:
     result, slam = slam_trajectory(building)
     truth = truth_poses(building)

@@ -388,6 +388,15 @@ def loop_truth_error(loop: Loop, truth: np.ndarray) -> tuple[float, float]:
     )
 
 
+FALSE_LOOP = (0.5, 5.0)  # m, deg: a loop further than this from the truth is false (#20)
+
+
+def is_false_loop(loop: Loop, truth: np.ndarray) -> bool:
+    """A loop whose residual against the truth exceeds `FALSE_LOOP` (`loop_truth_error`)."""
+    t, r = loop_truth_error(loop, truth)
+    return t > FALSE_LOOP[0] or r > FALSE_LOOP[1]
+
+
 __all__ = [
     "KeyIndex",
     "Loop",
@@ -396,5 +405,6 @@ __all__ = [
     "candidates",
     "compose",
     "corridor_axis",
+    "is_false_loop",
     "loop_truth_error",
 ]

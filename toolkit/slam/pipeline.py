@@ -35,6 +35,7 @@ from toolkit.slam.loops import (
     Loop,
     LoopCloser,
     LoopConfig,
+    is_false_loop,
     loop_truth_error,
     path_length,
 )
@@ -116,7 +117,11 @@ class SlamResult:
             }
             if truth is not None:
                 et, er = loop_truth_error(lp, truth)
-                row |= {"truth_error_m": et, "truth_error_deg": er, "false": et > 0.5 or er > 5}
+                row |= {
+                    "truth_error_m": et,
+                    "truth_error_deg": er,
+                    "false": is_false_loop(lp, truth),
+                }
             rows.append(row)
         return rows
 

@@ -29,7 +29,7 @@ from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.slam import graph as pg
 from toolkit.slam.localmap import sequential
-from toolkit.slam.loops import Loop, loop_truth_error
+from toolkit.slam.loops import Loop, is_false_loop
 from toolkit.slam.pipeline import SlamConfig, SlamResult, close_loops
 from toolkit.slam.relations import RELATIONS, relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
@@ -97,18 +97,9 @@ class SlamRun:
         }
         truth = truth_poses(ds)
         if truth is not None:
-            false = [
-                lp
-                for lp in accepted
-                if _truth_error(lp, truth)[0] > 0.5 or _truth_error(lp, truth)[1] > 5.0
-            ]
-            out["false_loops"] = len(false)
+            out["false_loops"] = sum(is_false_loop(lp, truth) for lp in accepted)
             out["before_loops"] = evaluate(self.before, truth)
         return out
-
-
-def _truth_error(lp: Loop, truth: np.ndarray) -> tuple[float, float]:
-    return loop_truth_error(lp, truth)
 
 
 def slam_trajectory(
