@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import toolkit
-from toolkit.poses import truth_poses, with_drift
+from tests.slam.conftest import drifted_carmen
+from toolkit.poses import truth_poses
 from toolkit.se2 import compose
 from toolkit.slam import consistency
 from toolkit.slam.loops import Loop, LoopCloser, is_false_loop, path_length
@@ -101,10 +102,7 @@ def test_real_corridor_alias_is_not_accepted_the_true_loops_are(real: Path) -> N
     """infinite-corridor (1.9 km of corridor), drifted with seed 0: a match 5.4 m along the
     corridor passed the fitness test alone (71% inliers, ambiguity 0.84); no loop nearby
     confirms it, so it stays out, while the building's true loops are kept."""
-    from importers.carmen import Carmen, CarmenOptions
-
-    path = real / "carmen_radish_corrected" / "infinite-corridor-corrected.log.gz"
-    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=0)
+    ds = drifted_carmen(real, "infinite-corridor", seed=0)
     _, slam = slam_trajectory(ds)
     truth = truth_poses(ds)
     assert truth is not None

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 import toolkit
+from tests.slam.conftest import drifted_carmen
 from toolkit.metrics import evaluate
-from toolkit.poses import truth_poses, with_drift
+from toolkit.poses import truth_poses
 from toolkit.se2 import compose
 from toolkit.slam import consistency
 from toolkit.slam.loops import is_false_loop, loop_truth_error, path_length
@@ -95,10 +96,7 @@ def test_real_infinite_corridor_revisits_close_as_corridor_loops(real: Path) -> 
     (a corridor looks the same along its axis), so loops were few where it runs straight;
     kept as corridor loops they tie the corridors across and in heading, none wrong there,
     and no full loop is false."""
-    from importers.carmen import Carmen, CarmenOptions
-
-    path = real / "carmen_radish_corrected" / "infinite-corridor-corrected.log.gz"
-    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=2)
+    ds = drifted_carmen(real, "infinite-corridor", seed=2)
     result, slam = slam_trajectory(ds)
     truth = truth_poses(ds)
     assert truth is not None

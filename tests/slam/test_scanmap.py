@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import toolkit
+from tests.slam.conftest import drifted_carmen
 from toolkit import se2
 from toolkit.dataset import LaserGeometry
 from toolkit.metrics import evaluate
@@ -181,10 +182,7 @@ def test_real_freiburg_campus_aliases_of_the_search_are_not_taken(real: Path) ->
     from predictions right within 3 cm, and one turned a step by 60 degrees; taken, they left
     the front end 48 m off (seed 0). A jump that no heading slip of the odometry explains
     restarts the fit from the nearest slip instead."""
-    from importers.carmen import Carmen, CarmenOptions
-
-    path = real / "carmen_radish_corrected" / "freiburg-campus-corrected.log.gz"
-    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=0)
+    ds = drifted_carmen(real, "freiburg-campus", seed=0)
     assert _ate(scan_to_map(ds).poses, ds) < 5.0
 
 
@@ -217,10 +215,7 @@ def test_real_a_slip_on_a_scan_too_sparse_to_search_is_repaired_by_a_later_one(
     returns within 25 m as well, the first scan searched is 6 m on; the slip's turn moved it
     2-3 m, beyond the search's 1 m window (59.6 m off): the search starts from the scan that
     slipped and its window grows with the path since."""
-    from importers.carmen import Carmen, CarmenOptions
-
-    path = real / "carmen_radish_corrected" / "freiburg-campus-corrected.log.gz"
-    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=1)
+    ds = drifted_carmen(real, "freiburg-campus", seed=1)
     ranges = ds.ranges.copy()
     for k in range(1053, 1053 + thinned):
         near = np.flatnonzero(np.isfinite(ranges[k]) & (ranges[k] > 0) & (ranges[k] <= 25.0))

@@ -15,6 +15,7 @@ import pytest
 
 import toolkit
 from tests.conftest import Cli
+from tests.slam.conftest import drifted_carmen
 from toolkit.metrics import evaluate, relation_error, truth_relations
 from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.sim import simulate
@@ -104,10 +105,7 @@ def test_real_freiburg_campus_start_is_tied_to_its_revisit_beyond_the_first_wind
     """Scans 708-760 pass within 3 m of scans 0-52, but the estimate before loops puts them
     11-12 m apart (5 deg of heading over 200 m): only the wide last round's window, grown with
     the path between, reaches them (without it: no such loop, 2.1 m ATE)."""
-    from importers.carmen import Carmen, CarmenOptions
-
-    path = real / "carmen_radish_corrected" / "freiburg-campus-corrected.log.gz"
-    ds = with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=0)
+    ds = drifted_carmen(real, "freiburg-campus", seed=0)
     result, slam = slam_trajectory(ds)
     truth = truth_poses(ds)
     assert truth is not None
