@@ -30,11 +30,8 @@ def changed(ranges: np.ndarray, copy: np.ndarray, laser: LaserGeometry) -> np.nd
     """Per scan, whether its copy differs from it by `CHANGED` or more (mean absolute
     difference of log range over the beams at 30-150 degrees; a no-return: 20 m)."""
     side = np.abs(np.sin(laser.angles)) >= LATERAL
-
-    def log(r: np.ndarray) -> np.ndarray:
-        return np.asarray(np.log(np.fmin(np.nan_to_num(r[:, side], nan=20.0), 20.0) + 0.1))
-
-    return np.asarray(np.abs(log(ranges) - log(copy)).mean(axis=1) >= CHANGED)
+    diff = np.abs(_log_range(ranges[:, side]) - _log_range(copy[:, side]))
+    return np.asarray(diff.mean(axis=1) >= CHANGED)
 
 
 def mirror_index(laser: LaserGeometry) -> np.ndarray:
@@ -85,5 +82,9 @@ def _openness(r: np.ndarray, angles: np.ndarray, left: bool) -> np.ndarray:
     """Per scan, the mean log range of one side's beams at 30-150 degrees (a no-return or a
     range beyond 20 m: 20 m)."""
     side = ((angles > 0) == left) & (np.abs(np.sin(angles)) >= LATERAL)
-    far = np.fmin(np.nan_to_num(r[:, side], nan=20.0), 20.0)
-    return np.asarray(np.log(far + 0.1).mean(axis=1))
+    return np.asarray(_log_range(r[:, side]).mean(axis=1))
+
+
+def _log_range(r: np.ndarray) -> np.ndarray:
+    """log(range + 0.1 m), a no-return or a range beyond 20 m taken as 20 m."""
+    return np.asarray(np.log(np.fmin(np.nan_to_num(r, nan=20.0), 20.0) + 0.1))
