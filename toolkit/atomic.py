@@ -220,17 +220,24 @@ class WriterPool:
         self.submitted.append(cast("Future[object]", future))
         return future
 
-    def wait(self, cancel: bool) -> None:
-        """Wait for every task (cancelling those not started when `cancel`)."""
+    def cancel_pending(self) -> None:
+        """Cancel the tasks not started yet (those running go on)."""
+        for future in self.submitted:
+            future.cancel()
+
+    def join(self) -> None:
+        """Wait for every task; a stop that lands in the wait cancels the tasks not started,
+        waits for the running ones, and goes on."""
         from concurrent.futures import wait  # noqa: PLC0415  (loaded with the pool)
 
-        if cancel:
-            for future in self.submitted:
-                future.cancel()
-        wait(self.submitted)
-
-    def close(self) -> None:
-        self._pool.shutdown(wait=False)
+        try:
+            wait(self.submitted)
+        except BaseException:
+            self.cancel_pending()
+            wait(self.submitted)
+            raise
+        finally:
+            self._pool.shutdown(wait=False)
 
 
 @contextmanager
@@ -243,20 +250,13 @@ def writer_threads(workers: int) -> Iterator[WriterPool]:
     futures are waited on, again after a stop (a second signal is ignored by
     `toolkit.app.signals` during the cleanup), and tasks not started yet are cancelled."""
     pool = WriterPool(workers)
-    stopped = False
     try:
         yield pool
     except BaseException:
-        stopped = True
+        pool.cancel_pending()
         raise
     finally:
-        try:
-            pool.wait(cancel=stopped)
-        except BaseException:  # the stop landed in the wait: the writers first, then go on
-            pool.wait(cancel=True)
-            raise
-        finally:
-            pool.close()
+        pool.join()
 
 
 def _link_or_copy(src: str, dst: str) -> None:

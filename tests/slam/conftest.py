@@ -4,11 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import toolkit
 from toolkit.poses import with_drift
 from toolkit.sim import simulate
+from toolkit.slam.grid import LikelihoodGrid
+from toolkit.slam.loops import LoopCloser
 
 
 @pytest.fixture(scope="module")
@@ -24,3 +27,14 @@ def drifted_carmen(real: Path, name: str, seed: int) -> toolkit.Dataset:
 
     path = real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"
     return with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=seed)
+
+
+def reference_grids(
+    closer: LoopCloser, a: int, poses: np.ndarray, along: np.ndarray, keys: np.ndarray
+) -> tuple[np.ndarray, LikelihoodGrid, LikelihoodGrid]:
+    """Scan `a`'s local map (the returns of `LoopCloser.reference_keys`) and the loop
+    closer's coarse and fine grids of all of it (the closer cuts the fine one to the box)."""
+    cfg = closer.config
+    ref = closer._local(a, closer.reference_keys(a, along, keys), poses)
+    coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+    return ref, coarse, LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)

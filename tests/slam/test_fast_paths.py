@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
+from tests.slam.conftest import reference_grids
 from toolkit import se2
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.poses import odometry_poses, truth_poses, with_drift
@@ -288,10 +289,7 @@ def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
     assert len(pairs) >= 8
     for a, b, _ in pairs[:12]:
         query = voxel_subsample(closer._local(b, np.array([b - 2, b, b + 2]), truth), 0.1)
-        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
-        ref = closer._local(a, near_a, truth)
-        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-        fine = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        _, coarse, fine = reference_grids(closer, a, truth, along, keys)
         prediction = between(truth[a], truth[b]) + np.array([*rng.normal(0, 0.5, 2), 0.1])
         found = [
             correlative_search(

@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tests.slam.conftest import reference_grids
 from toolkit.dataset import Dataset
 from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.se2 import between
@@ -100,10 +101,7 @@ def test_search_over_the_window_finds_what_the_whole_grid_finds(
     assert len(pairs) >= 5
     for a, b, radius in pairs:
         query = closer._local(b, np.array([b]), odo)
-        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
-        ref = closer._local(a, near_a, odo)
-        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-        whole = LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+        ref, coarse, whole = reference_grids(closer, a, odo, along, keys)
         prediction = between(odo[a], odo[b])
         found = [
             correlative_search(

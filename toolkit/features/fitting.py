@@ -14,8 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features import augment
-from toolkit.features.augment import closed, opened
+from toolkit.features.augment import changed, closed, opened
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -226,7 +225,7 @@ def _fit_places(
                 copied, laser, columns, along, config.context, None, config.beside, poses,
                 config.local_map,
             )  # fmt: skip
-            new = augment.changed(ranges[idx], copied[idx], laser)  # not the scan again
+            new = changed(ranges[idx], copied[idx], laser)  # not the scan again
             extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,

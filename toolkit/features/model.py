@@ -67,9 +67,9 @@ from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP
 from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
 #: 6: the trees also learn the taught scans' copies with the less open side walled
-#: (`augment_closed`, augment.py); 5: the local map's descriptors (`local_map`, on sparse scans by default); 4: the forest's
-#: leaf shares mixed with uniform (`leaf_mix`); 3: the 0.45 m strip beside the laser; 2: the
-#: context and the forest (older: learn anew)
+#: (`augment_closed`, augment.py); 5: the local map's descriptors (`local_map`, on sparse
+#: scans by default); 4: the forest's leaf shares mixed with uniform (`leaf_mix`); 3: the
+#: 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
 MODEL_VERSION = 6
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128

@@ -418,9 +418,10 @@ def fit_places(
     g = gate or z.shape[1]
     # the open-set test on the rest of the log: which scans some taught place claims
     claimed = np.ones(len(zu), dtype=bool)
-    est = learner().fit(z, y)
     if len(za):  # the taught scans' copies join the trees' first fit too
         est = learner().fit(np.vstack([z, za]), np.r_[y, ya], np.r_[np.ones(len(y)), wa])
+    else:
+        est = learner().fit(z, y)
     if forest and open_set != "never" and len(zu):
         cz, cu = claim if claim is not None else (z[:, :g], zu[:, :g])
         claimed, testable = log_claims(cz, y, groups, cu)

@@ -106,8 +106,9 @@ def check(
 ) -> dict[int, str]:
     """Reasons to drop, by position in `loops` (the loops to check: those that passed the
     fitness test); loops not in the answer are consistent. `loop_cov`: one covariance for
-    every loop, or one per loop (a corridor loop's is long along its axis). `poses` is the sequential estimate
-    the `sequential` edges were taken from (keyframes `keys`), `along` its path length."""
+    every loop, or one per loop (a corridor loop's is long along its axis). `poses` is the
+    sequential estimate the `sequential` edges were taken from (keyframes `keys`), `along` its
+    path length."""
     n = len(loops)
     if n == 0:
         return {}

@@ -718,6 +718,16 @@ def _bounded_starts(
     return tops, scores[0], runner_up
 
 
+def _lattice(
+    step: float, window: float, turn: float, turn_step: float
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """The coarse level's poses: half its cells across (+-`window` m in cells of `step`), its
+    x = y offsets (m) and its headings (+-`turn` rad by `turn_step`)."""
+    half = max(round(window / step), 0)
+    offsets = (np.arange(2 * half + 1) - half) * step
+    return half, offsets, np.arange(-turn, turn + 1e-9, turn_step)
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
     fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
@@ -749,9 +759,7 @@ def correlative_search(
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
     )
     coarse_step = coarse.resolution
-    half = max(round(window / coarse_step), 0)
-    thetas = np.arange(-turn, turn + 1e-9, turn_step)
-    offsets = (np.arange(2 * half + 1) - half) * coarse_step
+    half, offsets, thetas = _lattice(coarse_step, window, turn, turn_step)
     bounded = None
     if not exhaustive:
         bounded = _bounded_starts(
@@ -779,9 +787,12 @@ def correlative_search(
             half,
         )
         picks = _starts(vol, offsets, thetas, coarse_step, turn_step, candidates)
-        if picks is None:  # equal scores among the picks: as the sorted walk orders them
-            picks = _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
-        starts = picks
+        # equal scores among the picks (None): as the sorted walk orders them
+        starts = (
+            picks
+            if picks is not None
+            else _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
+        )
         best_a, best_i, best_j = starts[0]  # the winner
         far = _far(offsets, thetas, best_a, best_i, best_j, away, away_turn)
         runner_up = float(vol[far].max()) if far.any() else 0.0
@@ -835,9 +846,7 @@ def coarse_scores(
     mean likelihoods at prediction + (x, y, theta), its x = y offsets and its headings (the
     shape of the score surface: which way a corridor's match is free)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    half = max(round(window / coarse.resolution), 0)
-    thetas = np.arange(-turn, turn + 1e-9, turn_step)
-    offsets = (np.arange(2 * half + 1) - half) * coarse.resolution
+    half, offsets, thetas = _lattice(coarse.resolution, window, turn, turn_step)
     vol = _search(
         coarse.likelihood_t, coarse.origin, coarse.resolution, pts, prediction, thetas, half
     )

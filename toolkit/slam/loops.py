@@ -217,6 +217,15 @@ class LoopCloser:
         wy = rel[:, 1:2] + s * x + c * y
         return np.column_stack([wx[ok], wy[ok]])
 
+    def reference_keys(
+        self, a: int, along: np.ndarray, keys: np.ndarray, config: LoopConfig | None = None
+    ) -> np.ndarray:
+        """The keyframes of scan `a`'s local map (within `reference_path` m of path of it):
+        what a candidate's query is matched against (`_local` gives their returns)."""
+        cfg = config or self.config
+        near: np.ndarray = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
+        return near
+
     def verify(
         self,
         a: int,
@@ -237,7 +246,7 @@ class LoopCloser:
             return None
         if len(query) > cfg.max_points:
             query = query[np.linspace(0, len(query) - 1, cfg.max_points).astype(np.int64)]
-        near_a = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
+        near_a = self.reference_keys(a, along, keys, cfg)
         ref = self._local(a, near_a, poses)
         prediction = between(poses[a], poses[b])
         c, sn = np.cos(prediction[2]), np.sin(prediction[2])
@@ -358,8 +367,7 @@ def corridor_axis(
     if best <= 0:
         return None
     wa, wi, wj = np.unravel_index(int(np.argmax(vol)), vol.shape)
-    dx = (offsets - offsets[wi])[:, None] + 0 * offsets[None, :]
-    dy = 0 * offsets[:, None] + (offsets - offsets[wj])[None, :]
+    dx, dy = np.meshgrid(offsets - offsets[wi], offsets - offsets[wj], indexing="ij")
     near_turn = np.abs(thetas - thetas[wa]) <= away_turn
     high = (vol >= config.max_ambiguity * best) & near_turn[:, None, None]
     _, hi, hj = np.nonzero(high)

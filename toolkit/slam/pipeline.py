@@ -295,19 +295,19 @@ def close_loops(
     poses = solve()
     # further rounds from the optimised trajectory where no loop closed yet: smaller windows,
     # then a last one as wide as the drift along the path between
-    later = [replace(loop_cfg, radius=0.5, growth=0.01, window=1.5)] * (config.rounds - 1)
+    # (each with whether it leaves out corridor loops' queries)
+    later = [(replace(loop_cfg, radius=0.5, growth=0.01, window=1.5), False)] * (config.rounds - 1)
     if config.wide_window > 0:
         # no corridor loops there: a window that wide across a corridor holds the corridors
-        # alongside it too, and the true one may lie beyond it
+        # alongside it too, and the true one may lie beyond it; nor their queries: a wider
+        # window only holds more of the same corridor (queries ambiguous otherwise are searched
+        # wide again: infinite-corridor seed 0, draw 2, 1.36 m without them, 1.03 m with them)
         wide = replace(config.loop, growth=config.wide_growth, window=config.wide_window)
-        later.append(replace(wide, corridor=False))
-    for n_round, round_cfg in enumerate(later):
+        later.append((replace(wide, corridor=False), config.wide_skip_corridors))
+    for round_cfg, skip_corridors in later:
         t0 = time.perf_counter()
         skip = [lp.b for lp in found.values() if lp.accepted]
-        if config.wide_skip_corridors and n_round == len(later) - 1 and config.wide_window > 0:
-            # a corridor loop's query: a wider window only holds more of the same corridor
-            # (queries ambiguous otherwise are searched wide again: infinite-corridor seed 0,
-            # draw 2, 1.36 m without them against 1.03 m with them)
+        if skip_corridors:
             skip += [lp.b for lp in found.values() if lp.axis is not None]
         closed = np.array(skip, dtype=np.int64)
         # a pair verified before keeps its first verdict: not verified again
