@@ -11,7 +11,8 @@ import toolkit
 from toolkit.poses import with_drift
 from toolkit.sim import simulate
 from toolkit.slam.grid import LikelihoodGrid
-from toolkit.slam.loops import LoopCloser
+from toolkit.slam.loops import LoopCloser, candidates, path_length
+from toolkit.slam.pipeline import keyframes_of
 
 
 @pytest.fixture(scope="module")
@@ -38,3 +39,14 @@ def reference_grids(
     ref = closer._local(a, closer.reference_keys(a, along, keys), poses)
     coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
     return ref, coarse, LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
+
+
+def loop_candidates(
+    ds: toolkit.Dataset, poses: np.ndarray
+) -> tuple[LoopCloser, np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
+    """The loop closer of `ds` with its default config, the keyframes of `poses` as the mapper
+    takes them, their path length, and the loop candidates (a, b, window) among them."""
+    closer = LoopCloser(ds.ranges, ds.laser)
+    keys = keyframes_of(poses, 0.5, 0.3)
+    along = path_length(poses)
+    return closer, keys, along, candidates(keys, poses, along, closer.config)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
-from tests.slam.conftest import reference_grids
+from tests.slam.conftest import loop_candidates, reference_grids
 from toolkit import se2
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.poses import odometry_poses, truth_poses, with_drift
@@ -30,8 +30,7 @@ from toolkit.slam.grid import (
     stamp_segments,
     voxel_subsample,
 )
-from toolkit.slam.loops import LoopCloser, candidates, path_length
-from toolkit.slam.pipeline import keyframes_of
+from toolkit.slam.loops import LoopCloser
 from toolkit.slam.scanmap import MapConfig, MapMatcher, _placed_surfaces
 
 
@@ -281,11 +280,8 @@ def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
     # the loop closer's: the building's loop candidates, scans placed by the truth
     truth = truth_poses(ds)
     assert truth is not None
-    closer = LoopCloser(ds.ranges, ds.laser)
+    closer, keys, along, pairs = loop_candidates(ds, truth)
     cfg = closer.config
-    keys = keyframes_of(truth, 0.5, 0.3)
-    along = path_length(truth)
-    pairs = candidates(keys, truth, along, cfg)
     assert len(pairs) >= 8
     for a, b, _ in pairs[:12]:
         query = voxel_subsample(closer._local(b, np.array([b - 2, b, b + 2]), truth), 0.1)

@@ -11,14 +11,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.slam.conftest import reference_grids
+from tests.slam.conftest import loop_candidates, reference_grids
 from toolkit.dataset import Dataset
 from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.se2 import between
 from toolkit.sim import Simulation
 from toolkit.slam import loops as lp_mod
 from toolkit.slam.grid import LikelihoodGrid, correlative_search
-from toolkit.slam.loops import KeyIndex, LoopCloser, LoopConfig, candidates, path_length
+from toolkit.slam.loops import KeyIndex, LoopCloser, LoopConfig, path_length
 from toolkit.slam.pipeline import SlamConfig, close_loops, keyframes_of
 
 
@@ -93,11 +93,8 @@ def test_search_over_the_window_finds_what_the_whole_grid_finds(
     drifted: tuple[Dataset, np.ndarray],
 ) -> None:
     ds, odo = drifted
-    closer = LoopCloser(ds.ranges, ds.laser)
+    closer, keys, along, pairs = loop_candidates(ds, odo)
     cfg = closer.config
-    keys = keyframes_of(odo, 0.5, 0.3)
-    along = path_length(odo)
-    pairs = candidates(keys, odo, along, cfg)
     assert len(pairs) >= 5
     for a, b, radius in pairs:
         query = closer._local(b, np.array([b]), odo)
