@@ -204,40 +204,69 @@ def atomic_dir(out: str | Path, force: bool = False, update: bool = False) -> It
             raise
 
 
+class _Task:
+    """One writer's state, recorded before the pool sees it: a stop may land inside the
+    pool's `submit` (starting a thread waits), after the work was queued but before its
+    future came back."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.started = False
+        self.cancelled = False
+        self.done = threading.Event()
+
+
 class WriterPool:
-    """Threads for writers into an `atomic_dir`, which keep the futures of what they were
-    given, so that `writer_threads` can wait for all of it."""
+    """Threads for writers into an `atomic_dir` that know every task they were given, so
+    that `writer_threads` can wait for all of it."""
 
     def __init__(self, workers: int) -> None:
         # deferred: `toolkit info` imports this module and needs no threads
         from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
 
         self._pool = ThreadPoolExecutor(workers)
-        self.submitted: list[Future[object]] = []
+        self._tasks: list[_Task] = []
 
     def submit(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> Future[T]:
-        future = self._pool.submit(fn, *args, **kwargs)
-        self.submitted.append(cast("Future[object]", future))
-        return future
+        task = _Task()
+        self._tasks.append(task)
+
+        def run() -> T | None:
+            with task.lock:
+                if task.cancelled:
+                    return None
+                task.started = True
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                task.done.set()
+
+        return cast("Future[T]", self._pool.submit(run))
 
     def cancel_pending(self) -> None:
-        """Cancel the tasks not started yet (those running go on)."""
-        for future in self.submitted:
-            future.cancel()
+        """Keep the tasks not started yet from starting (those running go on)."""
+        for task in self._tasks:
+            with task.lock:
+                task.cancelled = not task.started
 
     def join(self) -> None:
         """Wait for every task; a stop that lands in the wait cancels the tasks not started,
         waits for the running ones, and goes on."""
-        from concurrent.futures import wait  # noqa: PLC0415  (loaded with the pool)
-
         try:
-            wait(self.submitted)
+            self._wait()
         except BaseException:
             self.cancel_pending()
-            wait(self.submitted)
+            self._wait()
             raise
         finally:
             self._pool.shutdown(wait=False)
+
+    def _wait(self) -> None:
+        for task in self._tasks:
+            with task.lock:
+                waits = not task.cancelled
+            if waits:
+                task.done.wait()
 
 
 @contextmanager
