@@ -161,14 +161,25 @@ def check(
     near = (np.abs(la[:, None] - la[None, :]) <= path) & (np.abs(lb[:, None] - lb[None, :]) <= path)
     np.fill_diagonal(near, False)
     agree = np.zeros((n, n), dtype=bool)
-    i, j = np.nonzero(np.triu(near))
-    if len(i):  # every pair nearby at once
+    first, second = np.nonzero(np.triu(near))
+    if len(first):  # every pair nearby at once
         ab = np.array([[lp.a, lp.b] for lp in loops], dtype=np.int64)
         pose = np.array([lp.pose for lp in loops], dtype=np.float64)
-        ends = np.column_stack([ab[i], ab[j]])
-        numbers = np.searchsorted(keys, ends)
-        ok = cycles_chi2(ends, pose[i], pose[j], poses, numbers, prefix, covs[i], covs[j]) <= chi2
-        agree[i, j] = agree[j, i] = ok
+        ends = np.column_stack([ab[first], ab[second]])
+        ok = (
+            cycles_chi2(
+                ends,
+                pose[first],
+                pose[second],
+                poses,
+                np.searchsorted(keys, ends),
+                prefix,
+                covs[first],
+                covs[second],
+            )
+            <= chi2
+        )
+        agree[first, second] = agree[second, first] = ok
     disagree = near & ~agree
     # a corridor loop says nothing along its axis: it neither confirms nor contradicts a full
     # loop (one that is metres off along the corridor would agree with it), only the reverse
