@@ -9,8 +9,9 @@
    (`toolkit.slam.loops`); loops that the loops nearby contradict through the sequential
    chain between them, or that no loop nearby confirms, are dropped
    (`toolkit.slam.consistency`); each remaining loop is an edge with a Cauchy kernel. The
-   graph is optimised (GTSAM); loops that the optimum still contradicts (Mahalanobis distance
-   beyond `reject_chi2`) are dropped and the graph optimised again. A second round searches again
+   graph is optimised (GTSAM; each optimisation from the last optimum, `warm_start`); loops
+   that the optimum still contradicts (Mahalanobis distance beyond `reject_chi2`) are dropped
+   and the graph optimised again. A second round searches again
    from the optimised trajectory, where the windows can be smaller; a last one, where no loop
    closed yet, with a window as wide as the drift along the path between (`wide_window`).
 4. Every scan's pose: its keyframe's optimised pose composed with its sequential offset.
