@@ -29,29 +29,44 @@ CHI2_3DOF_99 = 11.34
 
 
 def adjoint(p: np.ndarray) -> np.ndarray:
-    """SE(2) adjoint of pose (x, y, theta) in GTSAM's tangent order (x, y, theta)."""
-    c, s = np.cos(p[2]), np.sin(p[2])
-    return np.array([[c, -s, p[1]], [s, c, -p[0]], [0.0, 0.0, 1.0]])
+    """SE(2) adjoint of poses (..., 3) (x, y, theta) in GTSAM's tangent order (x, y, theta):
+    (..., 3, 3)."""
+    p = np.asarray(p, dtype=np.float64)
+    c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+    out = np.zeros((*p.shape[:-1], 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c, -s, p[..., 1]
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = s, c, -p[..., 0]
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def _moved(ad: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """ad @ cov @ ad^T over stacks of 3 x 3 matrices."""
+    out: np.ndarray = ad @ cov @ np.swapaxes(ad, -1, -2)
+    return out
 
 
 def chain_prefix(keys: np.ndarray, poses: np.ndarray, sequential: Sequence[Edge]) -> np.ndarray:
     """(K, 3, 3): the sequential edges' covariances moved to the world frame and summed up to
     each keyframe; the spread of the chain from keyframe i to j is the difference, moved to
-    j's frame (`chain_covariance`)."""
+    j's frame (`chain_covariance`). All edges at once (a cumulative sum, in the same order as
+    one edge after another)."""
     out = np.zeros((len(keys), 3, 3))
-    for k, e in enumerate(sequential[: len(keys) - 1]):
-        ad = adjoint(poses[e.b])
-        out[k + 1] = out[k] + ad @ e.covariance @ ad.T
+    edges = sequential[: len(keys) - 1]
+    if edges:
+        ad = adjoint(poses[np.array([e.b for e in edges])])
+        cov = np.array([e.covariance for e in edges], dtype=np.float64)
+        np.cumsum(_moved(ad, cov), axis=0, out=out[1:])
     return out
 
 
-def chain_covariance(prefix: np.ndarray, i: int, j: int, end: np.ndarray) -> np.ndarray:
-    """Covariance of the sequential relative pose between keyframe numbers i and j, in the
-    frame of `end` (the pose at j)."""
-    ad = adjoint(se2.inverse(end))
-    diff = prefix[max(i, j)] - prefix[min(i, j)]
-    out: np.ndarray = ad @ diff @ ad.T
-    return out
+def chain_covariance(
+    prefix: np.ndarray, i: np.ndarray, j: np.ndarray, end: np.ndarray
+) -> np.ndarray:
+    """Covariance of the sequential relative pose between keyframe numbers i and j (arrays,
+    or ints), in the frame of `end` (the poses at j)."""
+    diff = prefix[np.maximum(i, j)] - prefix[np.minimum(i, j)]
+    return _moved(adjoint(se2.inverse(end)), diff)
 
 
 def cycle_chi2(
@@ -67,30 +82,57 @@ def cycle_chi2(
     first.a from the identity (loops measured, chains from the sequential `poses`); `loop_cov`
     is the first loop's covariance, `second_cov` the second's (default: the same)."""
     second_cov = loop_cov if second_cov is None else second_cov
-    pa, pb, qa, qb = (poses[x] for x in (first.a, first.b, second.a, second.b))
+    ends = np.array([[first.a, first.b, second.a, second.b]])
+    return float(
+        cycles_chi2(
+            ends,
+            first.pose[None],
+            second.pose[None],
+            poses,
+            np.vectorize(index.__getitem__, otypes=[np.int64])(ends),
+            prefix,
+            np.asarray(loop_cov, np.float64)[None],
+            np.asarray(second_cov, np.float64)[None],
+        )[0]
+    )
+
+
+def cycles_chi2(
+    ends: np.ndarray,
+    first: np.ndarray,
+    second: np.ndarray,
+    poses: np.ndarray,
+    key_number: np.ndarray,
+    prefix: np.ndarray,
+    first_cov: np.ndarray,
+    second_cov: np.ndarray,
+) -> np.ndarray:
+    """`cycle_chi2` of N loop pairs at once: `ends` (N x 4) their scans (first.a, first.b,
+    second.a, second.b), `key_number` the same as keyframe numbers, `first`/`second` (N x 3)
+    the loops' poses and `first_cov`/`second_cov` (N x 3 x 3) their covariances."""
+    pa, pb, qa, qb = (poses[ends[:, m]] for m in range(4))
     s_b = se2.between(pb, qb)
     s_a = se2.between(qa, pa)
-    z_j_inv = se2.inverse(second.pose)
+    z_j_inv = se2.inverse(second)
     # cycle = Z_i * S_b * Z_j^-1 * S_a; each factor's spread moved to the cycle's end frame
     suffix3 = s_a
     suffix2 = se2.compose(z_j_inv, s_a)
     suffix1 = se2.compose(s_b, suffix2)
-    total = se2.compose(first.pose, suffix1)
-    err = np.array([total[0], total[1], se2.wrap(total[2])])
+    total = se2.compose(first, suffix1)
+    err = np.column_stack([total[:, 0], total[:, 1], se2.wrap(total[:, 2])])
 
     def moved(cov: np.ndarray, suffix: np.ndarray) -> np.ndarray:
-        ad = adjoint(se2.inverse(suffix))
-        out: np.ndarray = ad @ cov @ ad.T
-        return out
+        return _moved(adjoint(se2.inverse(suffix)), cov)
 
-    ad_z = adjoint(second.pose)
     cov = (
-        moved(loop_cov, suffix1)
-        + moved(chain_covariance(prefix, index[first.b], index[second.b], qb), suffix2)
-        + moved(ad_z @ second_cov @ ad_z.T, suffix3)
-        + chain_covariance(prefix, index[second.a], index[first.a], pa)
+        moved(first_cov, suffix1)
+        + moved(chain_covariance(prefix, key_number[:, 1], key_number[:, 3], qb), suffix2)
+        + moved(_moved(adjoint(second), second_cov), suffix3)
+        + chain_covariance(prefix, key_number[:, 2], key_number[:, 0], pa)
     )
-    return float(err @ np.linalg.solve(cov, err))
+    solved = np.linalg.solve(cov, err[:, :, None])[:, :, 0]
+    out: np.ndarray = np.einsum("ni,ni->n", err, solved)
+    return out
 
 
 def check(
@@ -112,7 +154,6 @@ def check(
     n = len(loops)
     if n == 0:
         return {}
-    index = {int(k): m for m, k in enumerate(keys)}
     covs = np.broadcast_to(np.asarray(loop_cov, np.float64), (n, 3, 3))
     prefix = chain_prefix(keys, poses, sequential)
     la = np.array([along[lp.a] for lp in loops])
@@ -120,9 +161,25 @@ def check(
     near = (np.abs(la[:, None] - la[None, :]) <= path) & (np.abs(lb[:, None] - lb[None, :]) <= path)
     np.fill_diagonal(near, False)
     agree = np.zeros((n, n), dtype=bool)
-    for i, j in zip(*np.nonzero(np.triu(near)), strict=True):
-        ok = cycle_chi2(loops[i], loops[j], poses, index, prefix, covs[i], covs[j]) <= chi2
-        agree[i, j] = agree[j, i] = ok
+    first, second = np.nonzero(np.triu(near))
+    if len(first):  # every pair nearby at once
+        ab = np.array([[lp.a, lp.b] for lp in loops], dtype=np.int64)
+        pose = np.array([lp.pose for lp in loops], dtype=np.float64)
+        ends = np.column_stack([ab[first], ab[second]])
+        ok = (
+            cycles_chi2(
+                ends,
+                pose[first],
+                pose[second],
+                poses,
+                np.searchsorted(keys, ends),
+                prefix,
+                covs[first],
+                covs[second],
+            )
+            <= chi2
+        )
+        agree[first, second] = agree[second, first] = ok
     disagree = near & ~agree
     # a corridor loop says nothing along its axis: it neither confirms nor contradicts a full
     # loop (one that is metres off along the corridor would agree with it), only the reverse
@@ -160,4 +217,4 @@ def check(
     return out
 
 
-__all__ = ["CHI2_3DOF_99", "adjoint", "check", "cycle_chi2"]
+__all__ = ["CHI2_3DOF_99", "adjoint", "check", "cycle_chi2", "cycles_chi2"]

@@ -9,8 +9,9 @@
    (`toolkit.slam.loops`); loops that the loops nearby contradict through the sequential
    chain between them, or that no loop nearby confirms, are dropped
    (`toolkit.slam.consistency`); each remaining loop is an edge with a Cauchy kernel. The
-   graph is optimised (GTSAM); loops that the optimum still contradicts (Mahalanobis distance
-   beyond `reject_chi2`) are dropped and the graph optimised again. A second round searches again
+   graph is optimised (GTSAM; each optimisation from the last optimum, `warm_start`); loops
+   that the optimum still contradicts (Mahalanobis distance beyond `reject_chi2`) are dropped
+   and the graph optimised again. A second round searches again
    from the optimised trajectory, where the windows can be smaller; a last one, where no loop
    closed yet, with a window as wide as the drift along the path between (`wide_window`).
 4. Every scan's pose: its keyframe's optimised pose composed with its sequential offset.
@@ -66,6 +67,9 @@ class SlamConfig:
     wide_growth: float = 0.05
     wide_skip_corridors: bool = True  # the wide round leaves out corridor loops' queries
     incremental: bool = False  # re-optimise as soon as a loop moves its scan (round 1)
+    # each optimisation starts from the last optimum (the loops a round adds or drops move it
+    # little) instead of from the sequential estimate: fewer Levenberg-Marquardt iterations
+    warm_start: bool = True
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
     # earlier ones (0: none); the scan-to-map front end has its own local map
     min_agreement: float = 0.5  # a local-map match with fewer agreeing returns is left out
@@ -223,10 +227,12 @@ def close_loops(
     closer = LoopCloser(ds.ranges, ds.laser, config.loop)
     found: dict[tuple[int, int], Loop] = {}
     along = path_length(before)
+    start = before[keys]  # where the next optimisation starts (`warm_start`: the last optimum)
 
     def solve() -> np.ndarray:
         """Optimise with the loops that passed the fitness test and agree with the loops
         nearby (`consistency.check`); drop those the optimum still contradicts."""
+        nonlocal start
         t0 = time.perf_counter()
         fit = [lp for lp in found.values() if lp.fit and not lp.reason.startswith("residual")]
         for lp in fit:
@@ -251,8 +257,10 @@ def close_loops(
                 pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True)
                 for lp in accepted
             ]
-            graph, values = pg.factor_graph(keys, before[keys], edges + loop_edges, config.robust)
+            graph, values = pg.factor_graph(keys, start, edges + loop_edges, config.robust)
             current = pg.optimise(graph, values, keys)
+            if config.warm_start:
+                start = current
             if not loop_edges:
                 break
             chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
