@@ -77,6 +77,9 @@ class MapConfig:
     prior: tuple[float, float] = (0.01, 0.005)  # odometry's spread per step (m, rad) ...
     prior_growth: tuple[float, float, float] = (0.05, 0.02, 0.05)  # ... plus this per metre
     # (m/m, rad/m) and per radian turned (rad/rad)
+    heading_drift: float = 0.0  # > 0: the odometry's heading drift per metre (a wheel's
+    # diameter off) is learned from the fits over about this much path (m) and taken out of
+    # its steps before they predict (`MapMatcher._learn`); 0: off
     prior_velocity: tuple[float, float] = (0.3, 0.3)  # constant velocity's, per second of
     # the scan interval (m/s, rad/s: a change of velocity), when the log has no odometry
     scan_odometry: bool = True  # no odometry: the scan-to-keyframe matcher (constant
@@ -469,6 +472,9 @@ class MapMatcher:
         self.covariance = np.zeros((3, 3))
         self.stats = np.zeros(_OUT)
         self.searches = 0
+        self._searched = 0
+        self.drift = 0.0  # the odometry's learned heading drift (rad per m)
+        self._drift_sums = (0.0, 0.0)  # the fits' heading minus the odometry's, its path
         self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
         # pose and path: where a slip that its fit could not see happened
         self._motion = MotionMatcher(laser, gain=1.0)  # as measured (docs/maps.md)
@@ -479,6 +485,8 @@ class MapMatcher:
     def _predict(self, odometry: np.ndarray | None, t: float | None) -> tuple[np.ndarray, bool]:
         if odometry is not None and self._odo is not None:
             step = _between(self._odo, odometry)
+            if self.config.heading_drift > 0:
+                step[2] += self.drift * math.hypot(step[0], step[1])
             return _compose(self._last, step), True
         step = self._step
         if t is not None and self._t is not None and self._dt > 0:
@@ -491,6 +499,7 @@ class MapMatcher:
         """Take the next scan (with the odometry's pose at it, or None, and its time); return
         the robot pose."""
         cfg = self.config
+        logged = odometry is not None
         if odometry is None and cfg.scan_odometry:
             # no odometry: the scan-to-keyframe matcher with constant velocity stands in
             odometry = self._motion.push_predicted(ranges, t)
@@ -519,6 +528,8 @@ class MapMatcher:
         pts[:, 0] = self._mount[0] + r[ok] * self._cos[ok]
         pts[:, 1] = self._mount[1] + r[ok] * self._sin[ok]
         pose = self._match(pts, predicted, info, by_odometry)
+        if logged and odo is not None and by_odometry and cfg.heading_drift > 0:
+            self._learn(predicted, pose, odo, sig[1])
         self._finish(pose, odo, t)
         assert self._key_pose is not None
         since = _between(self._key_pose, pose)
@@ -619,6 +630,35 @@ class MapMatcher:
         self.stats = out
         self.covariance = cov
         return out[:3].copy()
+
+    def _learn(
+        self, predicted: np.ndarray, pose: np.ndarray, odo: np.ndarray, spread: float
+    ) -> None:
+        """Update the odometry's heading drift per metre from this scan's fit: the heading the
+        fit added to the (corrected) odometry's step, summed over the path and forgotten over
+        `heading_drift` m. A wheel whose diameter is off turns the odometry by the same angle
+        per metre, every step the same way; as the fit's prior it pulls each fit that way (a
+        about 0.6 degrees per 100 m on infinite-corridor, docs/maps.md), and the pull adds
+        up where no loop closes. Fits that failed (a search ran or few returns fit) and
+        turns beyond 3 spreads of the prior (slips) are not learned from."""
+        cfg = self.config
+        assert self._odo is not None
+        if self.stats[4] < cfg.min_inliers or self.searches != self._searched:
+            self._searched = self.searches
+            return
+        raw = _between(self._odo, odo)
+        moved = math.hypot(raw[0], raw[1])
+        turn = pose[2] - predicted[2]
+        turn = math.atan2(math.sin(turn), math.cos(turn))
+        if moved <= 0.0 or abs(turn) > 3.0 * spread:
+            return
+        keep = math.exp(-moved / cfg.heading_drift)
+        total, path = self._drift_sums
+        total = total * keep + turn + self.drift * moved
+        path = path * keep + moved
+        self._drift_sums = (total, path)
+        # shrunk towards none over the first metres: one fit's error is not the odometry's
+        self.drift = total / (path + 0.1 * cfg.heading_drift)
 
     def _finish(self, pose: np.ndarray, odo: np.ndarray | None, t: float | None) -> None:
         step = _between(self._last, pose)
