@@ -3,6 +3,7 @@ what they learn from ten scans per place on a random world."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from toolkit.features import PAPER, Config, FeatureModel, classify, fit
 from toolkit.features.descriptors import (
+    context_ahead,
     context_windows,
     describe,
     features,
@@ -167,3 +169,32 @@ def test_closed_copies_find_a_hall_of_the_other_kind(seed: int) -> None:
     assert with_copies["c"]["recall"]["hall"] > 0.8
     assert with_copies["c"]["ba"] > without["c"]["ba"] + 0.1
     assert all(with_copies[k]["ba"] > without[k]["ba"] - 0.03 for k in "ab")
+
+
+@pytest.mark.parametrize("seed", [57])  # a development seed of session 12 (50-79)
+def test_context_seen_either_side_calls_fewer_scans_before_a_door_doors(seed: int) -> None:
+    """A 180-degree scanner sees beside it only ahead of the laser, so a context window of
+    1 m of scans either side sees 1.45 m ahead and 1 m behind: the scans up to 0.6 m before
+    a door's zone were called door. The window that reaches 0.55 m ahead (`context_seen`)
+    sees 1 m either side. Measured on this world: door precision (a) 0.52 -> 0.79, (b) 0.53
+    -> 0.94, balanced accuracy (a) 0.931 -> 0.962, (b) 0.943 -> 0.972, (c) 0.685 -> 0.672."""
+    runs = worlds(seed)
+    seen = protocol_scores(Config(), runs)
+    scans = protocol_scores(Config(context_seen=False), runs)
+    for k in "ab":
+        assert seen[k]["precision"]["door"] > scans[k]["precision"]["door"] + 0.2
+        assert seen[k]["recall"]["door"] > 0.9
+    assert all(seen[k]["ba"] > scans[k]["ba"] + 0.02 for k in "ab")
+    assert seen["c"]["ba"] > scans["c"]["ba"] - 0.03
+
+
+def test_context_reaches_less_ahead_for_a_scanner_that_sees_only_ahead(world) -> None:  # type: ignore[no-untyped-def]
+    """180 degrees: the strip beside the laser lies ahead of it, the window reaches the
+    context less the strip ahead; a scanner that sees behind itself gets the symmetric one."""
+    laser = world.dataset.laser
+    assert context_ahead(1.0, 0.45, laser) == pytest.approx(0.55)
+    wide = dataclasses.replace(laser, angle_min=-2.0, angle_increment=4.0 / (laser.beams - 1))
+    assert context_ahead(1.0, 0.45, wide) == 1.0
+    along = np.arange(100) * 0.1
+    lo, hi = context_windows(along, 1.0, None, 0.55)
+    assert (lo[50], hi[50]) == (40, 56)
