@@ -30,6 +30,7 @@ from toolkit.features.likelihood import (
     world_terms,
 )
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
+from toolkit.features.model import MODEL_VERSION
 
 
 @pytest.fixture(scope="module")
@@ -224,11 +225,11 @@ def test_model_json_round_trip_and_sensor_check(world, tmp_path: Path) -> None: 
         again.check_laser(dataclasses.replace(LASER, beams=180))
     with pytest.raises(ToolkitError, match="angle_increment"):
         again.check_laser(dataclasses.replace(LASER, angle_increment=LASER.angle_increment / 2))
-    (tmp_path / "bad.json").write_text('{"version": 6, "features": 3}')
+    (tmp_path / "bad.json").write_text(f'{{"version": {MODEL_VERSION}, "features": 3}}')
     with pytest.raises(ToolkitError, match="not a feature model"):
         FeatureModel.load(tmp_path / "bad.json")
     (tmp_path / "bad.json").write_text('{"version": 1, "features": []}')  # learn anew
-    with pytest.raises(ToolkitError, match="model version 1, this toolkit reads 6"):
+    with pytest.raises(ToolkitError, match=f"model version 1, this toolkit reads {MODEL_VERSION}"):
         FeatureModel.load(tmp_path / "bad.json")
 
 

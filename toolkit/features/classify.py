@@ -200,6 +200,7 @@ def class_scores(
                 cfg.beside,
                 poses,
                 cfg.local_map,
+                cfg.ahead(model.laser),
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if cfg.beam_term:

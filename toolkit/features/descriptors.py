@@ -404,14 +404,29 @@ def path_length(n: int, poses: np.ndarray | None) -> np.ndarray:
 
 
 def context_windows(
-    along: np.ndarray, half: float, rows: slice | None = None
+    along: np.ndarray, half: float, rows: slice | None = None, ahead: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per scan (of `rows`, default all), the first and one-past-last index of the scans
-    within `half` metres of path before and after it (itself included)."""
+    within `half` metres of path before it and `ahead` (default `half`) after it (itself
+    included)."""
     at = along if rows is None else along[rows]
     lo = np.searchsorted(along, at - half, side="left")
-    hi = np.searchsorted(along, at + half, side="right")
+    hi = np.searchsorted(along, at + (half if ahead is None else ahead), side="right")
     return lo, np.maximum(hi, lo + 1)
+
+
+def context_ahead(context: float, strip: float, laser: LaserGeometry) -> float:
+    """m of path the context window reaches ahead of a scan, so that its scans see `context`
+    metres of path beside the laser either side. A scanner of 180 degrees or less sees
+    nothing behind itself: each scan's strip beside the laser (`strip`) lies ahead of it, and
+    a window reaching `context` ahead would see `context + strip` ahead but only `context`
+    behind. Such a window called the scans up to 0.6 m before a door's zone (and 0.9 m before
+    a window's) doors and windows (docs/places.md, session 12). A scanner that sees behind
+    itself gets the symmetric window."""
+    bearing = np.abs(laser.angles + laser.yaw)
+    if bearing.max() > np.pi / 2 + 1e-6:
+        return context
+    return max(context - strip, 0.0)
 
 
 def with_context(
@@ -501,18 +516,19 @@ def features(
     strip: float = BESIDE,
     poses: np.ndarray | None = None,
     local: float = 0.0,
+    ahead: float | None = None,
 ) -> np.ndarray:
     """The classifier's input for scans `rows` (default all) of a log: their descriptors
     `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
-    `context` metres of path (`along`, see `path_length`) before and after each; only the
-    scans those windows reach are described. `strip`: see `describe`. With `local` > 0, the
-    descriptors of the local map of the scans within `local` metres of path (`local_map`,
-    drawn by `poses`) follow."""
+    `context` metres of path (`along`, see `path_length`) before and `ahead` (default
+    `context`; see `context_ahead`) after each; only the scans those windows reach are
+    described. `strip`: see `describe`. With `local` > 0, the descriptors of the local map of
+    the scans within `local` metres of path (`local_map`, drawn by `poses`) follow."""
     rows = rows or slice(0, len(ranges))
     if context <= 0:
         x = describe(ranges[rows], laser, strip)[:, columns]
     else:
-        lo, hi = context_windows(along, context, rows)
+        lo, hi = context_windows(along, context, rows, ahead)
         first, last = int(lo.min()), int(hi.max())
         own = np.arange(len(lo)) + (rows.start or 0) - first
         x = describe(ranges[first:last], laser, strip)[:, columns]

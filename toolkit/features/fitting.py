@@ -204,9 +204,11 @@ def _fit_places(
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
     columns = chosen_columns(config.view_ahead, config.mozos, config.absolute_reach)
     along = path_length(len(ranges), poses)
+    ahead = config.ahead(laser)
     x = features(
-        ranges, laser, columns, along, config.context, None, config.beside, poses, config.local_map
-    )
+        ranges, laser, columns, along, config.context, None, config.beside, poses,
+        config.local_map, ahead,
+    )  # fmt: skip
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
     open_set = config.open_set if config.none_class else "never"
@@ -223,7 +225,7 @@ def _fit_places(
             copied = copy(ranges, laser)
             xa = features(
                 copied, laser, columns, along, config.context, None, config.beside, poses,
-                config.local_map,
+                config.local_map, ahead,
             )  # fmt: skip
             new = changed(ranges[idx], copied[idx], laser)  # not the scan again
             extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))

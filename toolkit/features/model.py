@@ -63,14 +63,15 @@ import numpy as np
 from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
-from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP
+from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP, context_ahead
 from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
-#: 6: the trees also learn the taught scans' copies with the less open side walled
+#: 7: the context window reaches less far ahead than behind (`context_seen`); 6: the trees
+#: also learn the taught scans' copies with the less open side walled
 #: (`augment_closed`, augment.py); 5: the local map's descriptors (`local_map`, on sparse
 #: scans by default); 4: the forest's leaf shares mixed with uniform (`leaf_mix`); 3: the
 #: 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
-MODEL_VERSION = 6
+MODEL_VERSION = 7
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -116,6 +117,10 @@ class Config:
     # (the descriptors of the place's width, its doors' and windows' openings; 1.0 before)
     context: float = 1.0  # m of path before and after a scan whose descriptors' mean and
     # spread join its own (0: the scan alone)
+    context_seen: bool = True  # the context window reaches `context` less the strip beside
+    # the laser ahead of a scan (a 180-degree scanner's strip lies ahead of it), so that its
+    # scans see `context` of path either side (descriptors.context_ahead; False: `context`
+    # of scans either side, as until session 12)
     priors: bool = False  # the places' shares of the training log in the regression
     self_training: int = 3  # rounds of self-training on the rest of the training log
     open_set: OpenSet = "auto"  # the trees' own "none" class, learnt from the training
@@ -152,6 +157,10 @@ class Config:
             raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
+
+    def ahead(self, laser: LaserGeometry) -> float | None:
+        """m of path the context window reaches ahead of a scan (None: `context`)."""
+        return context_ahead(self.context, self.beside, laser) if self.context_seen else None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
