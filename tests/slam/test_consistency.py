@@ -97,6 +97,41 @@ def test_a_single_unconfirmed_match_is_dropped_a_confirmed_group_kept(
     assert len(grouped) >= len(true_loops) - 2
 
 
+def test_thousands_of_loops_are_checked_in_memory_that_grows_with_their_pairs() -> None:
+    """A long log passes thousands of loops to the check (a million scans of the building's
+    laps: 8,000-16,000): the pairs nearby are found without an n x n matrix (peak 13 GB at
+    16,000 loops before). 100 laps of a 100 m circle, each lap's keyframes tied to the lap
+    before by a loop every 2 m: 5,000 true loops, and one 1 m off among them; an n x n float64
+    matrix alone would be 200 MB."""
+    import tracemalloc
+
+    from toolkit import se2
+
+    t = np.arange(0.0, 10_100.0, 0.5)
+    radius = 100.0 / (2 * np.pi)
+    poses = np.column_stack(
+        [radius * np.sin(t / radius), radius * (1 - np.cos(t / radius)), t / radius]
+    )
+    keys = np.arange(len(t))
+    config = SlamConfig()
+    seq = sequential_edges(keys, poses, config)
+    along = path_length(poses)
+    loop_cov = np.diag([config.loop_sigma[0] ** 2] * 2 + [config.loop_sigma[1] ** 2])
+    firsts = np.arange(0, 20_000, 4)
+    loops = [
+        Loop(int(a), int(a + 200), se2.between(poses[a], poses[a + 200]), 1.0, 1.0, 0.5, True)
+        for a in firsts
+    ]
+    wrong = len(loops) // 2
+    loops[wrong].pose = se2.compose(loops[wrong].pose, np.array([0.0, 1.0, 0.0]))
+    tracemalloc.start()
+    drops = consistency.check(loops, keys, poses, along, seq, loop_cov)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert set(drops) == {wrong} and drops[wrong].startswith("inconsistent")
+    assert peak < 64e6, f"{peak / 1e6:.0f} MB"
+
+
 @pytest.mark.real
 def test_real_corridor_alias_is_not_accepted_the_true_loops_are(real: Path) -> None:
     """infinite-corridor (1.9 km of corridor), drifted with seed 0: a match 5.4 m along the

@@ -17,8 +17,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.sparse import csr_matrix
+from scipy.sparse import csc_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from toolkit import se2
 from toolkit.slam.graph import Edge
@@ -135,6 +136,12 @@ def cycles_chi2(
     return out
 
 
+def _by_column(row: np.ndarray, col: np.ndarray, n: int) -> csc_matrix:
+    """The directed pairs (row counts col's vote) as an n x n sparse matrix by column: column
+    j's rows are the loops whose count j's vote is in."""
+    return csc_matrix((np.ones(len(row), dtype=np.int8), (row, col)), shape=(n, n))
+
+
 def check(
     loops: Sequence[Loop],
     keys: np.ndarray,
@@ -156,12 +163,12 @@ def check(
         return {}
     covs = np.broadcast_to(np.asarray(loop_cov, np.float64), (n, 3, 3))
     prefix = chain_prefix(keys, poses, sequential)
-    la = np.array([along[lp.a] for lp in loops])
-    lb = np.array([along[lp.b] for lp in loops])
-    near = (np.abs(la[:, None] - la[None, :]) <= path) & (np.abs(lb[:, None] - lb[None, :]) <= path)
-    np.fill_diagonal(near, False)
-    agree = np.zeros((n, n), dtype=bool)
-    first, second = np.nonzero(np.triu(near))
+    ends_along = np.array([[along[lp.a], along[lp.b]] for lp in loops])
+    # the pairs nearby (both ends within `path`: Chebyshev distance), never an n x n matrix:
+    # a million-scan log passes thousands of loops to this check
+    pairs = cKDTree(ends_along).query_pairs(path, p=np.inf, output_type="ndarray")
+    first, second = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))].T
+    ok = np.zeros(len(first), dtype=bool)
     if len(first):  # every pair nearby at once
         ab = np.array([[lp.a, lp.b] for lp in loops], dtype=np.int64)
         pose = np.array([lp.pose for lp in loops], dtype=np.float64)
@@ -179,20 +186,20 @@ def check(
             )
             <= chi2
         )
-        agree[first, second] = agree[second, first] = ok
-    disagree = near & ~agree
-    # a corridor loop says nothing along its axis: it neither confirms nor contradicts a full
-    # loop (one that is metres off along the corridor would agree with it), only the reverse
+    # each pair both ways: row counts column's vote; a corridor loop says nothing along its
+    # axis: it neither confirms nor contradicts a full loop (one that is metres off along the
+    # corridor would agree with it), only the reverse
     corridor = np.array([lp.axis is not None for lp in loops])
-    links = agree.copy()
-    voice = ~(~corridor[:, None] & corridor[None, :])  # row i counts column j's vote
-    agree &= voice
-    disagree &= voice
+    row, col = np.concatenate([first, second]), np.concatenate([second, first])
+    both_ok = np.concatenate([ok, ok])
+    voice = ~(~corridor[row] & corridor[col])
+    agree = _by_column(row[both_ok & voice], col[both_ok & voice], n)
+    disagree = _by_column(row[~both_ok & voice], col[~both_ok & voice], n)
+    n_ok = np.bincount(agree.indices, minlength=n)
+    n_bad = np.bincount(disagree.indices, minlength=n)
     alive = np.ones(n, dtype=bool)
     out: dict[int, str] = {}
     while True:
-        n_ok = (agree & alive[None, :]).sum(axis=1)
-        n_bad = (disagree & alive[None, :]).sum(axis=1)
         margin = np.where(alive, n_bad - n_ok, -1)
         if margin.max() <= 0:
             break
@@ -200,8 +207,10 @@ def check(
         drop = int(worst[np.argmax([loops[int(w)].ambiguity for w in worst])])
         alive[drop] = False
         out[int(drop)] = f"inconsistent: {n_bad[drop]} loops nearby disagree, {n_ok[drop]} agree"
+        # the dropped loop's votes no longer count (the counts are over live loops)
+        n_ok[agree.indices[agree.indptr[drop] : agree.indptr[drop + 1]]] -= 1
+        n_bad[disagree.indices[disagree.indptr[drop] : disagree.indptr[drop + 1]]] -= 1
     if confirm:
-        n_ok = (agree & alive[None, :]).sum(axis=1)
         for i in np.nonzero(alive & (n_ok == 0))[0]:
             out[int(i)] = f"unconfirmed: no loop within {path:g} m agrees"
             alive[i] = False
@@ -209,8 +218,11 @@ def check(
         # loops that agree with each other but with no full loop (a place the match pins down)
         # may all sit in the corridor alongside, when the true one lies beyond the window
         if corridor.any():
-            live = csr_matrix(links & alive[:, None] & alive[None, :])
-            _, group = connected_components(live, directed=False)
+            live = ok & alive[first] & alive[second]
+            links = csr_matrix(
+                (np.ones(int(live.sum()), dtype=bool), (first[live], second[live])), shape=(n, n)
+            )
+            _, group = connected_components(links, directed=False)
             anchored = np.unique(group[alive & ~corridor])
             for i in np.nonzero(alive & corridor & ~np.isin(group, anchored))[0]:
                 out[int(i)] = "unanchored: no full loop agrees with its corridor's loops"
