@@ -70,10 +70,11 @@ class LoopConfig:
     # the ambiguity test (and the corridor's axis) on the seen query points too: the others
     # can neither confirm the winner nor a runner-up
     seen_ambiguity: bool = True
-    # the loop is attached to the reference keyframe whose returns hold most of the query's
-    # inliers (not the candidate's own): the local map places its keyframes by the trajectory,
-    # and a match to a neighbour's returns measures b against that neighbour; False: to `a`
-    attach: bool = True
+    # True: the loop is attached to the reference keyframe whose returns hold most of the
+    # query's inliers (not the candidate's own): the local map places its keyframes by the
+    # trajectory, and a match to a neighbour's returns measures b against that neighbour.
+    # Tried, not kept (docs/maps.md, session 12: false loops on freiburg-campus and fhw)
+    attach: bool = False
     # a match ambiguous only along one axis (a corridor: its coarse scores as high along a line,
     # and low across it and at other headings) is kept as a corridor loop, trusted across the
     # axis and in heading only (`Loop.covariance`); False: rejected as ambiguous
