@@ -333,7 +333,7 @@ class LoopCloser:
         pose, axis = found.pose, None
         if ambiguity > cfg.max_ambiguity:
             if not why and cfg.corridor:
-                axis = corridor_axis(coarse, shape, prediction, radius, cfg)
+                axis = corridor_axis(coarse, query, prediction, radius, cfg)
             if axis is None:
                 why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
             else:  # along the axis the match says nothing: keep the trajectory's position
