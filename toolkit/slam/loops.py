@@ -9,9 +9,10 @@ grids, and the later keyframe's local scans (within `query_path` m) matched agai
 coarse-to-fine correlative search over the whole window (`toolkit.slam.grid`): no seed needed.
 The fitness test: enough of the query's points close to the map (`min_inliers`), counted among
 those a reference scan could have seen (`seen_only`: a revisit the other way sees behind it
-what the reference never looked at), and a clear winner: the best pose elsewhere in the
-window (0.6 m or 0.15 rad away) scores at most `max_ambiguity` of the winner (a corridor,
-where a shift along it scores alike, fails it). A match that fails only that test, and whose
+what the reference never looked at; `line_of_sight`: nor behind the reference's walls), and a
+clear winner: the best pose elsewhere in the window (0.6 m or 0.15 rad away) scores at most
+`max_ambiguity` of the winner, among those seen points (`seen_ambiguity`; a corridor, where a
+shift along it scores alike, fails it). A match that fails only that test, and whose
 alike poses lie along one axis with none across it (`corridor_axis`), is kept as a corridor
 loop: trusted across the axis and in heading only (`Loop.covariance`). Whether the loops agree with each other is
 `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
@@ -377,8 +378,10 @@ class LoopCloser:
     ) -> np.ndarray:
         """Which `query` points (b's frame), placed at `pose` in scan `a`'s frame, lie where
         one of the reference scans `refs` could have seen them (within the laser's field of
-        view and `max_range`): a revisit in the opposite direction sees, behind it, what the
-        reference never looked at, and those points can neither confirm nor contradict."""
+        view and `max_range`, and with `line_of_sight` not behind the return of the beam that
+        points there): a revisit in the opposite direction sees, behind it, what the
+        reference never looked at, and a revisit from another side sees behind the reference's
+        walls; those points can neither confirm nor contradict."""
         c, s = np.cos(pose[2]), np.sin(pose[2])
         pts = pose[:2] + query @ np.array([[c, s], [-s, c]])
         lasers = compose(
