@@ -65,12 +65,13 @@ class LoopConfig:
     max_ambiguity: float = 0.85  # runner-up / winner of the coarse search
     min_points: int = 60  # fewer query points: no test
     seen_only: bool = True  # inliers among the query points the reference's scans could see
-    # ... and "could see" is along a beam's line of sight (not behind the surface it hit, +0.1
-    # m); False: anywhere within the field of view and `max_range`
-    line_of_sight: bool = True
-    # the ambiguity test (and the corridor's axis) on the seen query points too: the others
-    # can neither confirm the winner nor a runner-up
-    seen_ambiguity: bool = True
+    # True: "could see" is along a beam's line of sight (not behind the surface it hit, +0.1
+    # m); False: anywhere within the field of view and `max_range`. With `seen_ambiguity`, the
+    # ambiguity test on the seen query points too (the others can confirm neither the winner
+    # nor a runner-up). Both off by default: they close orebro's return (ATE 0.32 -> 0.15 m)
+    # but accept more of freiburg-campus's marginal false loops (docs/maps.md, session 12)
+    line_of_sight: bool = False
+    seen_ambiguity: bool = False
     # True: the loop is attached to the reference keyframe whose returns hold most of the
     # query's inliers (not the candidate's own): the local map places its keyframes by the
     # trajectory, and a match to a neighbour's returns measures b against that neighbour.
