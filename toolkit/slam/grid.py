@@ -834,6 +834,34 @@ def correlative_search(
     return SearchResult(pose, best[0], coarse_score, runner_up, inliers)
 
 
+def coarse_ambiguity(
+    coarse: LikelihoodGrid,
+    points: np.ndarray,
+    prediction: np.ndarray,
+    window: float,
+    turn: float,
+    turn_step: float,
+    away: float = 0.6,
+    away_turn: float = 0.15,
+) -> tuple[float, float]:
+    """The coarse level of `correlative_search` for `points` alone: its winner's score and
+    the runner-up (the best at least `away` m or `away_turn` rad from the winner), by branch
+    and bound, or from the whole volume when bounding gives up."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    half, offsets, thetas = _lattice(coarse.resolution, window, turn, turn_step)
+    bounded = _bounded_starts(
+        coarse, pts, prediction, thetas, half, offsets, turn_step, 1, away, away_turn
+    )
+    if bounded is not None:
+        return bounded[1], bounded[2]
+    vol = _search(
+        coarse.likelihood_t, coarse.origin, coarse.resolution, pts, prediction, thetas, half
+    )
+    a, i, j = np.unravel_index(int(np.argmax(vol)), vol.shape)
+    far = _far(offsets, thetas, int(a), int(i), int(j), away, away_turn)
+    return float(vol[a, i, j]), float(vol[far].max()) if far.any() else 0.0
+
+
 def coarse_scores(
     coarse: LikelihoodGrid,
     points: np.ndarray,
