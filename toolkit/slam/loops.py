@@ -27,10 +27,9 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from toolkit.dataset import LaserGeometry
-from toolkit.se2 import between, compose, inverse, mount_pose, wrap
+from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
     LikelihoodGrid,
     coarse_ambiguity,
@@ -72,11 +71,6 @@ class LoopConfig:
     # but accept more of freiburg-campus's marginal false loops (docs/maps.md, session 12)
     line_of_sight: bool = False
     seen_ambiguity: bool = False
-    # True: the loop is attached to the reference keyframe whose returns hold most of the
-    # query's inliers (not the candidate's own): the local map places its keyframes by the
-    # trajectory, and a match to a neighbour's returns measures b against that neighbour.
-    # Tried, not kept (docs/maps.md, session 12: false loops on freiburg-campus and fhw)
-    attach: bool = False
     # a match ambiguous only along one axis (a corridor: its coarse scores as high along a line,
     # and low across it and at other headings) is kept as a corridor loop, trusted across the
     # axis and in heading only (`Loop.covariance`); False: rejected as ambiguous
@@ -102,12 +96,6 @@ class Loop:
     reason: str = ""  # why it is not accepted: fitness, consistency or the graph's residual
     axis: np.ndarray | None = None  # a corridor loop: unit vector (a's frame) it leaves free
     along: float = 0.0  # ... and its spread along that axis (m)
-    origin: int = -1  # the candidate's earlier scan when the loop is attached to another (`a`)
-
-    @property
-    def key(self) -> tuple[int, int]:
-        """The candidate pair (earlier, later scan) this loop was verified for."""
-        return (self.a if self.origin < 0 else self.origin, self.b)
 
     def covariance(self, sigma: tuple[float, float]) -> np.ndarray:
         """The loop edge's covariance (GTSAM's tangent order, in `b`'s frame): `sigma`
@@ -226,15 +214,9 @@ class LoopCloser:
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
 
-    def _local(
-        self,
-        centre: int,
-        scans: np.ndarray,
-        poses: np.ndarray,
-        labels: list[np.ndarray] | None = None,
-    ) -> np.ndarray:
+    def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
-        `centre`, scan by scan in beam order; `labels` gets each return's scan appended."""
+        `centre`, scan by scan in beam order."""
         rel = between(np.broadcast_to(poses[centre], (len(scans), 3)), poses[scans])
         r = self.ranges[scans].astype(np.float64)
         x = self._mount[0] + r * self._cos
@@ -243,8 +225,6 @@ class LoopCloser:
         c, s = np.cos(rel[:, 2:3]), np.sin(rel[:, 2:3])
         wx = rel[:, :1] + c * x - s * y
         wy = rel[:, 1:2] + s * x + c * y
-        if labels is not None:
-            labels.append(np.broadcast_to(np.asarray(scans)[:, None], ok.shape)[ok])
         return np.column_stack([wx[ok], wy[ok]])
 
     def reference_keys(
@@ -277,15 +257,13 @@ class LoopCloser:
         if len(query) > cfg.max_points:
             query = query[np.linspace(0, len(query) - 1, cfg.max_points).astype(np.int64)]
         near_a = self.reference_keys(a, along, keys, cfg)
-        owner: list[np.ndarray] = []
-        ref = self._local(a, near_a, poses, owner)
+        ref = self._local(a, near_a, poses)
         prediction = between(poses[a], poses[b])
         c, sn = np.cos(prediction[2]), np.sin(prediction[2])
         landed = prediction[:2] + query @ np.array([[c, sn], [-sn, c]])
         reach = np.hypot(*query.T).max() * cfg.turn + radius + 0.5
         lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
-        inside = ((ref >= lo) & (ref <= hi)).all(axis=1)
-        ref, ref_owner = ref[inside], owner[0][inside]
+        ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
         if len(ref) < cfg.min_points:
             return None
         coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
@@ -342,37 +320,10 @@ class LoopCloser:
                 pose = pose.copy()
                 pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
         ok = not why
-        origin = -1
-        if cfg.attach:
-            held = self.holder(query, found.pose, ref, ref_owner)
-            if held is not None and held != a:
-                # the same measurement from the holder's frame, as the local map placed it
-                to = inverse(between(poses[a], poses[held]))
-                pose = compose(to, pose)
-                if axis is not None:
-                    c, sn = np.cos(to[2]), np.sin(to[2])
-                    axis = np.array([c * axis[0] - sn * axis[1], sn * axis[0] + c * axis[1]])
-                a, origin = held, a
         loop = Loop(a, b, pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
-        loop.origin = origin
         if axis is not None:
             loop.axis, loop.along = axis, cfg.corridor_along
         return loop
-
-    @staticmethod
-    def holder(
-        query: np.ndarray, pose: np.ndarray, ref: np.ndarray, owner: np.ndarray
-    ) -> int | None:
-        """The reference scan whose returns are nearest to most of the `query` points (b's
-        frame) within 0.1 m (the inlier distance) at `pose`; None without such points."""
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        pts = pose[:2] + query @ np.array([[c, s], [-s, c]])
-        dist, nearest = cKDTree(ref).query(pts, distance_upper_bound=0.1)
-        hit = owner[nearest[np.isfinite(dist)]]
-        if len(hit) == 0:
-            return None
-        scans, counts = np.unique(hit, return_counts=True)
-        return int(scans[np.argmax(counts)])
 
     def seen(
         self, query: np.ndarray, pose: np.ndarray, a: int, refs: np.ndarray, poses: np.ndarray

@@ -294,7 +294,7 @@ def close_loops(
         next_at = along[keys[q]] + loop_cfg.every
         if lp is None:
             continue
-        found[lp.key] = lp
+        found[(lp.a, lp.b)] = lp
         if lp.accepted and config.incremental:
             moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
             if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
@@ -320,7 +320,7 @@ def close_loops(
         closed = np.array(skip, dtype=np.int64)
         # a pair verified before keeps its first verdict: not verified again
         for lp in closer.find(keys, poses, round_cfg, closed, known=found.keys()):
-            found.setdefault(lp.key, lp)
+            found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
     accepted = [lp for lp in found.values() if lp.accepted]
