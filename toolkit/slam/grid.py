@@ -854,9 +854,7 @@ def coarse_ambiguity(
     )
     if bounded is not None:
         return bounded[1], bounded[2]
-    vol = _search(
-        coarse.likelihood_t, coarse.origin, coarse.resolution, pts, prediction, thetas, half
-    )
+    vol, offsets, thetas = coarse_scores(coarse, pts, prediction, window, turn, turn_step)
     a, i, j = np.unravel_index(int(np.argmax(vol)), vol.shape)
     far = _far(offsets, thetas, int(a), int(i), int(j), away, away_turn)
     return float(vol[a, i, j]), float(vol[far].max()) if far.any() else 0.0
