@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +16,15 @@ from toolkit.sim import Simulation, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C works in the suite as in a terminal: a shell that starts it in the background
+    (`make test &`, a script's `cmd &`) hands it SIGINT ignored, which the commands the tests
+    start inherit, and the tests of what a stop does then see no stop (6 failed so, before)."""
+    main = threading.current_thread() is threading.main_thread()
+    if main and signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
