@@ -728,6 +728,47 @@ def _lattice(
     return half, offsets, np.arange(-turn, turn + 1e-9, turn_step)
 
 
+def _coarse_level(
+    coarse: LikelihoodGrid,
+    pts: np.ndarray,
+    prediction: np.ndarray,
+    window: float,
+    turn: float,
+    turn_step: float,
+    candidates: int,
+    away: float,
+    away_turn: float,
+    exhaustive: bool = False,
+) -> tuple[list[tuple[int, int, int]], float, float, np.ndarray, np.ndarray]:
+    """The coarse level of `correlative_search`: the `candidates` starts (heading, x, y
+    cells; the winner first), the winner's score, the runner-up's, the offsets and headings;
+    by branch and bound, or from the whole volume when asked (`exhaustive`) or when bounding
+    gives up."""
+    half, offsets, thetas = _lattice(coarse.resolution, window, turn, turn_step)
+    if not exhaustive:
+        bounded = _bounded_starts(
+            coarse, pts, prediction, thetas, half, offsets, turn_step, candidates, away,
+            away_turn,
+        )  # fmt: skip
+        if bounded is not None:
+            return (*bounded, offsets, thetas)
+    vol = _search(
+        coarse.likelihood_t, coarse.origin, coarse.resolution, pts, prediction, thetas, half
+    )
+    step = coarse.resolution
+    picks = _starts(vol, offsets, thetas, step, turn_step, candidates)
+    # equal scores among the picks (None): as the sorted walk orders them
+    starts = (
+        picks
+        if picks is not None
+        else _starts_sorted(vol, offsets, thetas, step, turn_step, candidates)
+    )
+    best_a, best_i, best_j = starts[0]  # the winner
+    far = _far(offsets, thetas, best_a, best_i, best_j, away, away_turn)
+    runner_up = float(vol[far].max()) if far.any() else 0.0
+    return starts, float(vol[best_a, best_i, best_j]), runner_up, offsets, thetas
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
     fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
@@ -759,44 +800,10 @@ def correlative_search(
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
     )
     coarse_step = coarse.resolution
-    half, offsets, thetas = _lattice(coarse_step, window, turn, turn_step)
-    bounded = None
-    if not exhaustive:
-        bounded = _bounded_starts(
-            coarse,
-            coarse_pts,
-            prediction,
-            thetas,
-            half,
-            offsets,
-            turn_step,
-            candidates,
-            away,
-            away_turn,
-        )
-    if bounded is not None:
-        starts, coarse_score, runner_up = bounded
-    else:  # the whole volume: asked for, or equal scores among the picks
-        vol = _search(
-            coarse.likelihood_t,
-            coarse.origin,
-            coarse.resolution,
-            coarse_pts,
-            prediction,
-            thetas,
-            half,
-        )
-        picks = _starts(vol, offsets, thetas, coarse_step, turn_step, candidates)
-        # equal scores among the picks (None): as the sorted walk orders them
-        starts = (
-            picks
-            if picks is not None
-            else _starts_sorted(vol, offsets, thetas, coarse_step, turn_step, candidates)
-        )
-        best_a, best_i, best_j = starts[0]  # the winner
-        far = _far(offsets, thetas, best_a, best_i, best_j, away, away_turn)
-        runner_up = float(vol[far].max()) if far.any() else 0.0
-        coarse_score = float(vol[best_a, best_i, best_j])
+    starts, coarse_score, runner_up, offsets, thetas = _coarse_level(
+        coarse, coarse_pts, prediction, window, turn, turn_step, candidates, away, away_turn,
+        exhaustive,
+    )  # fmt: skip
     tops = [np.array([offsets[i], offsets[j], thetas[a]]) for a, i, j in starts]
     if callable(fine):
         fine_res = fine_resolution
@@ -848,16 +855,10 @@ def coarse_ambiguity(
     the runner-up (the best at least `away` m or `away_turn` rad from the winner), by branch
     and bound, or from the whole volume when bounding gives up."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    half, offsets, thetas = _lattice(coarse.resolution, window, turn, turn_step)
-    bounded = _bounded_starts(
-        coarse, pts, prediction, thetas, half, offsets, turn_step, 1, away, away_turn
+    _, best, runner_up, _, _ = _coarse_level(
+        coarse, pts, prediction, window, turn, turn_step, 1, away, away_turn
     )
-    if bounded is not None:
-        return bounded[1], bounded[2]
-    vol, offsets, thetas = coarse_scores(coarse, pts, prediction, window, turn, turn_step)
-    a, i, j = np.unravel_index(int(np.argmax(vol)), vol.shape)
-    far = _far(offsets, thetas, int(a), int(i), int(j), away, away_turn)
-    return float(vol[a, i, j]), float(vol[far].max()) if far.any() else 0.0
+    return best, runner_up
 
 
 def coarse_scores(

@@ -290,18 +290,16 @@ class LoopCloser:
         ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
         inliers = found.inliers
         why = []
-        shape = query  # the points whose score surface the ambiguity test reads
         if cfg.seen_only:
             seen = self.seen(query, found.pose, a, near_a, poses)
             near = fine.distances(query[seen], found.pose) <= 0.1
             inliers = float(near.mean()) if len(near) else 0.0
             if seen.sum() < cfg.min_points:
                 why.append(f"overlap {int(seen.sum())} points < {cfg.min_points}")
-            elif cfg.seen_ambiguity:
-                shape = query[seen]
+            elif cfg.seen_ambiguity:  # the score surface of the seen points alone
                 best, runner_up = coarse_ambiguity(
                     coarse,
-                    voxel_subsample(shape, cfg.coarse_voxel),
+                    voxel_subsample(query[seen], cfg.coarse_voxel),
                     prediction,
                     radius,
                     cfg.turn,

@@ -637,8 +637,8 @@ class MapMatcher:
         """Update the odometry's heading drift per metre from this scan's fit: the heading the
         fit added to the (corrected) odometry's step, summed over the path and forgotten over
         `heading_drift` m. A wheel whose diameter is off turns the odometry by the same angle
-        per metre, every step the same way; as the fit's prior it pulls each fit that way (a
-        about 0.6 degrees per 100 m on infinite-corridor, docs/maps.md), and the pull adds
+        per metre, every step the same way; as the fit's prior it pulls each fit that way (about
+        0.6 degrees per 100 m on infinite-corridor, docs/maps.md), and the pull adds
         up where no loop closes. Fits that failed (a search ran or few returns fit) and
         turns beyond 3 spreads of the prior (slips) are not learned from."""
         cfg = self.config
