@@ -393,24 +393,28 @@ def _pyramid(like_t: np.ndarray, levels: int) -> np.ndarray:
     likelihood anywhere a point lands when its offset moves within a block of 2^L x 2^L."""
     w, h = like_t.shape
     p = 1 << (levels - 1)
-    out = np.zeros((levels, w + 2 * p, h + 2 * p), dtype=np.float32)
+    big_w, big_h = w + 2 * p, h + 2 * p
+    out = np.zeros((levels, big_w, big_h), dtype=np.float32)
     for x in range(w):
-        for y in range(h):
-            out[0, x + p, y + p] = like_t[x, y]
+        out[0, x + p, p : p + h] = like_t[x]
     for lv in range(1, levels):
         s = 1 << (lv - 1)
         prev = out[lv - 1]
         cur = out[lv]
-        for x in range(w + 2 * p):
-            for y in range(h + 2 * p):
-                m = prev[x, y]
-                if x + s < w + 2 * p:
-                    m = max(m, prev[x + s, y])
-                    if y + s < h + 2 * p:
-                        m = max(m, prev[x + s, y + s])
-                if y + s < h + 2 * p:
-                    m = max(m, prev[x, y + s])
-                cur[x, y] = m
+        # the max of four cells (of the three, two or one on the grid's last s columns and
+        # rows): in any order the same value, so the inner loops run without a bounds test
+        for x in range(big_w - s):
+            a, b, c = prev[x], prev[x + s], cur[x]
+            for y in range(big_h - s):
+                c[y] = max(max(a[y], b[y]), max(a[y + s], b[y + s]))
+            for y in range(big_h - s, big_h):
+                c[y] = max(a[y], b[y])
+        for x in range(big_w - s, big_w):
+            a, c = prev[x], cur[x]
+            for y in range(big_h - s):
+                c[y] = max(a[y], a[y + s])
+            for y in range(big_h - s, big_h):
+                c[y] = a[y]
     return out
 
 
