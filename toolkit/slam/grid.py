@@ -678,25 +678,12 @@ def _bounded_starts(
 
 
 @nb.njit(cache=True, nogil=True)
-def _bnb_after(
-    k: int,
-    budget: float,
-    like_t: np.ndarray,
-    pyramid: np.ndarray,
-    cells: np.ndarray,
-    half: int,
-    heap: np.ndarray,
-    key: np.ndarray,
-    state: np.ndarray,
-    seen: np.ndarray,
-    seen_key: np.ndarray,
-) -> bool:
-    """Offset number k has come out of the branch and bound (False: none left, or the
-    lookups are over `budget`)."""
+def _bnb_after(k: int, budget: float, bnb: tuple) -> bool:  # type: ignore[type-arg]
+    """Offset number k has come out of the branch and bound `bnb` (`_bnb_next`'s arguments)
+    (False: none left, or the lookups are over `budget`)."""
+    state = bnb[6]
     while state[2] <= k:
-        if state[1] > budget or not _bnb_next(
-            like_t, pyramid, cells, half, heap, key, state, seen, seen_key
-        ):
+        if state[1] > budget or not _bnb_next(*bnb):
             return False
     return True
 
@@ -730,6 +717,7 @@ def _bnb_picks(
     seen_key = np.empty(n_a * n * n)
     state = np.zeros(3, dtype=np.int64)
     _bnb_start(pyramid, cells, half, heap, key, state)
+    bnb = (like_t, pyramid, cells, half, heap, key, state, seen, seen_key)
     free = np.ones((n_a, n, n), dtype=np.bool_)
     near = np.empty((n, n), dtype=np.bool_)
     near_xy = 1.5 * step
@@ -738,7 +726,7 @@ def _bnb_picks(
     best = 0.0
     k = 0
     for _ in range(tops.shape[0]):
-        while _bnb_after(k, budget, like_t, pyramid, cells, half, heap, key, state, seen, seen_key):
+        while _bnb_after(k, budget, bnb):
             if free[seen[k, 0], seen[k, 2], seen[k, 3]]:
                 break
             k += 1
@@ -749,7 +737,7 @@ def _bnb_picks(
         a, i, j = seen[k, 0], seen[k, 2], seen[k, 3]
         score = seen_key[k]
         m = k + 1  # an equal score among the free poses: the sorted walk decides
-        while _bnb_after(m, budget, like_t, pyramid, cells, half, heap, key, state, seen, seen_key):
+        while _bnb_after(m, budget, bnb):
             if seen_key[m] != score:
                 break
             if free[seen[m, 0], seen[m, 2], seen[m, 3]]:
@@ -787,7 +775,7 @@ def _bnb_picks(
     runner_up = 0.0
     if any_far:
         k = 0
-        while _bnb_after(k, budget, like_t, pyramid, cells, half, heap, key, state, seen, seen_key):
+        while _bnb_after(k, budget, bnb):
             if far_t[seen[k, 0]] or far_xy[seen[k, 2], seen[k, 3]]:
                 break
             k += 1
