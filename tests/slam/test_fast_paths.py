@@ -372,3 +372,40 @@ def test_coarse_grid_by_discs_equals_the_distance_transform(drifted: Dataset) ->
             assert (dist == 0).mean() > 0.01 and len(np.unique(dist)) > 5  # walls, not a blank
             checked += 1
     assert checked == 12
+
+
+def test_bounded_walk_gives_the_whole_volumes_picks() -> None:
+    """`_bounded_starts` (its walk one numba call, `_bnb_picks`) against the whole coarse
+    volume on random grids: the same picks (3, each the best pose not next to one picked
+    before), the winner's score and the runner-up (the best pose far from the winner), or
+    None where the volume's picks have equal scores (binary grids: plateaus of equal sums),
+    which the caller then resolves from the whole volume (`_starts_sorted`)."""
+    rng = np.random.default_rng(5)
+    step, turn_step, away, away_turn = 0.1, 0.05, 0.3, 0.15
+    half, offsets, thetas = grid_mod._lattice(step, 0.5, 0.3, turn_step)
+    agreed = ties = 0
+    for trial in range(60):
+        # a map of a few walls; the query some of their points; every third grid binary
+        ends = rng.uniform(-3.0, 3.0, (6, 2, 2))
+        walls = np.concatenate([a + np.linspace(0, 1, 40)[:, None] * (b - a) for a, b in ends])
+        built = LikelihoodGrid.build(walls, step, 0.25)
+        like = built.likelihood
+        if trial % 3 == 2:
+            like = (like > 0.5).astype(np.float32)
+        grid = LikelihoodGrid(built.origin, step, like, np.ascontiguousarray(like.T), like)
+        pts = walls[rng.choice(len(walls), int(rng.integers(5, 60)), replace=False)]
+        prediction = np.array([*rng.normal(0.0, 0.2, 2), rng.normal(0.0, 0.1)])
+        got = grid_mod._bounded_starts(
+            grid, pts, prediction, thetas, half, offsets, turn_step, 3, away, away_turn
+        )
+        vol = grid_mod._search(grid.likelihood_t, grid.origin, step, pts, prediction, thetas, half)
+        picks = grid_mod._starts(vol, offsets, thetas, step, turn_step, 3)
+        if got is None:
+            ties += picks is None
+            continue
+        assert picks is not None and got[0] == picks
+        far = grid_mod._far(offsets, thetas, *picks[0], away, away_turn)
+        assert got[1] == vol[picks[0]]
+        assert got[2] == (vol[far].max() if far.any() else 0.0)
+        agreed += 1
+    assert agreed >= 30 and ties >= 5

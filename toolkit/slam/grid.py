@@ -393,24 +393,28 @@ def _pyramid(like_t: np.ndarray, levels: int) -> np.ndarray:
     likelihood anywhere a point lands when its offset moves within a block of 2^L x 2^L."""
     w, h = like_t.shape
     p = 1 << (levels - 1)
-    out = np.zeros((levels, w + 2 * p, h + 2 * p), dtype=np.float32)
+    big_w, big_h = w + 2 * p, h + 2 * p
+    out = np.zeros((levels, big_w, big_h), dtype=np.float32)
     for x in range(w):
-        for y in range(h):
-            out[0, x + p, y + p] = like_t[x, y]
+        out[0, x + p, p : p + h] = like_t[x]
     for lv in range(1, levels):
         s = 1 << (lv - 1)
         prev = out[lv - 1]
         cur = out[lv]
-        for x in range(w + 2 * p):
-            for y in range(h + 2 * p):
-                m = prev[x, y]
-                if x + s < w + 2 * p:
-                    m = max(m, prev[x + s, y])
-                    if y + s < h + 2 * p:
-                        m = max(m, prev[x + s, y + s])
-                if y + s < h + 2 * p:
-                    m = max(m, prev[x, y + s])
-                cur[x, y] = m
+        # the max of four cells (of the three, two or one on the grid's last s columns and
+        # rows): in any order the same value, so the inner loops run without a bounds test
+        for x in range(big_w - s):
+            a, b, c = prev[x], prev[x + s], cur[x]
+            for y in range(big_h - s):
+                c[y] = max(max(a[y], b[y]), max(a[y + s], b[y + s]))
+            for y in range(big_h - s, big_h):
+                c[y] = max(a[y], b[y])
+        for x in range(big_w - s, big_w):
+            a, c = prev[x], cur[x]
+            for y in range(big_h - s):
+                c[y] = max(a[y], a[y + s])
+            for y in range(big_h - s, big_h):
+                c[y] = a[y]
     return out
 
 
@@ -653,69 +657,132 @@ def _bounded_starts(
     picks are the first not next to one picked before, the runner-up the first far from the
     winner; only blocks that could hold a better pose than those are ever scored. None when a
     pick has an equal score elsewhere (the sorted walk's order then needs the whole volume)
-    or when bounding prunes too little (more than `_WORK_LIMIT` of the exhaustive lookups)."""
+    or when bounding prunes too little (more than `_WORK_LIMIT` of the exhaustive lookups).
+    The walk is one numba call (`_bnb_picks`)."""
     step = coarse.resolution
     n = 2 * half + 1
     n_a = len(thetas)
     levels = max(math.ceil(math.log2(n)), 0) + 1
     cells = _cells_of(coarse.origin, step, pts, prediction, thetas)
     pyramid = _pyramid(coarse.likelihood_t, levels)
-    like_t = coarse.likelihood_t
     budget = _WORK_LIMIT * n_a * n * n * max(len(pts), 1)
     size = n_a * (2 * n * n + 8 * levels * n + 8)  # every block and offset, once
+    tops = np.zeros((max(min(count, n_a * n * n), 1), 3), dtype=np.int64)
+    picks, best, runner_up = _bnb_picks(
+        coarse.likelihood_t, pyramid, cells, half, offsets, thetas, step, turn_step, away,
+        away_turn, budget, size, tops,
+    )  # fmt: skip
+    if picks <= 0:
+        return None
+    return [(int(a), int(i), int(j)) for a, i, j in tops[:picks]], best, runner_up
+
+
+@nb.njit(cache=True, nogil=True)
+def _bnb_after(k: int, budget: float, bnb: tuple) -> bool:  # type: ignore[type-arg]
+    """Offset number k has come out of the branch and bound `bnb` (`_bnb_next`'s arguments)
+    (False: none left, or the lookups are over `budget`)."""
+    state = bnb[6]
+    while state[2] <= k:
+        if state[1] > budget or not _bnb_next(*bnb):
+            return False
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
+def _bnb_picks(
+    like_t: np.ndarray,
+    pyramid: np.ndarray,
+    cells: np.ndarray,
+    half: int,
+    offsets: np.ndarray,
+    thetas: np.ndarray,
+    step: float,
+    turn_step: float,
+    away: float,
+    away_turn: float,
+    budget: float,
+    size: int,
+    tops: np.ndarray,
+) -> tuple[int, float, float]:
+    """`_bounded_starts`' walk: the picks (heading, x, y) into `tops` (as many as it has rows),
+    each the best offset not next to one picked before (within 1.5 steps and 1.5 heading
+    steps), then the runner-up (the best offset `away` m or `away_turn` rad from the winner,
+    0 when there is none). Returns the number of picks (0: give up, the caller scores the
+    whole volume), the winner's score and the runner-up's."""
+    n = 2 * half + 1
+    n_a = thetas.shape[0]
     heap = np.empty((size, 4), dtype=np.int64)
     key = np.empty(size)
     seen = np.empty((n_a * n * n, 4), dtype=np.int64)
     seen_key = np.empty(n_a * n * n)
     state = np.zeros(3, dtype=np.int64)
     _bnb_start(pyramid, cells, half, heap, key, state)
-
-    def after(k: int) -> bool:
-        """Offset number k has come out (False: none left or over budget)."""
-        while state[2] <= k:
-            if state[1] > budget or not _bnb_next(
-                like_t, pyramid, cells, half, heap, key, state, seen, seen_key
-            ):
-                return False
-        return True
-
-    free = np.ones((n_a, n, n), dtype=bool)
-    tops: list[tuple[int, int, int]] = []
-    scores: list[float] = []
+    bnb = (like_t, pyramid, cells, half, heap, key, state, seen, seen_key)
+    free = np.ones((n_a, n, n), dtype=np.bool_)
+    near = np.empty((n, n), dtype=np.bool_)
+    near_xy = 1.5 * step
+    near_t = 1.5 * turn_step
+    picks = 0
+    best = 0.0
     k = 0
-    for _ in range(min(count, free.size)):
-        while after(k) and not free[seen[k, 0], seen[k, 2], seen[k, 3]]:
+    for _ in range(tops.shape[0]):
+        while _bnb_after(k, budget, bnb):
+            if free[seen[k, 0], seen[k, 2], seen[k, 3]]:
+                break
             k += 1
         if state[2] <= k:  # none left (every pose is next to a pick) or over budget
             if state[1] > budget:
-                return None
+                return 0, 0.0, 0.0
             break
-        a, i, j = int(seen[k, 0]), int(seen[k, 2]), int(seen[k, 3])
+        a, i, j = seen[k, 0], seen[k, 2], seen[k, 3]
         score = seen_key[k]
         m = k + 1  # an equal score among the free poses: the sorted walk decides
-        while after(m) and seen_key[m] == score:
+        while _bnb_after(m, budget, bnb):
+            if seen_key[m] != score:
+                break
             if free[seen[m, 0], seen[m, 2], seen[m, 3]]:
-                return None
+                return 0, 0.0, 0.0
             m += 1
         if state[1] > budget:
-            return None
-        tops.append((a, i, j))
-        scores.append(float(score))
-        near_xy = np.hypot((offsets - offsets[i])[:, None], (offsets - offsets[j])[None, :])
-        near_t = np.abs(thetas - thetas[a]) <= 1.5 * turn_step
-        free &= ~(near_t[:, None, None] & (near_xy <= 1.5 * step)[None])
+            return 0, 0.0, 0.0
+        tops[picks, 0], tops[picks, 1], tops[picks, 2] = a, i, j
+        if picks == 0:
+            best = score
+        picks += 1
+        for ii in range(n):
+            dx = offsets[ii] - offsets[i]
+            for jj in range(n):
+                near[ii, jj] = math.hypot(dx, offsets[jj] - offsets[j]) <= near_xy
+        for aa in range(n_a):
+            if abs(thetas[aa] - thetas[a]) <= near_t:
+                for ii in range(n):
+                    for jj in range(n):
+                        if near[ii, jj]:
+                            free[aa, ii, jj] = False
         k += 1
-    a, i, j = tops[0]
-    far = _far(offsets, thetas, a, i, j, away, away_turn)
+    if picks == 0:
+        return 0, 0.0, 0.0
+    a, i, j = tops[0, 0], tops[0, 1], tops[0, 2]
+    far_xy = np.empty((n, n), dtype=np.bool_)  # `_far`'s poses: far_xy or far_t
+    far_t = np.empty(n_a, dtype=np.bool_)
+    for ii in range(n):
+        dx = offsets[ii] - offsets[i]
+        for jj in range(n):
+            far_xy[ii, jj] = math.hypot(dx, offsets[jj] - offsets[j]) > away
+    for aa in range(n_a):
+        far_t[aa] = abs(thetas[aa] - thetas[a]) > away_turn
+    any_far = far_xy.any() or far_t.any()
     runner_up = 0.0
-    if far.any():
+    if any_far:
         k = 0
-        while after(k) and not far[seen[k, 0], seen[k, 2], seen[k, 3]]:
+        while _bnb_after(k, budget, bnb):
+            if far_t[seen[k, 0]] or far_xy[seen[k, 2], seen[k, 3]]:
+                break
             k += 1
         if state[2] <= k:
-            return None  # over budget (a far pose exists)
-        runner_up = float(seen_key[k])
-    return tops, scores[0], runner_up
+            return 0, 0.0, 0.0  # over budget (a far pose exists)
+        runner_up = seen_key[k]
+    return picks, best, runner_up
 
 
 def _lattice(
