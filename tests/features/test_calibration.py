@@ -19,8 +19,9 @@ def test_mixed_leaves_lower_the_calibration_error_on_another_run() -> None:
     the other way round (protocol b): with the leaves mixed (the default) the probabilities
     are better calibrated than with the unmixed leaves of the last default, the labels as
     good; and no place's forest probability is below leaf_mix / K anywhere. With the context
-    window of the time (1 m of scans either side): with session 12's window this world's
-    ECE is 0.026 mixed against 0.019 unmixed (docs/places.md, session 12)."""
+    window of the time (1 m of scans either side) and without the opened copies (session 13's
+    default: 0.023 mixed against 0.025 unmixed with the old window): with session 12's window
+    this world's ECE is 0.026 mixed against 0.019 unmixed (docs/places.md, session 12)."""
     train, other = simulate("random", seed=13), simulate("random", seed=13, route=1)
     ds = train.dataset
     spans = spans_from_frame(train.regions, ds.t)
@@ -34,7 +35,7 @@ def test_mixed_leaves_lower_the_calibration_error_on_another_run() -> None:
             ds.ranges,
             ds.laser,
             training_indices(spans),
-            Config(leaf_mix=mix, context_seen=False),
+            Config(leaf_mix=mix, context_seen=False, augment_open=0.0),
             spans,
             poses,
         )

@@ -82,6 +82,10 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     # forced on 0.18; the last default 0.48: docs/places.md), and in 0.17 of the rooms'
     assert model["config"]["context"] == 0.0 and model["fit_report"]["context"].startswith("off")
     assert model["config"]["local_map"] == 2.0
+    # nor the taught scans' opened copies (one corridor scan's copy, its door opened on both
+    # sides, took the rooms to 0.793: docs/places.md, session 13)
+    assert model["config"]["augment_open"] == 0.0
+    assert "no opened copies" in model["fit_report"]["context"]
     assert found("corridor", corridor) > 0.5
     assert found("corridor", corridor) > 2.5 * found("corridor", room)
     assert found("room", room) >= 0.8  # issue 16's target (measured 0.83)
@@ -114,5 +118,18 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     taught = np.zeros(ds.n_scans, dtype=bool)
     taught[np.concatenate(list(training_indices(spans_).values()))] = True
     label = classify(forced, ds.ranges, poses).label
-    assert np.mean(label[~taught & (at == "corridor")] == "corridor") < 0.3
+    # (0.18; 0.31 with the opened copies, which a forced context lets in: session 13)
+    assert np.mean(label[~taught & (at == "corridor")] == "corridor") < 0.35
+    assert np.mean(label[~taught & (at == "room")] == "room") >= 0.8
+
+    # the expert setting that describes the view ahead too (`Config(view_ahead=True)`): on
+    # this lab, whose corridor is told from its rooms by the long view, the corridor is found
+    # in 0.67 of its scans (rooms 0.85); on random worlds, dense or thinned to this log's
+    # 1 m, it loses (docs/places.md, session 13), so it is not the default
+    monkeypatch.setattr(fitting, "MIN_CONTEXT_SCANS", 3)
+    ahead = fit(
+        ds.ranges, ds.laser, training_indices(spans_), Config(view_ahead=True), spans_, poses
+    )
+    label = classify(ahead, ds.ranges, poses).label
+    assert np.mean(label[~taught & (at == "corridor")] == "corridor") > 0.65
     assert np.mean(label[~taught & (at == "room")] == "room") >= 0.8

@@ -8,8 +8,10 @@ corridor or on both; taught with one kind and met with the other, the hall was f
 0.12 and 0.00 of its scans (docs/places.md, session 4). Both copies keep what is on the
 more open side of the path (the place's own opening) and vary the other side. They are
 whole logs, so the context along the path is described on the copied neighbours too.
-The default learns the closed copies (`Config.augment_closed`); the opened ones cost the
-same world's runs more than they gained (docs/places.md, session 11) and are an option.
+The default learns both (`Config.augment_closed`, `augment_open`). The opened ones cost
+the same world's runs with session 11's context window; with the window that sees as far
+ahead as behind (session 12) they were the best row on every seed set, and are on since
+session 13 (docs/places.md).
 """
 
 from __future__ import annotations

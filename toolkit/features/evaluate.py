@@ -70,8 +70,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: no context, the local map over 2 m of path instead (what logs with sparse scans get)", dataclasses.replace(FULL, context=0.0, local_map=FULL.sparse_local_map)),
     ("alternative: + the local map over 2 m of path beside the context", dataclasses.replace(FULL, local_map=FULL.sparse_local_map)),
     ("alternative: without the reach beside the laser in metres (two sessions ago)", dataclasses.replace(FULL, absolute_reach=False)),
-    ("alternative: without the taught scans' closed copies (augment_closed 0: the last session's default)", dataclasses.replace(FULL, augment_closed=0.0)),
-    ("alternative: + the taught scans' opened copies (augment_open 1)", dataclasses.replace(FULL, augment_open=1.0)),
+    ("alternative: without the taught scans' closed copies (augment_closed 0; the opened ones stay)", dataclasses.replace(FULL, augment_closed=0.0)),
+    ("alternative: without the taught scans' opened copies (augment_open 0: session 12's default)", dataclasses.replace(FULL, augment_open=0.0)),
     ("alternative: the context 1 m of scans either side (context_seen off: session 11's default)", dataclasses.replace(FULL, context_seen=False)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this

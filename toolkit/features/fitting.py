@@ -143,8 +143,10 @@ def fit(
     the path for the descriptors' context (without: `STEP_WITHOUT_POSES` per scan)."""
     config = config or Config()
     sparse = config.descriptors and config.context > 0 and _sparse(len(ranges), poses, config)
-    if sparse:  # no context to pool: the local map instead (recorded in the fit report)
-        config = replace(config, context=0.0, local_map=config.sparse_local_map)
+    opened_copies = config.augment_open
+    if sparse:  # no context to pool: the local map instead, and no opened copies (their
+        # opening's length along the path is not described without it; the fit report says so)
+        config = replace(config, context=0.0, local_map=config.sparse_local_map, augment_open=0.0)
     if not training:
         raise ToolkitError("no features to learn")
     components = list(training.items()) if isinstance(training, dict) else list(training)
@@ -173,6 +175,7 @@ def fit(
             f"off: fewer than {MIN_CONTEXT_SCANS} scans within the context's path on the "
             "median scan (scans far apart)"
             + (f"; the local map over {config.local_map:g} m instead" if config.local_map else "")
+            + ("; no opened copies of the taught scans" if opened_copies else "")
         )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)

@@ -66,12 +66,13 @@ from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP, context_ahead
 from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
-#: 7: the context window reaches less far ahead than behind (`context_seen`); 6: the trees
-#: also learn the taught scans' copies with the less open side walled
+#: 8: the taught scans' opened copies by default (`augment_open`; not where the context is
+#: off); 7: the context window reaches less far ahead than behind (`context_seen`); 6: the
+#: trees also learn the taught scans' copies with the less open side walled
 #: (`augment_closed`, augment.py); 5: the local map's descriptors (`local_map`, on sparse
 #: scans by default); 4: the forest's leaf shares mixed with uniform (`leaf_mix`); 3: the
 #: 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
-MODEL_VERSION = 7
+MODEL_VERSION = 8
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -138,8 +139,10 @@ class Config:
     augment_closed: float = 1.0  # weight of the taught scans' copies with the less open
     # side of the path walled at the log's usual distance from a wall (augment.py: a hall
     # open on both sides taught, one open on one side met; 0: none)
-    augment_open: float = 0.0  # weight of their copies with the less open side opened (the
-    # more open side mirrored onto it; 0: none, measured and not kept)
+    augment_open: float = 1.0  # weight of their copies with the less open side opened (the
+    # more open side mirrored onto it: a hall open on one side taught, one open on both met;
+    # left out where the context is off; 0: none, session 12's default; docs/places.md,
+    # session 13)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""
