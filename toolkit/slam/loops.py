@@ -14,7 +14,10 @@ clear winner: the best pose elsewhere in the window (0.6 m or 0.15 rad away) sco
 `max_ambiguity` of the winner, among those seen points (`seen_ambiguity`; a corridor, where a
 shift along it scores alike, fails it). A match that fails only that test, and whose
 alike poses lie along one axis with none across it (`corridor_axis`), is kept as a corridor
-loop: trusted across the axis and in heading only (`Loop.covariance`). Whether the loops agree with each other is
+loop: trusted across the axis and in heading only (`Loop.covariance`). A loop is in the earlier
+keyframe's frame, and a front-end slip there passes into it: it is refused when that scan fits
+the rest of its local map, or the query fits that scan alone, 0.3 m from where the trajectory
+put it (`anchor`, `anchor_match`). Whether the loops agree with each other is
 `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
@@ -68,7 +71,8 @@ class LoopConfig:
     # m); False: anywhere within the field of view and `max_range`. With `seen_ambiguity`, the
     # ambiguity test on the seen query points too (the others can confirm neither the winner
     # nor a runner-up). Both off by default: they close orebro's return (ATE 0.32 -> 0.15 m)
-    # but accept more of freiburg-campus's marginal false loops (docs/maps.md, session 12)
+    # but accept more of freiburg-campus's marginal false loops (docs/maps.md, session 12);
+    # with the anchor tests below those are refused, but infinite-corridor loses (session 13)
     line_of_sight: bool = False
     seen_ambiguity: bool = False
     # a match ambiguous only along one axis (a corridor: its coarse scores as high along a line,
@@ -76,6 +80,19 @@ class LoopConfig:
     # axis and in heading only (`Loop.covariance`); False: rejected as ambiguous
     corridor: bool = True
     corridor_along: float = 100.0  # a corridor loop's spread along its axis (m): no pull there
+    # a loop is in scan a's frame: a front-end slip there (scan a placed off its neighbours,
+    # or keyframes of a's local map off each other) is carried into the loop, and the loops
+    # nearby that share the local map carry it too, so they agree (docs/maps.md, session 13).
+    # `anchor`: scan a matched against the rest of its local map; `anchor_match`: the query
+    # matched against scan a alone, from the loop's pose; either fit `anchor_slip` m away
+    # (across a corridor loop's axis), with `anchor_inliers` of its points within 0.1 m, is a
+    # slip: the loop is refused
+    anchor: bool = True
+    anchor_match: bool = True
+    anchor_slip: float = 0.3
+    anchor_inliers: float = 0.3
+    anchor_window: float = 1.0  # their search's window (m, +-) ...
+    anchor_turn: float = 0.1  # ... and heading window (rad, +-)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -213,6 +230,7 @@ class LoopCloser:
         self._sin = np.sin(laser.angles + mount[2])
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
+        self._slips: dict[int, float] = {}
 
     def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -317,11 +335,100 @@ class LoopCloser:
             else:  # along the axis the match says nothing: keep the trajectory's position
                 pose = pose.copy()
                 pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
+        if not why and cfg.anchor:
+            moved = self.slip(a, along, keys, poses, cfg)
+            if moved > cfg.anchor_slip:
+                why.append(f"anchor: scan {a} fits its local map {moved:.2f} m off")
+        if not why and cfg.anchor_match:
+            slip = self.anchor_shift(a, query, found.pose, poses, cfg)
+            if slip is not None and slip[1] >= cfg.anchor_inliers:
+                c, sn = np.cos(found.pose[2]), np.sin(found.pose[2])
+                shift = np.array([[c, -sn], [sn, c]]) @ slip[0][:2]  # a's frame
+                if axis is not None:
+                    shift -= (shift @ axis) * axis
+                moved = float(np.hypot(*shift))
+                if moved > cfg.anchor_slip:
+                    why.append(f"anchor: scan {a} alone fits the query {moved:.2f} m off")
         ok = not why
         loop = Loop(a, b, pose, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
         if axis is not None:
             loop.axis, loop.along = axis, cfg.corridor_along
         return loop
+
+    def anchor_shift(
+        self, a: int, query: np.ndarray, pose: np.ndarray, poses: np.ndarray, config: LoopConfig
+    ) -> tuple[np.ndarray, float] | None:
+        """The query (b's frame) matched against scan `a`'s own returns alone, from `pose` (its
+        match against a's local map) over a small window: the shift of that match from `pose`
+        (in b's frame) and its inlier share; None when scan a sees too few of the query's
+        points to tell. A local map holds a front-end slip (keyframes placed 0.5 m off their
+        neighbours) that a match against it inherits; scan a alone holds none."""
+        own = self._local(a, np.array([a]), poses)
+        pts = query[self.seen(query, pose, a, np.array([a]), poses)]
+        return self._refit(own, pts, pose, config)
+
+    def slip(
+        self, k: int, along: np.ndarray, keys: np.ndarray, poses: np.ndarray, config: LoopConfig
+    ) -> float:
+        """How far (m) keyframe `k` fits its local map off where the trajectory put it (0 when
+        too few of its returns overlap the map or agree with it to tell); kept per keyframe
+        for the closer's life (the trajectory's rounds move a local map as a whole)."""
+        if k not in self._slips:
+            found = self.anchor_consistency(
+                k, self.reference_keys(k, along, keys, config), poses, config
+            )
+            ok = found is not None and found[1] >= config.anchor_inliers
+            self._slips[k] = float(np.hypot(found[0][0], found[0][1])) if ok and found else 0.0
+        return self._slips[k]
+
+    def anchor_consistency(
+        self, a: int, refs: np.ndarray, poses: np.ndarray, config: LoopConfig
+    ) -> tuple[np.ndarray, float] | None:
+        """Scan `a`'s returns matched against the other scans of its local map `refs` (placed
+        by the trajectory) over a small window: the shift of a's best fit from where the
+        trajectory put it (a's frame) and its inlier share; None when too few overlap."""
+        others = refs[refs != a]
+        if len(others) == 0:
+            return None
+        own = voxel_subsample(self._local(a, np.array([a]), poses), config.query_voxel)
+        zero = np.zeros(3)
+        pts = own[self.seen(own, zero, a, others, poses)]
+        return self._refit(self._local(a, others, poses), pts, zero, config)
+
+    def _refit(
+        self, ref: np.ndarray, pts: np.ndarray, pose: np.ndarray, config: LoopConfig
+    ) -> tuple[np.ndarray, float] | None:
+        """`pts` matched against `ref` by the correlative search from `pose` over
+        `anchor_window` / `anchor_turn`: the found pose relative to `pose`, and the inliers."""
+        cfg = config
+        if len(pts) < cfg.min_points:
+            return None
+        if len(pts) > cfg.max_points:
+            pts = pts[np.linspace(0, len(pts) - 1, cfg.max_points).astype(np.int64)]
+        c, sn = np.cos(pose[2]), np.sin(pose[2])
+        landed = pose[:2] + pts @ np.array([[c, sn], [-sn, c]])
+        reach = np.hypot(*pts.T).max() * cfg.anchor_turn + cfg.anchor_window + 0.5
+        lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
+        ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
+        if len(ref) < cfg.min_points:
+            return None
+        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+
+        def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
+            return LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
+
+        found = correlative_search(
+            coarse,
+            fine_over,
+            pts,
+            pose,
+            window=cfg.anchor_window,
+            turn=cfg.anchor_turn,
+            turn_step=cfg.turn_step,
+            coarse_voxel=cfg.coarse_voxel,
+            fine_resolution=cfg.fine,
+        )
+        return between(pose, found.pose), found.inliers
 
     def seen(
         self, query: np.ndarray, pose: np.ndarray, a: int, refs: np.ndarray, poses: np.ndarray
