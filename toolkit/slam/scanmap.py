@@ -91,12 +91,11 @@ class MapConfig:
     min_inliers: float = 0.75  # fewer returns within inlier_distance: correlative search
     search_window: float = 1.0  # its window (+-m) ...
     search_turn: float = 1.0  # ... and turn (+-rad)
-    lost: float = 0.4  # a search's fit that explains fewer returns than this share (within
-    # inlier_distance) is no evidence against the prediction: not taken; when neither
-    # reaches it, nothing within search_turn explains the scan (the odometry's heading
-    # slipped further) and the heading is searched over the full circle ...
-    lost_inliers: float = 0.65  # ... its fit kept if at least this share fits (the loop
-    # closer's fitness test: a search without a heading prior is a relocalisation)
+    search_ambiguity: float = 0.85  # a search's result further than 0.6 m or 0.15 rad from
+    # the prediction where fewer than min_inliers fit is taken only as a clear winner: the
+    # best coarse score that far from it at most this share of its own (the loop closer's) ...
+    wide_search: bool = True  # ... and when the search has none and nothing fits, the
+    # heading is searched over the full circle (an odometry slip beyond search_turn)
     search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
     # explains (beyond this many sigmas of the prior's translation spread: `slipped`) is an
     # alias: the fit restarts from the slips with its heading instead (0: off)
@@ -113,6 +112,8 @@ class MapConfig:
 _SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
+_AWAY = (0.6, 0.15)  # a search's result this far (m, rad) from the prediction is a jump
+# (correlative_search's runner-up is at least as far from its winner)
 _SLIDE = (0.2, 0.1)  # a search's fit may move this far (m, rad) beyond the volume searched
 # (a coarse cell, five heading steps) and still be its result
 
@@ -592,19 +593,20 @@ class MapMatcher:
                 base = self._anchor[0]
                 window += (self._path - self._anchor[1]) * 2.0 * math.sin(cfg.search_turn / 2)
                 window = min(window, max(cfg.deferred_window, cfg.search_window))
-            out2, cov2 = self._search_fit(
+            out2, cov2, clear = self._search_fit(
                 fit, pts, predicted, info, base, window, cfg.search_turn, by_odometry
             )
-            if out2[4] >= cfg.lost and out2[4] > out[4] + 0.1:
+            if out2[4] > out[4] + 0.1:
                 out, cov = out2, cov2
-            if max(out[4], out2[4]) < cfg.lost and cfg.search_turn < math.pi:
-                # the heading is lost (a slip beyond search_turn: orebro's drifted odometry
-                # turned 96 degrees in one 2 m step): the full circle, kept only if it fits
-                # as well as a loop must
-                out3, cov3 = self._search_fit(
+            if cfg.wide_search and not clear and out[4] < cfg.min_inliers:
+                # no clear winner within search_turn and no fit: the heading may have slipped
+                # further (orebro's drifted odometry turned 96 degrees in one 2 m step). Without
+                # a heading to keep it near, a building's walls fit as well turned by 90
+                # degrees (seattle: 85% of the returns), so only a clear winner is taken
+                out3, cov3, clear = self._search_fit(
                     fit, pts, predicted, info, base, window, math.pi, by_odometry
                 )
-                if out3[4] >= cfg.lost_inliers and out3[4] > out[4] + 0.1:
+                if clear and out3[4] > out[4] + 0.1:
                     out, cov = out3, cov3
         self.stats = out
         self.covariance = cov
@@ -620,12 +622,14 @@ class MapMatcher:
         window: float,
         turn: float,
         by_odometry: bool,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The fit from a correlative search of +-`window` m, +-`turn` rad around `predicted`
-        (its stats and covariance; inlier share -1 when it is not to be taken). A fit that
-        slides out of the volume searched (seattle: an alias at the window's edge, fitted on
-        to 89 degrees off an odometry that was right) is what the search did not verify: not
-        taken."""
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The fit from a correlative search of +-`window` m, +-`turn` rad around `predicted`:
+        its stats (inlier share -1 when it is not to be taken) and covariance, and whether the
+        search had a clear winner. Not taken: a winner far from the prediction where the scan
+        does not fit (below min_inliers) and that is not clear (freiburg-campus: 46 degrees
+        off a right prediction, 15% of the returns fitting there, ambiguity 0.94; where 97%
+        fit, a slip of 35 degrees, it is taken at ambiguity 0.91), and a fit that slides out of the volume searched (seattle: from
+        an alias at the edge of the +-1 rad on to 89 degrees off, ambiguity 0.97)."""
         cfg = self.config
         coarse, fine = self._search_grids(window)
         found = correlative_search(
@@ -644,11 +648,16 @@ class MapMatcher:
         weak = info * 1e-3  # the search's start replaces the prediction
         fit(found.pose, weak, out2, cov2)
         self.searches += 1
+        clear = found.runner_up <= cfg.search_ambiguity * found.coarse_score
         off = out2[:3] - predicted  # the search's offsets are in the world's axes
         off[2] = math.atan2(math.sin(off[2]), math.cos(off[2]))
-        if abs(off[2]) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]:
+        far = math.hypot(off[0], off[1]) > _AWAY[0] or abs(off[2]) > _AWAY[1]
+        outside = (
+            abs(off[2]) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]
+        )
+        if outside or (far and not clear and out2[4] < cfg.min_inliers):
             out2[4] = -1.0
-            return out2, cov2
+            return out2, cov2, clear
         if by_odometry and cfg.search_gate > 0:
             # the odometry's prior: its translation error is small (the prior's spread),
             # its heading may slip. A jump that no slip explains is an alias: the fit
@@ -671,7 +680,7 @@ class MapMatcher:
                     fit(_compose(base, step), info * _HEADING_FREE, out3, cov3)
                     if out3[4] > out2[4]:
                         out2, cov2 = out3, cov3
-        return out2, cov2
+        return out2, cov2, clear
 
     def _learn(
         self, predicted: np.ndarray, pose: np.ndarray, odo: np.ndarray, spread: float
