@@ -91,11 +91,11 @@ class MapConfig:
     min_inliers: float = 0.75  # fewer returns within inlier_distance: correlative search
     search_window: float = 1.0  # its window (+-m) ...
     search_turn: float = 1.0  # ... and turn (+-rad)
-    search_ambiguity: float = 0.85  # a search's result further than 0.6 m or 0.15 rad from
-    # the prediction where fewer than min_inliers fit is taken only as a clear winner: the
-    # best coarse score that far from it at most this share of its own (the loop closer's) ...
-    wide_search: bool = True  # ... and when the search has none and nothing fits, the
-    # heading is searched over the full circle (an odometry slip beyond search_turn)
+    lost: float = 0.3  # when the search finds no clear winner and fewer returns than this
+    # share fit, the odometry's heading may have slipped beyond search_turn: the heading is
+    # searched over the full circle, its winner taken if it is clear ...
+    search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
+    # most this share of its own (the loop closer's test)
     search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
     # explains (beyond this many sigmas of the prior's translation spread: `slipped`) is an
     # alias: the fit restarts from the slips with its heading instead (0: off)
@@ -112,8 +112,6 @@ class MapConfig:
 _SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
-_AWAY = (0.6, 0.15)  # a search's result this far (m, rad) from the prediction is a jump
-# (correlative_search's runner-up is at least as far from its winner)
 _SLIDE = (0.2, 0.1)  # a search's fit may move this far (m, rad) beyond the volume searched
 # (a coarse cell, five heading steps) and still be its result
 
@@ -598,7 +596,7 @@ class MapMatcher:
             )
             if out2[4] > out[4] + 0.1:
                 out, cov = out2, cov2
-            if cfg.wide_search and not clear and out[4] < cfg.min_inliers:
+            if not clear and out[4] < cfg.lost:
                 # no clear winner within search_turn and no fit: the heading may have slipped
                 # further (orebro's drifted odometry turned 96 degrees in one 2 m step). Without
                 # a heading to keep it near, a building's walls fit as well turned by 90
@@ -625,11 +623,9 @@ class MapMatcher:
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """The fit from a correlative search of +-`window` m, +-`turn` rad around `predicted`:
         its stats (inlier share -1 when it is not to be taken) and covariance, and whether the
-        search had a clear winner. Not taken: a winner far from the prediction where the scan
-        does not fit (below min_inliers) and that is not clear (freiburg-campus: 46 degrees
-        off a right prediction, 15% of the returns fitting there, ambiguity 0.94; where 97%
-        fit, a slip of 35 degrees, it is taken at ambiguity 0.91), and a fit that slides out of the volume searched (seattle: from
-        an alias at the edge of the +-1 rad on to 89 degrees off, ambiguity 0.97)."""
+        search had a clear winner. Not taken: a fit that slides out of the volume searched
+        (seattle: from an alias at the edge of the +-1 rad on to 89 degrees off an odometry
+        that was right; 85% of the returns fit the office's walls turned so)."""
         cfg = self.config
         coarse, fine = self._search_grids(window)
         found = correlative_search(
@@ -651,11 +647,10 @@ class MapMatcher:
         clear = found.runner_up <= cfg.search_ambiguity * found.coarse_score
         off = out2[:3] - predicted  # the search's offsets are in the world's axes
         off[2] = math.atan2(math.sin(off[2]), math.cos(off[2]))
-        far = math.hypot(off[0], off[1]) > _AWAY[0] or abs(off[2]) > _AWAY[1]
         outside = (
             abs(off[2]) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]
         )
-        if outside or (far and not clear and out2[4] < cfg.min_inliers):
+        if outside:
             out2[4] = -1.0
             return out2, cov2, clear
         if by_odometry and cfg.search_gate > 0:
