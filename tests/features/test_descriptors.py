@@ -77,7 +77,7 @@ def test_compiled_finish_equals_the_numpy_reference(world) -> None:  # type: ign
         accumulate(*args)
         seen["sums"], seen["sectors"], seen["beside"] = args[-3], args[-2], args[-1]
 
-    d._accumulate = keep
+    d._accumulate = keep  # type: ignore[assignment]
     try:
         x = describe(ds.ranges, ds.laser)
     finally:

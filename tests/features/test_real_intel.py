@@ -110,6 +110,7 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     # mostly called "room"
     from toolkit.features import Config, classify, fitting
 
+    assert ds.groundtruth is not None
     poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
     monkeypatch.setattr(fitting, "MIN_CONTEXT_SCANS", 0)
     forced = fit(ds.ranges, ds.laser, training_indices(spans_), Config(), spans_, poses)

@@ -46,6 +46,7 @@ def test_open_set_stays_off_where_every_place_is_taught() -> None:
     ds = run.dataset
     spans = spans_from_frame(run.regions, ds.t)
     training = training_indices(spans)
+    assert ds.groundtruth is not None
     poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
     models = [
         fit(ds.ranges, ds.laser, training, config, spans, poses)
