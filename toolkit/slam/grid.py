@@ -564,6 +564,23 @@ class SearchResult:
     runner_up: float  # best coarse score away from the winner (another mode)
     inliers: float  # share of query points within `inlier_distance` of a map point
 
+    @property
+    def ambiguity(self) -> float:
+        """The runner-up's coarse score over the winner's: near 1, another mode as good."""
+        return self.runner_up / max(self.coarse_score, 1e-9)
+
+
+@nb.njit(cache=True, nogil=True)
+def _within(offsets: np.ndarray, i: int, j: int, reach: float) -> np.ndarray:
+    """The coarse offsets (x, y indices) within `reach` m of offset (i, j)."""
+    n = offsets.shape[0]
+    out = np.empty((n, n), dtype=np.bool_)
+    for ii in range(n):
+        dx = offsets[ii] - offsets[i]
+        for jj in range(n):
+            out[ii, jj] = math.hypot(dx, offsets[jj] - offsets[j]) <= reach
+    return out
+
 
 def _starts(
     vol: np.ndarray,
@@ -591,7 +608,7 @@ def _starts(
         a, i, j = (int(x) for x in np.unravel_index(k, vol.shape))
         p = np.array([offsets[i], offsets[j], thetas[a]])
         tops.append((a, i, j))
-        near_xy = np.hypot((offsets - p[0])[:, None], (offsets - p[1])[None, :]) <= 1.5 * step
+        near_xy = _within(offsets, i, j, 1.5 * step)
         near_t = np.abs(thetas - p[2]) <= 1.5 * turn_step
         free &= ~(near_t[:, None, None] & near_xy[None])
     return tops
@@ -635,8 +652,7 @@ def _far(
     """The coarse poses (heading, x, y) at least `away` m or `away_turn` rad from pose
     (a, i, j): where the runner-up is looked for."""
     d_theta = np.abs(thetas - thetas[a])[:, None, None]
-    d_xy = np.hypot((offsets - offsets[i])[:, None], (offsets - offsets[j])[None, :])[None]
-    out: np.ndarray = (d_xy > away) | (d_theta > away_turn)
+    out: np.ndarray = ~_within(offsets, i, j, away)[None] | (d_theta > away_turn)
     return np.ascontiguousarray(np.broadcast_to(out, (len(thetas), len(offsets), len(offsets))))
 
 
@@ -719,8 +735,6 @@ def _bnb_picks(
     _bnb_start(pyramid, cells, half, heap, key, state)
     bnb = (like_t, pyramid, cells, half, heap, key, state, seen, seen_key)
     free = np.ones((n_a, n, n), dtype=np.bool_)
-    near = np.empty((n, n), dtype=np.bool_)
-    near_xy = 1.5 * step
     near_t = 1.5 * turn_step
     picks = 0
     best = 0.0
@@ -749,10 +763,7 @@ def _bnb_picks(
         if picks == 0:
             best = score
         picks += 1
-        for ii in range(n):
-            dx = offsets[ii] - offsets[i]
-            for jj in range(n):
-                near[ii, jj] = math.hypot(dx, offsets[jj] - offsets[j]) <= near_xy
+        near = _within(offsets, i, j, 1.5 * step)
         for aa in range(n_a):
             if abs(thetas[aa] - thetas[a]) <= near_t:
                 for ii in range(n):
@@ -763,12 +774,8 @@ def _bnb_picks(
     if picks == 0:
         return 0, 0.0, 0.0
     a, i, j = tops[0, 0], tops[0, 1], tops[0, 2]
-    far_xy = np.empty((n, n), dtype=np.bool_)  # `_far`'s poses: far_xy or far_t
+    far_xy = ~_within(offsets, i, j, away)  # `_far`'s poses: far_xy or far_t
     far_t = np.empty(n_a, dtype=np.bool_)
-    for ii in range(n):
-        dx = offsets[ii] - offsets[i]
-        for jj in range(n):
-            far_xy[ii, jj] = math.hypot(dx, offsets[jj] - offsets[j]) > away
     for aa in range(n_a):
         far_t[aa] = abs(thetas[aa] - thetas[a]) > away_turn
     any_far = far_xy.any() or far_t.any()

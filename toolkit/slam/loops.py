@@ -305,7 +305,7 @@ class LoopCloser:
             fine_resolution=cfg.fine,
         )
         fine = grids[0]
-        ambiguity = found.runner_up / max(found.coarse_score, 1e-9)
+        ambiguity = found.ambiguity
         inliers = found.inliers
         why = []
         if cfg.seen_only:
@@ -378,7 +378,7 @@ class LoopCloser:
                 k, self.reference_keys(k, along, keys, config), poses, config
             )
             ok = found is not None and found[1] >= config.anchor_inliers
-            self._slips[k] = float(np.hypot(found[0][0], found[0][1])) if ok and found else 0.0
+            self._slips[k] = float(np.hypot(*found[0][:2])) if found is not None and ok else 0.0
         return self._slips[k]
 
     def anchor_consistency(

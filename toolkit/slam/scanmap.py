@@ -644,7 +644,7 @@ class MapMatcher:
         weak = info * 1e-3  # the search's start replaces the prediction
         fit(found.pose, weak, out2, cov2)
         self.searches += 1
-        clear = found.runner_up <= cfg.search_ambiguity * found.coarse_score
+        clear = found.ambiguity <= cfg.search_ambiguity
         off = out2[:3] - predicted  # the search's offsets are in the world's axes
         off[2] = math.atan2(math.sin(off[2]), math.cos(off[2]))
         outside = (
