@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: install demo test test-fast bench lint format clean
+.PHONY: install warmup demo test test-fast bench lint format clean
 
 install: $(STAMP)
 
@@ -14,7 +14,11 @@ $(STAMP): pyproject.toml scripts/system-deps.sh
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e ".[dev,bench]"
+	$(BIN)/python -m toolkit.warmup
 	touch $(STAMP)
+
+warmup: install  ## compile `toolkit map`'s numba kernels into their cache again (after editing them)
+	$(BIN)/python -m toolkit.warmup
 
 demo: install    ## import the bundled and real logs, map, label, report into $(OUT)/
 	OUT=$(OUT) PATH="$(CURDIR)/$(BIN):$$PATH" bash scripts/demo.sh
