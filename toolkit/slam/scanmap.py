@@ -411,6 +411,29 @@ def _placed_surfaces(
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def _scan_points(
+    ranges: np.ndarray, cos: np.ndarray, sin: np.ndarray, mx: float, my: float, max_range: float
+) -> np.ndarray:
+    """The returns in (0, max_range] as points in the robot frame (N x 2, beam order): the
+    laser's mount plus range times the beam's direction, in float64 (numpy's arithmetic per
+    element, in one pass instead of a dozen array calls per scan)."""
+    n = 0
+    for k in range(ranges.shape[0]):
+        r = np.float64(ranges[k])
+        if math.isfinite(r) and r > 0.0 and r <= max_range:
+            n += 1
+    out = np.empty((n, 2))
+    i = 0
+    for k in range(ranges.shape[0]):
+        r = np.float64(ranges[k])
+        if math.isfinite(r) and r > 0.0 and r <= max_range:
+            out[i, 0] = mx + r * cos[k]
+            out[i, 1] = my + r * sin[k]
+            i += 1
+    return out
+
+
 def slipped(odometry_step: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, float]:
     """The step a heading slip makes of the odometry's that comes nearest to `step` (both x, y,
     theta from the previous pose): `step`'s heading, the odometry's translation turned by
@@ -534,11 +557,9 @@ class MapMatcher:
             dt = min(max(dt, 0.01), 1.0)
             sig = (cfg.prior_velocity[0] * dt, cfg.prior_velocity[1] * dt)
         info = np.array([1 / sig[0] ** 2, 1 / sig[0] ** 2, 1 / sig[1] ** 2])
-        r = np.asarray(ranges, dtype=np.float64)
-        ok = np.isfinite(r) & (r > 0) & (r <= cfg.max_range)
-        pts = np.empty((int(ok.sum()), 2))
-        pts[:, 0] = self._mount[0] + r[ok] * self._cos[ok]
-        pts[:, 1] = self._mount[1] + r[ok] * self._sin[ok]
+        pts = _scan_points(
+            np.asarray(ranges), self._cos, self._sin, self._mount[0], self._mount[1], cfg.max_range
+        )
         pose = self._match(pts, predicted, info, by_odometry)
         if logged and odo is not None and by_odometry and cfg.heading_drift > 0:
             self._learn(predicted, pose, odo, sig[1])
