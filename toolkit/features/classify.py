@@ -182,7 +182,7 @@ def class_scores(
     in blocks of `SCANS_PER_STEP` scans, `progress(m)` after each."""
     cfg = model.config
     out = np.empty((len(ranges), len(model.classes)))
-    columns = chosen_columns(cfg.view_ahead, cfg.mozos, cfg.absolute_reach)
+    columns = chosen_columns(cfg.view_ahead, cfg.mozos, cfg.absolute_reach, cfg.glass_ahead)
     along = path_length(len(ranges), poses)
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))

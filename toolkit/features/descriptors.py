@@ -92,9 +92,16 @@ def names() -> list[str]:
 ABSOLUTE = ("beside_abs_near_min", "beside_abs_near_max", "beside_abs_far_max")
 
 
-def place_columns(absolute: bool = True) -> np.ndarray:
+#: the no-returns that see glass ahead of the place: the whole scan's return fraction and the
+#: no-return share at 30-60 degrees reach a window 0.5-2 m before the robot is beside it
+#: (docs/places.md, session 14); the place's own no-returns are those at 60-90 degrees
+GLASS_AHEAD = ("return_fraction", "no_return_30_45deg", "no_return_45_60deg")
+
+
+def place_columns(absolute: bool = True, glass_ahead: bool = False) -> np.ndarray:
     """Indices of the descriptors the place classifier uses (all but the view ahead; without
-    `absolute`, not the reach beside the laser in metres either)."""
+    `absolute`, not the reach beside the laser in metres either; with `glass_ahead`, also
+    the no-returns ahead, `GLASS_AHEAD`, as until session 13)."""
     ahead = ("0_15deg", "15_30deg", "range_mean", "range_std", "major", "area", "perimeter")
     return np.array(
         [
@@ -103,6 +110,7 @@ def place_columns(absolute: bool = True) -> np.ndarray:
             if not any(a in n for a in ahead)
             and not n.startswith("hist_")
             and (absolute or n not in ABSOLUTE)
+            and (glass_ahead or not n.startswith(GLASS_AHEAD))
         ]
     )
 
@@ -495,15 +503,16 @@ def _window_moments(  # pragma: no cover - numba
 
 
 def chosen_columns(
-    view_ahead: bool = False, mozos: bool = False, absolute: bool = True
+    view_ahead: bool = False, mozos: bool = False, absolute: bool = True, glass_ahead: bool = False
 ) -> np.ndarray:
     """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place
-    (`absolute`: with the reach beside the laser in metres)."""
+    (`absolute`: with the reach beside the laser in metres; `glass_ahead`: with the
+    no-returns ahead, `GLASS_AHEAD`)."""
     if mozos:
         return mozos_columns()
     if view_ahead:
         return np.arange(len(names()))
-    return place_columns(absolute)
+    return place_columns(absolute, glass_ahead)
 
 
 def features(

@@ -73,6 +73,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: without the taught scans' closed copies (augment_closed 0; the opened ones stay)", dataclasses.replace(FULL, augment_closed=0.0)),
     ("alternative: without the taught scans' opened copies (augment_open 0: session 12's default)", dataclasses.replace(FULL, augment_open=0.0)),
     ("alternative: the context 1 m of scans either side (context_seen off: session 11's default)", dataclasses.replace(FULL, context_seen=False)),
+    ("alternative: + the no-returns ahead of the place (glass_ahead: the return fraction, the no-return share at 30-60 degrees; session 13's default)", dataclasses.replace(FULL, glass_ahead=True)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

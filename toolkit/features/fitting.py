@@ -205,7 +205,9 @@ def _fit_places(
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
-    columns = chosen_columns(config.view_ahead, config.mozos, config.absolute_reach)
+    columns = chosen_columns(
+        config.view_ahead, config.mozos, config.absolute_reach, config.glass_ahead
+    )
     along = path_length(len(ranges), poses)
     ahead = config.ahead(laser)
     x = features(

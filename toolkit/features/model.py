@@ -66,13 +66,14 @@ from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP, context_ahead
 from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
 
+#: 9: the no-returns ahead of the place left out (`glass_ahead`, descriptors.GLASS_AHEAD);
 #: 8: the taught scans' opened copies by default (`augment_open`; not where the context is
 #: off); 7: the context window reaches less far ahead than behind (`context_seen`); 6: the
 #: trees also learn the taught scans' copies with the less open side walled
 #: (`augment_closed`, augment.py); 5: the local map's descriptors (`local_map`, on sparse
 #: scans by default); 4: the forest's leaf shares mixed with uniform (`leaf_mix`); 3: the
 #: 0.45 m strip beside the laser; 2: the context and the forest (older: learn anew)
-MODEL_VERSION = 8
+MODEL_VERSION = 9
 LITERAL_EPS = 1e-6  # m^2: the literal model's guard against a zero variance
 BACKGROUND_BINS = 128
 
@@ -114,6 +115,9 @@ class Config:
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
     absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
     # units of the free width (descriptors.ABSOLUTE)
+    glass_ahead: bool = False  # also the no-returns that see glass ahead of the place (the
+    # whole scan's return fraction, the no-return share at 30-60 degrees;
+    # descriptors.GLASS_AHEAD): session 13's descriptors (docs/places.md, session 14)
     beside: float = BESIDE  # m ahead and behind the laser whose end points are beside it
     # (the descriptors of the place's width, its doors' and windows' openings; 1.0 before)
     context: float = 1.0  # m of path before and after a scan whose descriptors' mean and
