@@ -13,6 +13,7 @@ whether or not this ran.
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import time
@@ -41,8 +42,6 @@ def warm_up(scans: int = 1200) -> dict[str, float]:
 
 
 def main() -> None:
-    import os  # noqa: PLC0415
-
     os.environ.setdefault("TOOLKIT_NO_PROGRESS", "1")
     t0 = time.perf_counter()
     for name, s in warm_up().items():

@@ -35,6 +35,7 @@ from toolkit.dataset import LaserGeometry
 from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
     LikelihoodGrid,
+    SearchResult,
     coarse_ambiguity,
     coarse_scores,
     correlative_search,
@@ -215,6 +216,59 @@ def candidates(
     return out
 
 
+def _capped(points: np.ndarray, config: LoopConfig) -> np.ndarray | None:
+    """At most `max_points` of `points`, evenly kept in their order; None when fewer than
+    `min_points` (too few to test a match by)."""
+    if len(points) < config.min_points:
+        return None
+    if len(points) > config.max_points:
+        points = points[np.linspace(0, len(points) - 1, config.max_points).astype(np.int64)]
+    return points
+
+
+def _search(
+    ref: np.ndarray,
+    query: np.ndarray,
+    pose: np.ndarray,
+    window: float,
+    turn: float,
+    config: LoopConfig,
+) -> tuple[SearchResult, LikelihoodGrid, LikelihoodGrid] | None:
+    """`query` matched against `ref` (the reference points within reach of the query placed at
+    `pose`) by the coarse-to-fine correlative search over +-`window` m, +-`turn` rad: the
+    result, the coarse grid and the first fine grid; None when fewer than `min_points`
+    reference points are within reach."""
+    cfg = config
+    c, sn = np.cos(pose[2]), np.sin(pose[2])
+    landed = pose[:2] + query @ np.array([[c, sn], [-sn, c]])
+    reach = np.hypot(*query.T).max() * turn + window + 0.5
+    lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
+    ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
+    if len(ref) < cfg.min_points:
+        return None
+    coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+    grids: list[LikelihoodGrid] = []
+
+    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
+        grids.append(
+            LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
+        )
+        return grids[-1]
+
+    found = correlative_search(
+        coarse,
+        fine_over,
+        query,
+        pose,
+        window=window,
+        turn=turn,
+        turn_step=cfg.turn_step,
+        coarse_voxel=cfg.coarse_voxel,
+        fine_resolution=cfg.fine,
+    )
+    return found, coarse, grids[0]
+
+
 class LoopCloser:
     """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
     scans a test needs are computed when it needs them, so memory does not grow with S)."""
@@ -269,42 +323,15 @@ class LoopCloser:
         cfg = config or self.config
         near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
         near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
-        query = voxel_subsample(self._local(b, near_b, poses), cfg.query_voxel)
-        if len(query) < cfg.min_points:
+        query = _capped(voxel_subsample(self._local(b, near_b, poses), cfg.query_voxel), cfg)
+        if query is None:
             return None
-        if len(query) > cfg.max_points:
-            query = query[np.linspace(0, len(query) - 1, cfg.max_points).astype(np.int64)]
         near_a = self.reference_keys(a, along, keys, cfg)
-        ref = self._local(a, near_a, poses)
         prediction = between(poses[a], poses[b])
-        c, sn = np.cos(prediction[2]), np.sin(prediction[2])
-        landed = prediction[:2] + query @ np.array([[c, sn], [-sn, c]])
-        reach = np.hypot(*query.T).max() * cfg.turn + radius + 0.5
-        lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
-        ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
-        if len(ref) < cfg.min_points:
+        searched = _search(self._local(a, near_a, poses), query, prediction, radius, cfg.turn, cfg)
+        if searched is None:
             return None
-        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-        grids: list[LikelihoodGrid] = []
-
-        def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
-            grids.append(
-                LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
-            )
-            return grids[-1]
-
-        found = correlative_search(
-            coarse,
-            fine_over,
-            query,
-            prediction,
-            window=radius,
-            turn=cfg.turn,
-            turn_step=cfg.turn_step,
-            coarse_voxel=cfg.coarse_voxel,
-            fine_resolution=cfg.fine,
-        )
-        fine = grids[0]
+        found, coarse, fine = searched
         ambiguity = found.ambiguity
         inliers = found.inliers
         why = []
@@ -400,35 +427,13 @@ class LoopCloser:
     ) -> tuple[np.ndarray, float] | None:
         """`pts` matched against `ref` by the correlative search from `pose` over
         `anchor_window` / `anchor_turn`: the found pose relative to `pose`, and the inliers."""
-        cfg = config
-        if len(pts) < cfg.min_points:
+        capped = _capped(pts, config)
+        if capped is None:
             return None
-        if len(pts) > cfg.max_points:
-            pts = pts[np.linspace(0, len(pts) - 1, cfg.max_points).astype(np.int64)]
-        c, sn = np.cos(pose[2]), np.sin(pose[2])
-        landed = pose[:2] + pts @ np.array([[c, sn], [-sn, c]])
-        reach = np.hypot(*pts.T).max() * cfg.anchor_turn + cfg.anchor_window + 0.5
-        lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
-        ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
-        if len(ref) < cfg.min_points:
+        searched = _search(ref, capped, pose, config.anchor_window, config.anchor_turn, config)
+        if searched is None:
             return None
-        coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-
-        def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
-            return LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
-
-        found = correlative_search(
-            coarse,
-            fine_over,
-            pts,
-            pose,
-            window=cfg.anchor_window,
-            turn=cfg.anchor_turn,
-            turn_step=cfg.turn_step,
-            coarse_voxel=cfg.coarse_voxel,
-            fine_resolution=cfg.fine,
-        )
-        return between(pose, found.pose), found.inliers
+        return between(pose, searched[0].pose), searched[0].inliers
 
     def seen(
         self, query: np.ndarray, pose: np.ndarray, a: int, refs: np.ndarray, poses: np.ndarray
