@@ -83,7 +83,7 @@ def map_command(
     """
     # on use: the matcher (numba) and pandas load for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
-    from toolkit.app.entry import imports_kept
+    from toolkit.app.startup import imports_kept
 
     with imports_kept():
         from toolkit.mapping import map_run
