@@ -216,3 +216,45 @@ def test_tum_is_numpy_savetxt_byte_for_byte(
     table = np.column_stack([t, poses[:, :2], zero, zero, zero, np.sin(half), np.cos(half)])
     np.savetxt(tmp_path / "b.tum", table, fmt=["%.6f"] + ["%.9f"] * 7, delimiter=" ")
     assert (tmp_path / "a.tum").read_bytes() == (tmp_path / "b.tum").read_bytes()
+
+
+def test_occupancy_tracing_equals_plain_bresenham_in_every_direction() -> None:
+    """The tracing's fast path (both ends on the grid: the major axis counted, the minor
+    step's test alone) against plain Bresenham on beams in every direction: steep and
+    shallow, both signs, diagonal, along the axes, within one cell, off the grid."""
+    rng = np.random.default_rng(15)
+    res, reach = 0.1, 6.0
+    angles = np.concatenate([np.linspace(-np.pi, np.pi, 73), [0.0, np.pi / 4, -np.pi / 2]])
+    for trial in range(30):
+        lp = np.column_stack(
+            [rng.uniform(0.5, 6.5, 8), rng.uniform(0.5, 5.5, 8), rng.uniform(-np.pi, np.pi, 8)]
+        )
+        lp[0, 2] = 0.0  # beams along the axes and the diagonals exactly
+        ranges = rng.uniform(0.0, 7.0, (8, len(angles))).astype(np.float32)
+        ranges[:, :3] = [0.0, 0.04, np.inf]  # no length, one cell, no return
+        args = (lp, ranges, angles, np.zeros(2), res, reach, 2.5 if trial % 2 else 0.0)
+        grids = [np.zeros((61, 71), np.int32) for _ in range(4)]
+        render._trace(*args, grids[0], grids[1])
+        _trace_reference(*args, grids[2], grids[3])
+        assert np.array_equal(grids[0], grids[2]) and np.array_equal(grids[1], grids[3])
+    assert grids[1].sum() > 1000
+
+
+def test_clouds_in_chunks_are_the_same_bytes(dataset: toolkit.Dataset, tmp_path: Path) -> None:
+    """write_clouds fills one pair of buffers chunk after chunk: the files are the header
+    and every chunk's vertices, whatever the chunk size."""
+    robot = truth_poses(dataset)
+    assert robot is not None
+    files = {}
+    for chunk in (37, 10**6):
+        paths = [tmp_path / f"{chunk}.ply", tmp_path / f"{chunk}.pcd"]
+        n = mapping.write_clouds(paths, dataset, robot, chunk=chunk)
+        files[chunk] = [p.read_bytes() for p in paths]
+    span = (float(dataset.t[0]), float(dataset.t[-1]))
+    ply, pcd = mapping.cloud_chunk(dataset, robot, slice(0, dataset.n_scans), span)
+    assert n == len(ply) > 1000
+    assert files[37] == files[10**6]
+    assert files[37] == [
+        writers.ply_header(n) + ply.tobytes(),
+        writers.pcd_header(n) + pcd.tobytes(),
+    ]

@@ -62,9 +62,12 @@ from toolkit.writers import (
 if TYPE_CHECKING:
     from toolkit.slam.run import SlamRun
 
-# scans per chunk of the cloud writers: ~20 MB of vertices at 361 beams; larger chunks cost
-# more in fresh memory pages than they save in calls (3x slower at 20,000)
-CLOUD_CHUNK = 2_000
+# scans per chunk of the cloud writers: ~2.5 MB of vertices at 361 beams, in two buffers
+# filled again chunk after chunk (`write_clouds`). The bytes cost what fresh memory costs:
+# 2,000 scans a chunk (~40 MB of fresh pages for the buffers) made the clouds 0.25-0.3 s of
+# CPU on a 5,000 x 361 log in a new process, 256 scans 0.04-0.07 s (docs/benchmarks.md,
+# session 15); 100 or 500 about the same
+CLOUD_CHUNK = 256
 
 #: Threads that write a run's outputs side by side (`map_run`): the clouds, map.png and the
 #: occupancy grid, the three long ones, each on its own.
@@ -80,16 +83,26 @@ def cloud_rows(
 
 
 def cloud_chunk(
-    ds: Dataset, robot: np.ndarray, part: slice, t_span: tuple[float, float], pcd: bool = True
+    ds: Dataset,
+    robot: np.ndarray,
+    part: slice,
+    t_span: tuple[float, float],
+    pcd: bool = True,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The returns of scans `part` as PLY vertices (`cloud_rows`) and, with `pcd`, as PCD
     points (`toolkit.writers.PCD`; else an empty array), filled in one pass by a numba kernel:
     the positions by `world_points`' arithmetic and the colour by `viridis`' (the same
-    bytes as those numpy functions give, without their N x 2 and N x 3 temporaries)."""
+    bytes as those numpy functions give, without their N x 2 and N x 3 temporaries). `out`:
+    CLOUD and PCD buffers to fill (their first rows; the PCD one may be empty without
+    `pcd`), returned as views of the rows filled, instead of new arrays."""
     ranges = ds.ranges[part]
     n = int(np.count_nonzero(np.isfinite(ranges)))
-    ply = np.empty(n, CLOUD)
-    points = np.empty(n if pcd else 0, PCD)
+    if out is None:
+        ply = np.empty(n, CLOUD)
+        points = np.empty(n if pcd else 0, PCD)
+    else:
+        ply, points = out[0][:n], out[1][: n if pcd else 0]
     t0, t1 = t_span
     _cloud_vertices(
         ranges, beam_frame(robot[part], ds.laser), float(ds.laser.z), ds.t[part], t0,
@@ -180,15 +193,19 @@ def write_clouds(
             with open(path, "wb") as f:
                 (write_pcd if pcd else write_ply)(f, merged)
         return len(merged)
-    total = int(
-        sum(np.count_nonzero(np.isfinite(ds.ranges[p])) for p in scan_chunks(ds.n_scans, chunk))
-    )
+    counts = [
+        int(np.count_nonzero(np.isfinite(ds.ranges[p]))) for p in scan_chunks(ds.n_scans, chunk)
+    ]
+    total = sum(counts)
+    # one pair of buffers for every chunk: their pages are touched once and stay in cache
+    most = max(counts, default=0)
+    buffers = (np.empty(most, CLOUD), np.empty(most if any(kinds) else 0, PCD))
     with ExitStack() as stack:
         files = [stack.enter_context(open(p, "wb")) for p in paths]
         for f, pcd in zip(files, kinds, strict=True):
             f.write(pcd_header(total) if pcd else ply_header(total))
         for part in scan_chunks(ds.n_scans, chunk):
-            rows, points = cloud_chunk(ds, robot, part, span, pcd=any(kinds))
+            rows, points = cloud_chunk(ds, robot, part, span, pcd=any(kinds), out=buffers)
             for f, pcd in zip(files, kinds, strict=True):
                 (points if pcd else rows).tofile(f)
     return total

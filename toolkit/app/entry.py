@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import gc
 
+from toolkit.app.startup import imports_kept
+
 
 def main() -> None:
     """Install the signal handlers before typer, numpy or pandas load, so that Ctrl-C or
@@ -29,7 +31,8 @@ def main() -> None:
 
     signals.install()
     try:
-        from toolkit.app.cli import main as cli_main
+        with imports_kept():
+            from toolkit.app.cli import main as cli_main
     except KeyboardInterrupt:
         signals.exit_stopped()
         return

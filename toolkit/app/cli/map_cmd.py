@@ -4,6 +4,7 @@ or `toolkit map DATASET... --out DIR` (several datasets, a fleet's tree, a quote
 from __future__ import annotations
 
 import glob
+import importlib
 from pathlib import Path
 from typing import Annotated
 
@@ -80,11 +81,17 @@ def map_command(
     cloud.pcd, map.png, map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with
     loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
     """
-    # on use: the matcher (numba) and pandas load for `map` alone
-    from toolkit.mapping import map_run
-    from toolkit.poses import Method
+    # on use: the matcher (numba) and pandas load for `map` alone, with loops also the loop
+    # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
+    from toolkit.app.startup import imports_kept
 
-    method = Method.parse(method)
+    with imports_kept():
+        from toolkit.mapping import map_run
+        from toolkit.poses import Method
+
+        method = Method.parse(method)
+        if loops and method != Method.ODOMETRY:
+            importlib.import_module("toolkit.slam.run")
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
     if each or _many(datasets):
