@@ -19,12 +19,12 @@ from toolkit.dataset import load
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses
 from toolkit.sim import simulate
-from toolkit.slam.localmap import standing, start_velocity
+from toolkit.slam.localmap import MotionMatcher, standing, start_velocity
 from toolkit.slam.run import slam_trajectory
 
 
-def _mapped_ate(fmt: str, seed: int, tmp_path: Path) -> float:
-    sim = simulate("corridor", seed=seed)
+def _mapped_ate(fmt: str, seed: int, tmp_path: Path, scenario: str = "corridor") -> float:
+    sim = simulate(scenario, seed=seed)
     sim = replace(sim, dataset=replace(sim.dataset, odometry=None))
     out = tmp_path / "sim"
     if fmt == "rosbag":
@@ -47,6 +47,35 @@ def test_lms200_capture_of_the_corridor_maps_within_half_a_metre(tmp_path: Path)
 
 def test_bag_without_odometry_of_the_corridor_maps_within_half_a_metre(tmp_path: Path) -> None:
     assert _mapped_ate("rosbag", 14, tmp_path) <= 0.5
+
+
+@pytest.mark.parametrize(
+    ("scenario", "fmt", "seed"), [("corridor", "lms200", 11), ("building", "rosbag", 3)]
+)
+def test_logs_that_lost_speed_along_a_corridor_map_within_half_a_metre(
+    scenario: str, fmt: str, seed: int, tmp_path: Path
+) -> None:
+    # development seeds (0-14) that missed 0.5 m before the forward probe: corridor seed 11 at
+    # 0.76 m, building seed 3 at 0.58 m (the velocity random-walked down along a corridor)
+    assert _mapped_ate(fmt, seed, tmp_path, scenario) <= 0.5
+
+
+def test_the_velocity_keeps_its_speed_where_the_fit_does_not_observe_the_axis() -> None:
+    # corridor seed 9 (development): over its first corridor stretch the fit keeps a forward
+    # offset of its seed (response about 0), and without the probe the filtered velocity fell
+    # to 0.51 of the robot's speed by scan 72 (0.74 on average over scans 10-150)
+    ds = replace(simulate("corridor", seed=9).dataset, odometry=None)
+    truth = truth_poses(ds)
+    assert truth is not None
+    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    matcher = MotionMatcher(ds.laser, step=start_velocity(ds))
+    response, velocity = [], []
+    for k in range(300):
+        matcher.push_predicted(ds.ranges[k], float(ds.t[k]))
+        response.append(matcher.response)
+        velocity.append(matcher._step[0])
+    assert np.median(response[10:110]) < 0.2
+    assert min(velocity) > 0.85 * speed
 
 
 @pytest.mark.parametrize("scenario", ["corridor", "building"])

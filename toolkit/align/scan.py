@@ -770,11 +770,54 @@ class StreamMatcher:
         arrays = (self._key_scan, self._work, self._cos, self._sin, self._params)
         return sum(a.nbytes for a in arrays) + 8 * (3 + 3 + 3 + 3 + 9 + 3)
 
-    def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
-        """Take the next scan and the odometry's robot pose at it; return the robot pose."""
+    def _scan(self, ranges: np.ndarray) -> np.ndarray:
         scan = np.asarray(ranges, dtype=np.float32)
         if scan.shape != (self.laser.beams,):
             raise ValueError(f"a scan of {self.laser.beams} beams expected, got {scan.shape}")
+        return np.ascontiguousarray(scan)
+
+    def _match(
+        self,
+        scan: np.ndarray,
+        odo: np.ndarray,
+        out_pose: np.ndarray,
+        out_cov: np.ndarray,
+        out_stats: np.ndarray,
+    ) -> np.ndarray:
+        """`scan` matched against the keyframe, seeded by the odometry's pose `odo`; the
+        kernel's results go to the out arrays; returns the robot pose."""
+        robot_seed = se2.between(self._key_odometry[None], odo[None])
+        seed = np.ascontiguousarray(se2.laser_motion(robot_seed, self.laser)[0])
+        _match_pair(
+            self._key_scan,
+            scan,
+            self._cos,
+            self._sin,
+            float(self.laser.angle_min),
+            float(self.laser.angle_increment),
+            seed,
+            self._params,
+            out_pose,
+            out_cov,
+            out_stats,
+            self._work,
+        )
+        step = se2.robot_motion(out_pose[None], self.laser)[0]
+        pose = np.empty(3)
+        se2_jit.compose_into(self._key_pose, step, pose)
+        return pose
+
+    def probe(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+        """The robot pose `push` would return for this scan and odometry, without taking the
+        scan: no keyframe change, `pose`, `covariance` and `stats` untouched."""
+        if not self._started:
+            raise ValueError("probe needs a keyframe: push a scan first")
+        odo = np.asarray(odometry, dtype=np.float64).reshape(3)
+        return self._match(self._scan(ranges), odo, np.empty(3), np.empty((3, 3)), np.empty(4))
+
+    def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+        """Take the next scan and the odometry's robot pose at it; return the robot pose."""
+        scan = self._scan(ranges)
         odo = np.asarray(odometry, dtype=np.float64).reshape(3)
         if not self._started:
             self._started = True
@@ -782,25 +825,7 @@ class StreamMatcher:
             self._key_odometry[:] = odo
             self._key_pose[:] = odo
             return odo.copy()
-        robot_seed = se2.between(self._key_odometry[None], odo[None])
-        seed = np.ascontiguousarray(se2.laser_motion(robot_seed, self.laser)[0])
-        _match_pair(
-            self._key_scan,
-            np.ascontiguousarray(scan),
-            self._cos,
-            self._sin,
-            float(self.laser.angle_min),
-            float(self.laser.angle_increment),
-            seed,
-            self._params,
-            self.pose,
-            self.covariance,
-            self.stats,
-            self._work,
-        )
-        step = se2.robot_motion(self.pose[None], self.laser)[0]
-        pose = np.empty(3)
-        se2_jit.compose_into(self._key_pose, step, pose)
+        pose = self._match(scan, odo, self.pose, self.covariance, self.stats)
         cfg = self.config
         if se2_jit.is_keyframe(odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle):
             self._key_scan[:] = scan
