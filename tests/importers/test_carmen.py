@@ -9,6 +9,7 @@ import gzip
 import math
 import re
 import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -670,7 +671,7 @@ def test_cli_bad_input_is_one_line_and_no_output(
 
 
 def test_cli_subprocess_auto_on_dpslam(real: Path, tmp_path: Path) -> None:
-    exe = ROOT / ".venv" / "bin" / "toolkit"
+    exe = Path(sys.executable).parent / "toolkit"  # the console script of the venv running the tests
     out = tmp_path / "loop5"
     run = subprocess.run([str(exe), "import", "auto", str(real / "dpslam_loop5" / "loop5.log"), "--out", str(out)],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
