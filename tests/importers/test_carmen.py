@@ -34,7 +34,6 @@ from toolkit.dataset import Dataset, LaserGeometry, load
 from toolkit.errors import FormatError
 from toolkit.sim import Simulation
 
-ROOT = Path(__file__).resolve().parents[2]
 RADISH = "carmen_radish_corrected"
 RADISH_LOGS = [
     "acapulco",
@@ -671,7 +670,8 @@ def test_cli_bad_input_is_one_line_and_no_output(
 
 
 def test_cli_subprocess_auto_on_dpslam(real: Path, tmp_path: Path) -> None:
-    exe = Path(sys.executable).parent / "toolkit"  # the console script of the venv running the tests
+    # the console script of the venv running the tests
+    exe = Path(sys.executable).parent / "toolkit"
     out = tmp_path / "loop5"
     run = subprocess.run([str(exe), "import", "auto", str(real / "dpslam_loop5" / "loop5.log"), "--out", str(out)],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
