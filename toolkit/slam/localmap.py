@@ -50,6 +50,7 @@ VELOCITY_GAIN = 0.3  # share of a scan's matched motion taken into the velocity 
 START_SCANS = 300  # scans of the first pass that gives the start velocity
 PROBE_SHIFT = 0.05  # m: the prediction moved this far forward and back to see whether the fit
 # observes forward motion (0: no probe; the forward velocity filtered like the rest)
+PROBE_EVERY = 3  # scans: the probe's response measured on every third scan, kept in between
 REST_CHANGE = 0.1  # m: a beam whose range moved this much since the first scan (or whose
 # return came or went) has seen motion ...
 REST_SHARE = 0.02  # ... and a scan with more such beams than this share is not at rest
@@ -70,6 +71,7 @@ class MotionMatcher(sc.StreamMatcher):
         step: np.ndarray | None = None,
         gain: float = VELOCITY_GAIN,
         probe: float = PROBE_SHIFT,
+        probe_every: int = PROBE_EVERY,
     ) -> None:
         super().__init__(laser, config)
         self._last = np.zeros(3)
@@ -77,6 +79,8 @@ class MotionMatcher(sc.StreamMatcher):
         self._known = step is not None  # a velocity to filter the matched motion into
         self.gain = gain
         self.probe_shift = probe
+        self.probe_every = max(1, probe_every)
+        self._probed = 0  # scans since the last probe
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
         self._dt = 0.0
         self._t: float | None = None
@@ -100,7 +104,9 @@ class MotionMatcher(sc.StreamMatcher):
         else:  # the "odometry" is the corrected frame: the keyframe's pose is its own odometry
             self._key_odometry[:] = self._key_pose
         if not first and self._known and self.probe_shift > 0:
-            self.response = self._forward_response(ranges, predicted)
+            if self._probed % self.probe_every == 0:
+                self.response = self._forward_response(ranges, predicted)
+            self._probed += 1
         pose = self.push(ranges, predicted)
         if not first:
             if t is not None and self._t is not None:
