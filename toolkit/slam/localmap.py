@@ -114,8 +114,7 @@ class MotionMatcher(sc.StreamMatcher):
             moved = se2.between(self._last[None], pose[None])[0]
             if self._known:
                 gain = np.full(3, self.gain)
-                if self.probe_shift > 0:
-                    gain[0] *= self.response
+                gain[0] *= self.response  # 1.0 without the probe
                 self._step = self._step + gain * (moved - self._step)
             else:
                 self._step, self._known = moved, True
@@ -127,12 +126,11 @@ class MotionMatcher(sc.StreamMatcher):
         """The share (0..1) of a `probe_shift` forward offset of the prediction that the fit
         takes out: the scan fitted from the prediction moved forward and moved back."""
         d = self.probe_shift
-        ends = []
-        for shift in (-d, d):
-            seed = se2.compose(predicted[None], np.array([[shift, 0.0, 0.0]]))[0]
-            fitted = self.probe(ranges, seed)
-            ends.append(se2.between(predicted[None], fitted[None])[0, 0])
-        kept = (ends[1] - ends[0]) / (2 * d)  # 1: the fit kept the offset; 0: took it out
+        around = np.broadcast_to(predicted, (2, 3))
+        seeds = se2.compose(around, np.array([[-d, 0.0, 0.0], [d, 0.0, 0.0]]))
+        fitted = np.array([self.probe(ranges, seed) for seed in seeds])
+        back, ahead = se2.between(around, fitted)[:, 0]
+        kept = (ahead - back) / (2 * d)  # 1: the fit kept the offset; 0: took it out
         return float(min(max(1.0 - kept, 0.0), 1.0))
 
 
