@@ -265,6 +265,7 @@ def class_scores(
                 poses,
                 cfg.local_map,
                 cfg.ahead(model.laser),
+                cfg.opening,
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if cfg.beam_term:

@@ -146,6 +146,9 @@ class Config:
     augment_closed: float = 1.0  # weight of the taught scans' copies with the less open
     # side of the path walled at the log's usual distance from a wall (augment.py: a hall
     # open on both sides taught, one open on one side met; 0: none)
+    opening: bool = False  # also the opening beside the robot: the length along the path
+    # of the gap in each side wall the laser is beside and the depth behind it, from the end
+    # points of the scans around it (descriptors.opening: a door's gap is of door width)
     augment_open: float = 1.0  # weight of their copies with the less open side opened (the
     # more open side mirrored onto it: a hall open on one side taught, one open on both met;
     # left out where the context is off; 0: none, session 12's default; docs/places.md,
