@@ -316,9 +316,12 @@ def slug(heading: str) -> str:
     return text.replace(" ", "-")
 
 
+#: the journals (docs/journal/) keep old commands as they were run: their links are checked,
+#: not their code
+JOURNALS = sorted((ROOT / "docs" / "journal").glob("*.md"))
 LINKS = [
     (page, target)
-    for page in PAGES
+    for page in [*PAGES, *JOURNALS]
     for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text())
     if not re.match(r"^[a-z]+:", target)  # http:, https:, mailto:
 ]
