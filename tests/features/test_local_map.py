@@ -8,7 +8,7 @@ import numpy as np
 
 from toolkit.features import Config, fit
 from toolkit.features.classify import classify
-from toolkit.features.descriptors import local_map, local_names, path_length
+from toolkit.features.descriptors import local_map, local_names, opening, path_length
 from toolkit.features.metrics import balanced_accuracy
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import simulate
@@ -75,3 +75,20 @@ def test_sparse_scans_get_the_local_map_instead_of_the_context() -> None:
     assert model.config.augment_open == 0.0 and "no opened copies" in model.fit_report["context"]
     off = fit(ds.ranges[every], ds.laser, training, Config(sparse_local_map=0.0), None, poses)
     assert off.config.local_map == 0.0
+
+
+def test_the_opening_is_of_door_width_at_a_door_and_none_a_metre_on() -> None:
+    """The gap beside the robot (`opening`) on a random world (seed 0): at a door a gap of
+    door width (0.9 m) with the room's depth behind it, in a corner or a hall metres wide,
+    and in the corridor a metre or more from a door none (the context still holds the door
+    there, the opening does not)."""
+    sim = simulate("random", seed=0)
+    ds, truth = sim.dataset, np.asarray(sim.labels).astype(str)
+    along = path_length(ds.n_scans, _poses(sim))
+    x = opening(ds.ranges, ds.laser, _poses(sim), along)
+    assert x.shape == (ds.n_scans, 3) and np.isfinite(x).all()
+    door = truth == "door"
+    away = np.array([np.abs(along[door] - a).min() > 1.0 for a in along]) & (truth == "corridor")
+    assert 0.2 <= np.median(x[door, 0]) <= 1.0 and np.median(x[door, 2]) > np.log(3.0)
+    assert np.median(x[truth == "hall", 0]) >= 2.0 and np.median(x[truth == "corner", 0]) > 1.0
+    assert np.mean(x[away, 0] == 0) > 0.95

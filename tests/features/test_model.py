@@ -193,6 +193,25 @@ def test_forward_filter_is_causal_and_smoothing_fixes_isolated_errors() -> None:
     assert not np.allclose(smooth(changed, eps, "forward-backward")[:120], both[:120])
 
 
+def test_dwell_stages_leave_out_short_stays_and_keep_long_ones() -> None:
+    """With two states per place a stay of a few scans (a false door) costs more than with
+    the geometric dwell, a long one is kept; one stage is the plain HMM; forward is causal."""
+    truth = np.repeat([0, 1, 0, 1, 0], [100, 6, 100, 60, 100])
+    emit = np.full((len(truth), 2), 0.35)
+    emit[np.arange(len(truth)), truth] = 0.65
+    eps = np.full(len(truth), 0.02)
+    one, two = smooth(emit, eps, "forward-backward"), smooth(emit, eps, "forward-backward", 2)
+    assert np.allclose(one, smooth(emit, eps, "forward-backward", 1))
+    assert np.allclose(two.sum(axis=1), 1.0)
+    short, long = slice(100, 106), slice(206, 266)
+    assert two[short, 1].mean() < one[short, 1].mean()
+    assert (two[long].argmax(axis=1) == 1).mean() > 0.9
+    changed = emit.copy()
+    changed[150:] = 0.5
+    fwd = smooth(emit, eps, "forward", 2)
+    assert np.allclose(smooth(changed, eps, "forward", 2)[:150], fwd[:150])
+
+
 def test_standing_still_adds_no_evidence(world) -> None:  # type: ignore[no-untyped-def]
     """With an evidence length, a robot that stops and scans the same spot five times over is
     no surer of its place than one that scanned it once; without it the HMM counts the view

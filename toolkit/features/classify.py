@@ -92,6 +92,67 @@ def _forward_backward(
     return alpha
 
 
+@numba.njit(cache=True)
+def _forward_backward_stages(
+    emit: np.ndarray, eps: np.ndarray, stages: int, backward: bool
+) -> np.ndarray:  # pragma: no cover - numba
+    """`_forward_backward` with each place a chain of `stages` states: a step moves on to
+    the next state with probability eps, and on from the last one to the first state of any
+    place alike (eps / K each, itself included), so a place lasts `stages` switching lengths
+    on average and a stay much shorter than one is unlikely (an Erlang dwell, not a
+    geometric one). The posterior of a place sums its states."""
+    s, k = emit.shape
+    n = stages
+    m = k * n
+    alpha = np.empty((s, m))
+    prev = np.full(m, 1.0 / m)
+    for t in range(s):
+        e = eps[t]
+        leave = 0.0
+        for j in range(k):
+            leave += prev[j * n + n - 1] * e
+        total = 0.0
+        for j in range(k):
+            for q in range(n):
+                i = j * n + q
+                a = prev[i] * (1.0 - e) + (prev[i - 1] * e if q > 0 else leave / k)
+                a *= emit[t, j]
+                alpha[t, i] = a
+                total += a
+        for i in range(m):
+            alpha[t, i] /= total
+            prev[i] = alpha[t, i]
+    out = np.empty((s, k))
+    beta = np.ones(m)
+    nxt = np.empty(m)
+    for t in range(s - 1, -1, -1):
+        if backward and t < s - 1:
+            e = eps[t + 1]
+            enter = 0.0
+            for j in range(k):
+                enter += emit[t + 1, j] * beta[j * n]
+            total = 0.0
+            for j in range(k):
+                for q in range(n):
+                    i = j * n + q
+                    stay = (1.0 - e) * emit[t + 1, j] * beta[i]
+                    on = emit[t + 1, j] * beta[i + 1] if q < n - 1 else enter / k
+                    nxt[i] = stay + e * on
+                    total += nxt[i]
+            for i in range(m):
+                beta[i] = nxt[i] / total
+        total = 0.0
+        for j in range(k):
+            v = 0.0
+            for q in range(n):
+                v += alpha[t, j * n + q] * beta[j * n + q]
+            out[t, j] = v
+            total += v
+        for j in range(k):
+            out[t, j] /= total
+    return out
+
+
 def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.ndarray:
     """Per scan, the probability that the place changed since the previous scan: grows with
     the distance travelled (and turned, 1 rad ~ 1 m) along the trajectory."""
@@ -126,13 +187,15 @@ def evidence_weights(config: Config, n: int, poses: np.ndarray | None) -> np.nda
     return np.nan_to_num(np.clip(step / config.evidence_length, 0.0, 1.0), nan=1.0)
 
 
-def smooth(emit: np.ndarray, eps: np.ndarray, how: str) -> np.ndarray:
-    """HMM over places: forward filter (the map so far) or forward-backward."""
+def smooth(emit: np.ndarray, eps: np.ndarray, how: str, stages: int = 1) -> np.ndarray:
+    """HMM over places: forward filter (the map so far) or forward-backward; with `stages`
+    > 1, each place a chain of that many states (`_forward_backward_stages`)."""
     if how == "none":
         return emit
-    return _forward_backward(
-        np.ascontiguousarray(emit), np.ascontiguousarray(eps), how != "forward"
-    )
+    emit, eps = np.ascontiguousarray(emit), np.ascontiguousarray(eps)
+    if stages > 1:
+        return _forward_backward_stages(emit, eps, stages, how != "forward")
+    return _forward_backward(emit, eps, how != "forward")
 
 
 # ---------------------------------------------------------------- the whole classification
@@ -157,7 +220,8 @@ def classify(
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)
     if cfg.smoothing != "none":
-        prob = smooth(prob, switch_probability(cfg, len(prob), poses), cfg.smoothing)
+        eps = switch_probability(cfg, len(prob), poses)
+        prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -201,6 +265,7 @@ def class_scores(
                 poses,
                 cfg.local_map,
                 cfg.ahead(model.laser),
+                cfg.opening,
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if cfg.beam_term:

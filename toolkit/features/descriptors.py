@@ -526,13 +526,15 @@ def features(
     poses: np.ndarray | None = None,
     local: float = 0.0,
     ahead: float | None = None,
+    gap: bool = False,
 ) -> np.ndarray:
     """The classifier's input for scans `rows` (default all) of a log: their descriptors
     `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
     `context` metres of path (`along`, see `path_length`) before and `ahead` (default
     `context`; see `context_ahead`) after each; only the scans those windows reach are
     described. `strip`: see `describe`. With `local` > 0, the descriptors of the local map of
-    the scans within `local` metres of path (`local_map`, drawn by `poses`) follow."""
+    the scans within `local` metres of path (`local_map`, drawn by `poses`) follow; with
+    `gap`, the opening beside the robot (`opening`)."""
     rows = rows or slice(0, len(ranges))
     if context <= 0:
         x = describe(ranges[rows], laser, strip)[:, columns]
@@ -542,9 +544,11 @@ def features(
         own = np.arange(len(lo)) + (rows.start or 0) - first
         x = describe(ranges[first:last], laser, strip)[:, columns]
         x = with_context(x, lo - first, hi - first, own)
-    if local <= 0:
-        return x
-    return np.hstack([x, local_map(ranges, laser, poses, along, local, rows)])
+    if local > 0:
+        x = np.hstack([x, local_map(ranges, laser, poses, along, local, rows)])
+    if gap:
+        x = np.hstack([x, opening(ranges, laser, poses, along, rows, strip)])
+    return x
 
 
 # ------------------------------------------------------- the local map along the path
@@ -627,6 +631,75 @@ def local_map(
         polar,
     )
     return _local_finish(lateral, polar)
+
+
+#: scans (evenly spaced over `LOCAL_REACH` of path either side, every beam) whose end
+#: points show the side walls' openings beside the robot (`opening`)
+OPENING_SCANS = 9
+OPENING_NAMES = ("opening_run_more", "opening_run_other", "opening_log_depth")
+
+
+def opening(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray | None,
+    along: np.ndarray,
+    rows: slice | None = None,
+    strip: float = BESIDE,
+) -> np.ndarray:
+    """The opening the robot stands beside, per side (`OPENING_NAMES`): the length along the
+    path (m) of the run of open bins of the local map's lateral profile (`local_map`: nearest
+    end point beyond `LOCAL_OPEN`) that meets the strip of `strip` m ahead and behind the
+    laser, the longer side's first (0: a wall there), and the log of the median lateral
+    reach in that run (the depth behind the gap; its wall's where there is none). A door is
+    a gap of door width in one side wall right beside the robot with a room behind it; a
+    side corridor's mouth or a hall's edge is metres wide, and a scan a metre past a door
+    has a wall beside it: a single 180-degree scan sees neither the gap's length nor what
+    is beside and behind the laser, the scans before and after it do."""
+    rows = rows or slice(0, len(ranges))
+    lo, hi = context_windows(along, LOCAL_REACH, rows)
+    own = np.arange(rows.start or 0, (rows.start or 0) + len(lo))
+    n = len(ranges)
+    pose = np.zeros((n, 3)) if poses is None or len(poses) != n else np.nan_to_num(poses)
+    bearing = laser.angles + laser.yaw
+    nbin = round(2 * LOCAL_REACH / LOCAL_BIN)
+    lateral = np.empty((len(lo), 2, nbin))
+    polar = np.empty((len(lo), 4, 4))
+    _local_points(
+        np.ascontiguousarray(ranges, dtype=np.float32),
+        np.arange(laser.beams),
+        np.cos(bearing),
+        np.sin(bearing),
+        laser.x,
+        laser.y,
+        np.ascontiguousarray(pose, dtype=np.float64),
+        lo,
+        hi,
+        own,
+        OPENING_SCANS,
+        LOCAL_REACH,
+        LOCAL_FAR,
+        lateral,
+        polar,
+    )
+    centre = (np.arange(nbin) + 0.5) * LOCAL_BIN - LOCAL_REACH
+    near = np.abs(centre) < strip + LOCAL_BIN / 2  # the bins that meet the strip
+    open_ = lateral > LOCAL_OPEN
+    # each open bin's run: the index of the run's first bin (-1: a closed bin)
+    first_bin = open_ & ~np.concatenate([np.zeros_like(open_[..., :1]), open_[..., :-1]], axis=2)
+    label = np.where(
+        open_, np.maximum.accumulate(np.where(first_bin, np.arange(nbin), -1), axis=2), -1
+    )
+    same = (label[..., :, None] == label[..., None, :]) & open_[..., :, None]
+    length = np.where(open_ & near, same.sum(axis=3) * LOCAL_BIN, 0.0)  # (S, 2, N)
+    best = length.argmax(axis=2)
+    run = np.take_along_axis(length, best[..., None], axis=2)[..., 0]
+    chosen = np.take_along_axis(label, best[..., None], axis=2)
+    inside = np.where((run > 0)[..., None], label == chosen, near)  # the run, or the strip
+    depth = np.log(np.maximum(np.nanmedian(np.where(inside, lateral, np.nan), axis=2), 0.05))
+    more = (run[:, 1] > run[:, 0]) | ((run[:, 1] == run[:, 0]) & (depth[:, 1] > depth[:, 0]))
+    i, m = np.arange(len(run)), more.astype(int)
+    return np.column_stack([run[i, m], run[i, 1 - m], depth[i, m]])
 
 
 def _local_finish(lateral: np.ndarray, polar: np.ndarray) -> np.ndarray:

@@ -75,6 +75,10 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: without the taught scans' opened copies (augment_open 0: session 12's default)", dataclasses.replace(FULL, augment_open=0.0)),
     ("alternative: the context 1 m of scans either side (context_seen off: session 11's default)", dataclasses.replace(FULL, context_seen=False)),
     ("alternative: + the no-returns ahead of the place (glass_ahead: the return fraction, the no-return share at 30-60 degrees; session 13's default)", dataclasses.replace(FULL, glass_ahead=True)),
+    ("alternative: + the HMM's dwell of two stages per place (dwell_stages 2: a place lasts two switching lengths, a stay of a few scans is unlikely)", dataclasses.replace(FULL, dwell_stages=2)),
+    ("alternative: + the opening beside the robot (opening: the gap's length along the path and its depth, from the scans around)", dataclasses.replace(FULL, opening=True)),
+    ("alternative: + the opening and the dwell of two stages", dataclasses.replace(FULL, opening=True, dwell_stages=2)),
+    ("alternative: + the opening and the dwell of three stages", dataclasses.replace(FULL, opening=True, dwell_stages=3)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -212,7 +212,7 @@ def _fit_places(
     ahead = config.ahead(laser)
     x = features(
         ranges, laser, columns, along, config.context, None, config.beside, poses,
-        config.local_map, ahead,
+        config.local_map, ahead, config.opening,
     )  # fmt: skip
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
@@ -230,7 +230,7 @@ def _fit_places(
             copied = copy(ranges, laser)
             xa = features(
                 copied, laser, columns, along, config.context, None, config.beside, poses,
-                config.local_map, ahead,
+                config.local_map, ahead, config.opening,
             )  # fmt: skip
             new = changed(ranges[idx], copied[idx], laser)  # not the scan again
             extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))

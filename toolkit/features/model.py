@@ -103,6 +103,9 @@ class Config:
         "forward-backward"  # Eq. 7 offline; "forward": causal (streaming); "none"
     )
     place_length: float = 1.0  # m travelled per expected change of place (HMM switching)
+    dwell_stages: int = 1  # states per place in the HMM, each left after `place_length` on
+    # average: a place lasts this many switching lengths, and a stay much shorter than one
+    # (a few scans of a false door) is unlikely (1: the geometric dwell, every length alike)
     evidence_length: float | None = 0.5  # m: in the HMM, one scan's evidence per this distance
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
@@ -143,6 +146,9 @@ class Config:
     augment_closed: float = 1.0  # weight of the taught scans' copies with the less open
     # side of the path walled at the log's usual distance from a wall (augment.py: a hall
     # open on both sides taught, one open on one side met; 0: none)
+    opening: bool = False  # also the opening beside the robot: the length along the path
+    # of the gap in each side wall the laser is beside and the depth behind it, from the end
+    # points of the scans around it (descriptors.opening: a door's gap is of door width)
     augment_open: float = 1.0  # weight of their copies with the less open side opened (the
     # more open side mirrored onto it: a hall open on one side taught, one open on both met;
     # left out where the context is off; 0: none, session 12's default; docs/places.md,
@@ -162,6 +168,8 @@ class Config:
                 raise ToolkitError(f"{name} {value!r}: use one of {', '.join(allowed)}")
         if not 0.0 <= self.robust < 1.0:
             raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
+        if self.dwell_stages < 1:
+            raise ToolkitError(f"dwell_stages {self.dwell_stages}: at least 1")
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
