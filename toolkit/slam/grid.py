@@ -1030,12 +1030,49 @@ def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
     """One point per `size` m cell (the first), in the points' order."""
     if len(points) == 0:
         return points
-    cells = np.floor(points / size).astype(np.int64)
-    cells -= cells.min(axis=0)
-    code = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # one int per cell
-    _, first = np.unique(code, return_index=True)
-    out: np.ndarray = points[np.sort(first)]
-    return out
+    keep = None
+    if points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 2:
+        keep = _first_in_cell(np.ascontiguousarray(points), size, _VOXEL_TABLE)
+    if keep is None:  # cells too many for a table: sort their codes instead
+        cells = np.floor(points / size).astype(np.int64)
+        cells -= cells.min(axis=0)
+        code = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # one int per cell
+        _, first = np.unique(code, return_index=True)
+        out: np.ndarray = points[np.sort(first)]
+        return out
+    kept: np.ndarray = points[keep]
+    return kept
+
+
+_VOXEL_TABLE = 1 << 22  # most cells of `voxel_subsample`'s bounding box for its table
+
+
+@nb.njit(cache=True, nogil=True)
+def _first_in_cell(pts: np.ndarray, size: float, most: int) -> np.ndarray | None:
+    """Which of `pts` (N x 2) is the first in its `size` m cell: a table over the cells of
+    their bounding box (None when it has more than `most` cells), in one pass, instead of
+    a sort of the cells' codes (the same points: the first of each cell, in order)."""
+    n = pts.shape[0]
+    cells = np.empty((n, 2), dtype=np.int64)
+    for k in range(n):
+        cells[k, 0] = math.floor(pts[k, 0] / size)
+        cells[k, 1] = math.floor(pts[k, 1] / size)
+    lo0, lo1 = cells[0, 0], cells[0, 1]
+    hi0, hi1 = lo0, lo1
+    for k in range(1, n):
+        lo0, hi0 = min(lo0, cells[k, 0]), max(hi0, cells[k, 0])
+        lo1, hi1 = min(lo1, cells[k, 1]), max(hi1, cells[k, 1])
+    rows = hi1 - lo1 + 1
+    if (hi0 - lo0 + 1) * rows > most:
+        return None
+    seen = np.zeros((hi0 - lo0 + 1) * rows, dtype=np.bool_)
+    keep = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        c = (cells[k, 0] - lo0) * rows + cells[k, 1] - lo1
+        if not seen[c]:
+            seen[c] = True
+            keep[k] = True
+    return keep
 
 
 _EPS = 1e-6  # slack (m) of the stamped regions' bounds: a cell on a bound is stamped
