@@ -180,18 +180,60 @@ class LikelihoodGrid:
         """Distance (m) of each of `points` placed at `pose` to the nearest map point (the cap
         outside the grid)."""
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        x = pose[0] + c * points[:, 0] - s * points[:, 1]
-        y = pose[1] + s * points[:, 0] + c * points[:, 1]
-        i = np.floor((x - self.origin[0]) / self.resolution).astype(np.int64)
-        j = np.floor((y - self.origin[1]) / self.resolution).astype(np.int64)
-        h, w = self.distance.shape
-        inside = (i >= 0) & (i < w) & (j >= 0) & (j < h)
-        if inside.all():  # the grid's largest distance (a pass over every cell) only if needed
-            out: np.ndarray = self.distance[j, i].astype(np.float64)
-            return out
-        out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
-        out[inside] = self.distance[j[inside], i[inside]]
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        out = np.empty(len(pts))
+        origin = np.asarray(self.origin, dtype=np.float64)
+        outside = _lookup(self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out)
+        if outside.any():  # the grid's largest distance (a pass over every cell) only if needed
+            out[outside] = float(self.distance.max())
         return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _lookup(
+    dist: np.ndarray,
+    origin: np.ndarray,
+    res: float,
+    pts: np.ndarray,
+    x0: float,
+    y0: float,
+    c: float,
+    s: float,
+    out: np.ndarray,
+) -> np.ndarray:
+    """`LikelihoodGrid.distances`' lookups (numpy's arithmetic, in one pass) into `out`;
+    returns which points fall off the grid (their `out` is left to the caller)."""
+    h, w = dist.shape
+    outside = np.zeros(pts.shape[0], dtype=np.bool_)
+    for k in range(pts.shape[0]):
+        x = x0 + c * pts[k, 0] - s * pts[k, 1]
+        y = y0 + s * pts[k, 0] + c * pts[k, 1]
+        i = math.floor((x - origin[0]) / res)
+        j = math.floor((y - origin[1]) / res)
+        if 0 <= i < w and 0 <= j < h:
+            out[k] = dist[j, i]
+        else:
+            outside[k] = True
+    return outside
+
+
+@nb.njit(cache=True, nogil=True)
+def _placed_bounds(
+    pts: np.ndarray, x0: float, y0: float, c: float, s: float, out: np.ndarray
+) -> None:
+    """The bounding box (x, y least, then largest) of `pts` turned by (c, s) and moved by
+    (x0, y0), with numpy's arithmetic, into `out`."""
+    for k in range(pts.shape[0]):
+        x = x0 + c * pts[k, 0] - s * pts[k, 1]
+        y = y0 + s * pts[k, 0] + c * pts[k, 1]
+        if k == 0 or x < out[0]:
+            out[0] = x
+        if k == 0 or y < out[1]:
+            out[1] = y
+        if k == 0 or x > out[2]:
+            out[2] = x
+        if k == 0 or y > out[3]:
+            out[3] = y
 
 
 def _raster(
@@ -957,14 +999,11 @@ def correlative_search(
         reach = (
             fine_half * fine_res + turn_step * float(np.hypot(pts[:, 0], pts[:, 1]).max()) + 0.05
         )
-        boxes = []
-        for p in tops:
+        box = np.empty((len(tops), 4))
+        for m, p in enumerate(tops):
             th = prediction[2] + p[2]
             c, s = math.cos(th), math.sin(th)
-            x = prediction[0] + p[0] + c * pts[:, 0] - s * pts[:, 1]
-            y = prediction[1] + p[1] + s * pts[:, 0] + c * pts[:, 1]
-            boxes.append([x.min(), y.min(), x.max(), y.max()])
-        box = np.array(boxes)
+            _placed_bounds(pts, prediction[0] + p[0], prediction[1] + p[1], c, s, box[m])
         fine = fine(box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach)
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
