@@ -180,18 +180,60 @@ class LikelihoodGrid:
         """Distance (m) of each of `points` placed at `pose` to the nearest map point (the cap
         outside the grid)."""
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        x = pose[0] + c * points[:, 0] - s * points[:, 1]
-        y = pose[1] + s * points[:, 0] + c * points[:, 1]
-        i = np.floor((x - self.origin[0]) / self.resolution).astype(np.int64)
-        j = np.floor((y - self.origin[1]) / self.resolution).astype(np.int64)
-        h, w = self.distance.shape
-        inside = (i >= 0) & (i < w) & (j >= 0) & (j < h)
-        if inside.all():  # the grid's largest distance (a pass over every cell) only if needed
-            out: np.ndarray = self.distance[j, i].astype(np.float64)
-            return out
-        out = np.full(len(points), float(self.distance.max()), dtype=np.float64)
-        out[inside] = self.distance[j[inside], i[inside]]
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        out = np.empty(len(pts))
+        origin = np.asarray(self.origin, dtype=np.float64)
+        outside = _lookup(self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out)
+        if outside.any():  # the grid's largest distance (a pass over every cell) only if needed
+            out[outside] = float(self.distance.max())
         return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _lookup(
+    dist: np.ndarray,
+    origin: np.ndarray,
+    res: float,
+    pts: np.ndarray,
+    x0: float,
+    y0: float,
+    c: float,
+    s: float,
+    out: np.ndarray,
+) -> np.ndarray:
+    """`LikelihoodGrid.distances`' lookups (numpy's arithmetic, in one pass) into `out`;
+    returns which points fall off the grid (their `out` is left to the caller)."""
+    h, w = dist.shape
+    outside = np.zeros(pts.shape[0], dtype=np.bool_)
+    for k in range(pts.shape[0]):
+        x = x0 + c * pts[k, 0] - s * pts[k, 1]
+        y = y0 + s * pts[k, 0] + c * pts[k, 1]
+        i = math.floor((x - origin[0]) / res)
+        j = math.floor((y - origin[1]) / res)
+        if 0 <= i < w and 0 <= j < h:
+            out[k] = dist[j, i]
+        else:
+            outside[k] = True
+    return outside
+
+
+@nb.njit(cache=True, nogil=True)
+def _placed_bounds(
+    pts: np.ndarray, x0: float, y0: float, c: float, s: float, out: np.ndarray
+) -> None:
+    """The bounding box (x, y least, then largest) of `pts` turned by (c, s) and moved by
+    (x0, y0), with numpy's arithmetic, into `out`."""
+    for k in range(pts.shape[0]):
+        x = x0 + c * pts[k, 0] - s * pts[k, 1]
+        y = y0 + s * pts[k, 0] + c * pts[k, 1]
+        if k == 0 or x < out[0]:
+            out[0] = x
+        if k == 0 or y < out[1]:
+            out[1] = y
+        if k == 0 or x > out[2]:
+            out[2] = x
+        if k == 0 or y > out[3]:
+            out[3] = y
 
 
 def _raster(
@@ -200,12 +242,58 @@ def _raster(
     """The frame a grid of `points` (N x 2) has with `margin` m around their bounding box: its
     lower-left corner, its shape (columns, rows) and each point's cell (column, row); no
     points: a grid around the origin."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
     if len(pts) == 0:
         pts = np.zeros((1, 2))
-    lo = pts.min(axis=0) - margin
-    shape = np.ceil((pts.max(axis=0) + margin - lo) / resolution).astype(np.int64) + 1
-    return lo, shape, np.floor((pts - lo) / resolution).astype(np.int64)
+    lo = np.empty(2)
+    shape = np.empty(2, dtype=np.int64)
+    ij = np.empty((len(pts), 2), dtype=np.int64)
+    _raster_cells(pts, resolution, margin, lo, shape, ij)
+    return lo, shape, ij
+
+
+def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least and the largest x, y of `points` (N x 2, N > 0): `points.min(axis=0)` and
+    `.max(axis=0)` in one pass (numpy's column reductions of an N x 2 array were a twentieth
+    of a map run, in thousands of calls)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    lo, hi = np.empty(2), np.empty(2)
+    _bounds(pts, lo, hi)
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def _bounds(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+    """`bounds` into `lo`, `hi`."""
+    lo[:] = pts[0]
+    hi[:] = pts[0]
+    for k in range(1, pts.shape[0]):
+        for c in range(2):
+            v = pts[k, c]
+            if v < lo[c]:
+                lo[c] = v
+            if v > hi[c]:
+                hi[c] = v
+
+
+@nb.njit(cache=True, nogil=True)
+def _raster_cells(
+    pts: np.ndarray,
+    resolution: float,
+    margin: float,
+    lo: np.ndarray,
+    shape: np.ndarray,
+    ij: np.ndarray,
+) -> None:
+    """`_raster`'s frame and cells into `lo`, `shape`, `ij`, with numpy's arithmetic."""
+    hi = np.empty(2)
+    _bounds(pts, lo, hi)
+    for c in range(2):
+        lo[c] -= margin
+        shape[c] = math.ceil((hi[c] + margin - lo[c]) / resolution) + 1
+    for k in range(pts.shape[0]):
+        for c in range(2):
+            ij[k, c] = math.floor((pts[k, c] - lo[c]) / resolution)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -432,6 +520,33 @@ def _sum_at(grid: np.ndarray, cells: np.ndarray, a: int, dx: int, dy: int, pad: 
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _sum_quad(
+    grid: np.ndarray, cells: np.ndarray, a: int, dx: int, dy: int, s: int, pad: int, out: np.ndarray
+) -> None:
+    """`_sum_at` at the four offsets (dx, dy) + (0 or s, 0 or s) in one pass over the points
+    (out[2 i + j]: + (i s, j s)), each sum in point order as `_sum_at`'s: a block's four
+    children read neighbouring cells, so one pass reads each point's cache lines once."""
+    w, h = grid.shape
+    t00 = t01 = t10 = t11 = 0.0
+    for k in range(cells.shape[1]):
+        x = cells[a, k, 0] + dx + pad
+        y = cells[a, k, 1] + dy + pad
+        x_in, x2_in = 0 <= x < w, 0 <= x + s < w
+        y_in, y2_in = 0 <= y < h, 0 <= y + s < h
+        if x_in:
+            if y_in:
+                t00 += grid[x, y]
+            if y2_in:
+                t01 += grid[x, y + s]
+        if x2_in:
+            if y_in:
+                t10 += grid[x + s, y]
+            if y2_in:
+                t11 += grid[x + s, y + s]
+    out[0], out[1], out[2], out[3] = t00, t01, t10, t11
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _swap(heap: np.ndarray, key: np.ndarray, a: int, b: int) -> None:
     """Swap entries `a` and `b` of the heap (their keys and rows)."""
     key[a], key[b] = key[b], key[a]
@@ -522,6 +637,7 @@ def _bnb_next(
     pad = 1 << (pyramid.shape[0] - 1)
     row = np.zeros(4, dtype=np.int64)
     child = np.zeros(4, dtype=np.int64)
+    sums = np.zeros(4)
     while state[0] > 0:
         k = _pop(heap, key, state, row)
         a, lv, x0, y0 = row[0], row[1], row[2], row[3]
@@ -537,20 +653,18 @@ def _bnb_next(
             state[1] += npts
             continue
         s = 1 << (lv - 1)
+        if lv == 1:
+            _sum_quad(like_t, cells, a, x0 - half, y0 - half, s, 0, sums)
+        else:
+            _sum_quad(pyramid[lv - 1], cells, a, x0 - half, y0 - half, s, pad, sums)
         for dx in range(2):
             for dy in range(2):
                 xx, yy = x0 + dx * s, y0 + dy * s
                 if xx >= n or yy >= n:
                     continue
-                child[0], child[2], child[3] = a, xx, yy
-                if lv == 1:
-                    child[1] = -1
-                    k = _sum_at(like_t, cells, a, xx - half, yy - half, 0) / div
-                else:
-                    child[1] = lv - 1
-                    k = _sum_at(pyramid[lv - 1], cells, a, xx - half, yy - half, pad) / div
+                child[0], child[1], child[2], child[3] = a, lv - 1 if lv > 1 else -1, xx, yy
                 state[1] += npts
-                _push(heap, key, state, k, child)
+                _push(heap, key, state, sums[2 * dx + dy] / div, child)
     return False
 
 
@@ -885,14 +999,11 @@ def correlative_search(
         reach = (
             fine_half * fine_res + turn_step * float(np.hypot(pts[:, 0], pts[:, 1]).max()) + 0.05
         )
-        boxes = []
-        for p in tops:
+        box = np.empty((len(tops), 4))
+        for m, p in enumerate(tops):
             th = prediction[2] + p[2]
             c, s = math.cos(th), math.sin(th)
-            x = prediction[0] + p[0] + c * pts[:, 0] - s * pts[:, 1]
-            y = prediction[1] + p[1] + s * pts[:, 0] + c * pts[:, 1]
-            boxes.append([x.min(), y.min(), x.max(), y.max()])
-        box = np.array(boxes)
+            _placed_bounds(pts, prediction[0] + p[0], prediction[1] + p[1], c, s, box[m])
         fine = fine(box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach)
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
@@ -958,12 +1069,49 @@ def voxel_subsample(points: np.ndarray, size: float) -> np.ndarray:
     """One point per `size` m cell (the first), in the points' order."""
     if len(points) == 0:
         return points
-    cells = np.floor(points / size).astype(np.int64)
-    cells -= cells.min(axis=0)
-    code = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # one int per cell
-    _, first = np.unique(code, return_index=True)
-    out: np.ndarray = points[np.sort(first)]
-    return out
+    keep = None
+    if points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 2:
+        keep = _first_in_cell(np.ascontiguousarray(points), size, _VOXEL_TABLE)
+    if keep is None:  # cells too many for a table: sort their codes instead
+        cells = np.floor(points / size).astype(np.int64)
+        cells -= cells.min(axis=0)
+        code = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # one int per cell
+        _, first = np.unique(code, return_index=True)
+        out: np.ndarray = points[np.sort(first)]
+        return out
+    kept: np.ndarray = points[keep]
+    return kept
+
+
+_VOXEL_TABLE = 1 << 22  # most cells of `voxel_subsample`'s bounding box for its table
+
+
+@nb.njit(cache=True, nogil=True)
+def _first_in_cell(pts: np.ndarray, size: float, most: int) -> np.ndarray | None:
+    """Which of `pts` (N x 2) is the first in its `size` m cell: a table over the cells of
+    their bounding box (None when it has more than `most` cells), in one pass, instead of
+    a sort of the cells' codes (the same points: the first of each cell, in order)."""
+    n = pts.shape[0]
+    cells = np.empty((n, 2), dtype=np.int64)
+    for k in range(n):
+        cells[k, 0] = math.floor(pts[k, 0] / size)
+        cells[k, 1] = math.floor(pts[k, 1] / size)
+    lo0, lo1 = cells[0, 0], cells[0, 1]
+    hi0, hi1 = lo0, lo1
+    for k in range(1, n):
+        lo0, hi0 = min(lo0, cells[k, 0]), max(hi0, cells[k, 0])
+        lo1, hi1 = min(lo1, cells[k, 1]), max(hi1, cells[k, 1])
+    rows = hi1 - lo1 + 1
+    if (hi0 - lo0 + 1) * rows > most:
+        return None
+    seen = np.zeros((hi0 - lo0 + 1) * rows, dtype=np.bool_)
+    keep = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        c = (cells[k, 0] - lo0) * rows + cells[k, 1] - lo1
+        if not seen[c]:
+            seen[c] = True
+            keep[k] = True
+    return keep
 
 
 _EPS = 1e-6  # slack (m) of the stamped regions' bounds: a cell on a bound is stamped

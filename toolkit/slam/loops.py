@@ -36,6 +36,7 @@ from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
     LikelihoodGrid,
     SearchResult,
+    bounds,
     coarse_ambiguity,
     coarse_scores,
     correlative_search,
@@ -242,7 +243,8 @@ def _search(
     c, sn = np.cos(pose[2]), np.sin(pose[2])
     landed = pose[:2] + query @ np.array([[c, sn], [-sn, c]])
     reach = np.hypot(*query.T).max() * turn + window + 0.5
-    lo, hi = landed.min(axis=0) - reach, landed.max(axis=0) + reach
+    lo, hi = bounds(landed)
+    lo, hi = lo - reach, hi + reach
     ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
     if len(ref) < cfg.min_points:
         return None

@@ -48,7 +48,7 @@ from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry, pose_frame
 from toolkit.poses import Method, TrajectoryResult, odometry_poses
-from toolkit.slam.grid import LikelihoodGrid, correlative_search, stamp_segments
+from toolkit.slam.grid import LikelihoodGrid, bounds, correlative_search, stamp_segments
 from toolkit.slam.localmap import MotionMatcher
 
 
@@ -857,8 +857,9 @@ class MapMatcher:
             world = world[np.hypot(*(world - self._last[:2]).T) <= reach]
             if len(world) == 0:
                 world = self._last[None, :2]
-            lo = np.floor((world.min(axis=0) - 1.0 - origin) / cfg.resolution).astype(np.int64)
-            hi = np.ceil((world.max(axis=0) + 1.0 - origin) / cfg.resolution).astype(np.int64)
+            w_lo, w_hi = bounds(world)
+            lo = np.floor((w_lo - 1.0 - origin) / cfg.resolution).astype(np.int64)
+            hi = np.ceil((w_hi + 1.0 - origin) / cfg.resolution).astype(np.int64)
             lo = np.maximum(lo, 0)
             hi = np.maximum(np.minimum(hi, (dist.shape[1], dist.shape[0])), lo + 1)
             crop = dist[lo[1] : hi[1], lo[0] : hi[0]]
