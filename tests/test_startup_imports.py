@@ -2,7 +2,8 @@
 `map` reads and writes its tables without pandas (Arrow straight into numpy and back),
 `map` without loops (or by odometry) needs neither GTSAM nor scipy.ndimage nor the simulator,
 `map` with loops needs GTSAM, scipy.ndimage only when a grid needs its distance transform,
-nothing loads a plotting or 3D library, and rich only for a progress bar on a terminal."""
+nothing loads a plotting or 3D library, and rich only for a progress bar on a terminal; typer
+coerces these commands' plain values without pydantic (`toolkit.app.cli._PlainValues`)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from toolkit.sim import simulate
 
 WATCHED = (
     "pandas", "numba", "scipy.ndimage", "gtsam", "toolkit.sim", "toolkit.slam.pipeline",
-    "matplotlib", "open3d", "sklearn", "distributed", "rich",
+    "matplotlib", "open3d", "sklearn", "distributed", "rich", "pydantic",
 )  # fmt: skip
 
 RUN = (
