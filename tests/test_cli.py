@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -117,3 +118,41 @@ def test_auto_reads_a_simulate_output_directory(tmp_path: Path, cli: Cli) -> Non
     code, _, err = cli("import", "auto", ROOT / "README.md", "--out", tmp_path / "y")
     assert code == 1 and "cannot tell the format" in err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_plain_values_are_coerced_as_typer_coerces_them(tmp_path: Path) -> None:
+    """`toolkit.app.cli._PlainValues` (no pydantic) gives what typer's own adapter gives for
+    every parameter of every command: strs, paths (existing, missing, a directory, several),
+    defaults of their own type; and the same error for what it hands on to typer."""
+    import typer
+
+    from toolkit.app import cli
+
+    (tmp_path / "f").write_text("x")
+    values: dict[object, list[object]] = {
+        str: ["gaussian", "", "a b"],
+        Path: [str(tmp_path), str(tmp_path / "f"), str(tmp_path / "missing"), "rel/x"],
+        float: [0.0, 2.5, "0.5", "abc"],
+        int: [3, "7", "x"],
+        bool: [True, False],
+    }
+    values[list[Path]] = [(str(tmp_path), str(tmp_path / "f")), ["a"]]
+    group = typer.main.get_command(cli.app)
+    checked = 0
+    for command in [group, *group.commands.values()]:  # type: ignore[attr-defined]
+        ctx = command.make_context("toolkit", [], resilient_parsing=True)
+        for param in command.params:
+            desc = param.type_descriptor
+            ours = cli.typer.core.build_runtime_param(desc)
+            theirs = cli._typer_runtime_param(desc)
+            for value in [None, *values.get(desc.annotation, [])]:
+                try:
+                    expected: object = theirs.coerce(value, param, ctx)
+                except typer.BadParameter as e:
+                    with pytest.raises(typer.BadParameter, match=re.escape(str(e.message))):
+                        ours.coerce(value, param, ctx)
+                    continue
+                got = ours.coerce(value, param, ctx)
+                assert got == expected and type(got) is type(expected), (param.name, value)
+                checked += 1
+    assert checked > 40

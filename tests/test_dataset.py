@@ -115,3 +115,63 @@ def test_atomic_path_replaces_a_file_or_directory_whole(tmp_path: Path, kind: st
         raise RuntimeError("interrupted")
     assert (out.read_text() if kind == "file" else (out / "part").read_text()) == "new"
     assert sorted(p.name for p in out.parent.iterdir()) == ["log.bag"]
+
+
+def test_pose_tables_are_read_without_pandas_and_are_the_same_frames(tmp_path: Path) -> None:
+    """`load` keeps the odometry and the ground truth as PoseStreams (numpy, no pandas) and
+    makes them DataFrames on first use: the frames `read_poses` gives, normalised as a
+    DataFrame given to a Dataset is."""
+    from toolkit.dataset import GROUNDTRUTH, ODOMETRY, PoseStream, _poses_frame, read_poses
+
+    ds = _dataset()
+    rng, n = np.random.default_rng(1), ds.n_scans
+    ds.odometry = pd.DataFrame(
+        {"x": rng.normal(size=n), "t": ds.t, "theta": np.arange(n), "y": rng.normal(size=n)}
+    )  # other column order, an int column: normalised
+    toolkit.save(ds, tmp_path / "d")
+    back = toolkit.load(tmp_path / "d")
+    assert isinstance(back.__dict__["_odometry"], PoseStream)  # not made a frame yet
+    odo = back.stream("odometry")
+    assert odo is not None and np.array_equal(odo.t, ds.t)
+    assert back.stream("groundtruth") is None and back.groundtruth is None
+    expected = _poses_frame(read_poses(tmp_path / "d" / ODOMETRY))
+    pd.testing.assert_frame_equal(back.odometry, expected, check_exact=True)
+    assert back.odometry is back.odometry  # made once
+    assert not (tmp_path / "d" / GROUNDTRUTH).exists()
+    given = Dataset(ds.t, ds.ranges, ds.laser, odometry=PoseStream(ds.t, odo.xyt))
+    pd.testing.assert_frame_equal(given.odometry, expected, check_exact=True)
+
+
+def test_pose_table_is_from_pandas_own_table(tmp_path: Path) -> None:
+    """`PoseStream.table` (no pandas) is `pa.Table.from_pandas(frame, preserve_index=False)`,
+    schema metadata and all: the same Parquet bytes."""
+    from toolkit.dataset import PoseStream, write_described
+
+    rng = np.random.default_rng(2)
+    for n in (0, 1, 7):
+        stream = PoseStream(np.sort(rng.random(n)), rng.normal(size=(n, 3)))
+        ours, theirs = stream.table(), pa.Table.from_pandas(stream.frame(), preserve_index=False)
+        assert ours.equals(theirs) and ours.schema.equals(theirs.schema, check_metadata=True)
+        write_described(tmp_path / "a.parquet", ours, "trajectory", method="gaussian")
+        write_described(tmp_path / "b.parquet", stream.frame(), "trajectory", method="gaussian")
+        assert (tmp_path / "a.parquet").read_bytes() == (tmp_path / "b.parquet").read_bytes()
+
+
+def test_write_csv_is_pandas_to_csv(tmp_path: Path) -> None:
+    """`write_csv` writes what `pd.DataFrame(rows).to_csv(index=False)` writes: bool, int,
+    float (ints among floats, None as NaN, tiny and huge values), str (with commas and
+    quotes) and mixed columns, and no rows at all."""
+    from toolkit.dataset import write_csv
+
+    rows = [
+        {"a": 0, "x": 0.1, "f": 1, "ok": True, "why": "", "n": None, "m": np.float64(2.5)},
+        {"a": 12, "x": 1e-7, "f": 2.5, "ok": False, "why": 'a, "b"', "n": 3.0, "m": True},
+        {"a": 3, "x": 1e16, "f": np.nan, "ok": np.True_, "why": None, "n": None, "m": "s"},
+        {"a": np.int64(4), "x": -0.0, "f": 7, "ok": True, "why": "fitness", "n": 1, "m": 1},
+    ]
+    for table in (rows, rows[:1], []):
+        write_csv(tmp_path / "ours.csv", table, ["a", "x"])
+        pd.DataFrame(table, columns=None if table else ["a", "x"]).to_csv(
+            tmp_path / "pandas.csv", index=False
+        )
+        assert (tmp_path / "ours.csv").read_bytes() == (tmp_path / "pandas.csv").read_bytes()

@@ -22,7 +22,7 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 import numpy as np
 import pyarrow as pa
@@ -158,6 +158,69 @@ class Scans:
             raise ValueError(f"{self.ranges.shape[1]} beams, geometry says {self.laser.beams}")
 
 
+class _PoseTable:
+    """A Dataset's pose table (odometry, groundtruth): set as a DataFrame, a PoseStream or
+    None; read as a DataFrame (t, x, y, theta float64) or None. A PoseStream is kept as it is
+    and made a DataFrame on first read, so that a command that reads the poses through
+    `Dataset.stream` (`toolkit map`) never loads pandas (0.24 s of an idle machine's start)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.key = f"_{name}"
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> None: ...
+    @overload
+    def __get__(self, obj: object, owner: type | None = None) -> pd.DataFrame | None: ...
+    def __get__(self, obj: object | None, owner: type | None = None) -> pd.DataFrame | None:
+        if obj is None:
+            return None  # the field's default (dataclasses ask the class)
+        value = obj.__dict__.get(self.key)
+        if isinstance(value, PoseStream):
+            value = obj.__dict__[self.key] = value.frame()
+        return value
+
+    def __set__(self, obj: object, value: pd.DataFrame | PoseStream | None) -> None:
+        if value is None or isinstance(value, PoseStream):
+            obj.__dict__[self.key] = value
+        else:
+            obj.__dict__[self.key] = _poses_frame(value)
+
+
+class _PoseTables:
+    """A Dataset's further pose streams by name (`poses`), as `_PoseTable` keeps one: set
+    as a dict of DataFrames or PoseStreams (None: none), read as the dict of DataFrames (the
+    streams made frames, in place, on first read), so that loading a dataset with such a
+    stream (CARMEN's scan poses) does not load pandas."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.key = f"_{name}"
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> None: ...
+    @overload
+    def __get__(self, obj: object, owner: type | None = None) -> dict[str, pd.DataFrame]: ...
+    def __get__(
+        self, obj: object | None, owner: type | None = None
+    ) -> dict[str, pd.DataFrame] | None:
+        if obj is None:
+            return None  # the field's default (dataclasses ask the class): no streams
+        tables: dict[str, Any] = obj.__dict__[self.key]
+        for name, value in tables.items():
+            if isinstance(value, PoseStream):
+                tables[name] = value.frame()
+        return tables
+
+    def __set__(
+        self, obj: object, value: Mapping[str, pd.DataFrame | PoseStream | None] | None
+    ) -> None:
+        tables = {}
+        for name, table in (value or {}).items():
+            kept = table if isinstance(table, PoseStream) else _poses_frame(table)
+            if kept is not None:
+                tables[name] = kept
+        obj.__dict__[self.key] = tables
+
+
 @dataclass
 class Dataset:
     """A log in memory: the primary laser's scans, pose streams and metadata."""
@@ -165,19 +228,26 @@ class Dataset:
     t: np.ndarray
     ranges: np.ndarray
     laser: LaserGeometry
-    odometry: pd.DataFrame | None = None
-    groundtruth: pd.DataFrame | None = None
+    # DataFrames t, x, y, theta; given (and kept, as `load` does) as a PoseStream, made a
+    # DataFrame on first use (`_PoseTable`); `stream` reads them without pandas
+    odometry: _PoseTable = _PoseTable()
+    groundtruth: _PoseTable = _PoseTable()
     meta: dict[str, Any] = field(default_factory=dict)
     lasers: dict[str, Scans] = field(default_factory=dict)  # further lasers by name
-    poses: dict[str, pd.DataFrame] = field(default_factory=dict)  # further pose streams
+    poses: _PoseTables = _PoseTables()  # further pose streams by name, the same way
     path: Path | None = None
 
     def __post_init__(self) -> None:
         primary = Scans(self.t, self.ranges, self.laser)
         self.t, self.ranges = primary.t, primary.ranges
-        self.odometry = _poses_frame(self.odometry)
-        self.groundtruth = _poses_frame(self.groundtruth)
-        self.poses = {k: f for k, v in self.poses.items() if (f := _poses_frame(v)) is not None}
+
+    def stream(self, name: Literal["odometry", "groundtruth"]) -> PoseStream | None:
+        """The odometry or the ground truth as a PoseStream (numpy; pandas is not loaded
+        for it), None when the dataset has none."""
+        value = self.__dict__.get(f"_{name}")
+        if value is None or isinstance(value, PoseStream):
+            return value
+        return PoseStream.from_frame(value)
 
     @property
     def angles(self) -> np.ndarray:
@@ -237,12 +307,36 @@ class PoseStream:
             raise ToolkitError("pose stream is empty")
         return se2.interpolate(self.t, self.xyt, t)
 
+    def _columns(self) -> pa.Table:
+        x, y, theta = (np.ascontiguousarray(c, np.float64) for c in self.xyt.T)
+        arrays = [_float64_array(c) for c in (self.t, x, y, theta)]
+        return pa.Table.from_arrays(arrays, names=list(POSE_COLUMNS))
+
     def frame(self) -> pd.DataFrame:
         """DataFrame t, x, y, theta (float64)."""
-        x, y, theta = (np.ascontiguousarray(c, np.float64) for c in self.xyt.T)
-        columns = {"t": np.asarray(self.t, np.float64), "x": x, "y": y, "theta": theta}
-        frame: pd.DataFrame = pa.table(columns).to_pandas()  # pandas loaded here, on use
+        frame: pd.DataFrame = self._columns().to_pandas()  # pandas loaded here, on use
         return frame
+
+    def table(self) -> pa.Table:
+        """Arrow table t, x, y, theta (float64), the same as `pa.Table.from_pandas(self.frame(),
+        preserve_index=False)`, pandas' schema metadata included (so a Parquet file of it is
+        byte for byte the one the DataFrame gave, and pandas reads it back as that frame),
+        without loading pandas (`toolkit map`'s trajectory.parquet)."""
+        table = self._columns()
+        columns = [
+            {"name": c, "field_name": c, "pandas_type": "float64", "numpy_type": "float64"}
+            | {"metadata": None}
+            for c in POSE_COLUMNS
+        ]
+        pandas_meta = {
+            "index_columns": [],
+            "column_indexes": [],
+            "columns": columns,
+            "attributes": {},
+            "creator": {"library": "pyarrow", "version": pa.__version__},
+            "pandas_version": _pandas_version(),
+        }
+        return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame) -> PoseStream:
@@ -251,6 +345,52 @@ class PoseStream:
         if missing:
             raise ValueError(f"pose table lacks columns {missing}")
         return cls(frame["t"].to_numpy(np.float64), frame[["x", "y", "theta"]].to_numpy(np.float64))
+
+
+def _float64_array(values: np.ndarray) -> pa.Array:
+    """A float64 Arrow array over the buffer of `values` (1-D float64, contiguous); not
+    `pa.array`, which loads pandas (0.24 s) to check whether `values` are pandas'."""
+    values = np.ascontiguousarray(values, np.float64)
+    return pa.Array.from_buffers(pa.float64(), len(values), [None, pa.py_buffer(values)])
+
+
+def _pandas_version() -> str:
+    """The installed pandas' version, from its distribution's metadata (not by importing
+    it: 0.24 s)."""
+    import importlib.metadata  # noqa: PLC0415  (on use: 0.01-0.02 s)
+
+    return importlib.metadata.version("pandas")
+
+
+def write_csv(path: Path, rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> None:
+    """`rows` (dicts of scalars) as CSV, byte for byte what `pandas.DataFrame(rows,
+    columns=None if rows else columns).to_csv(path, index=False)` writes, without loading
+    pandas (`toolkit map`'s loops.csv): the columns in the order their keys first come (just
+    `columns` with no rows); a column of bools True/False, of ints as ints, of numbers (ints
+    and floats, None as NaN) as numpy's shortest float64 text, as pandas; None and NaN empty;
+    anything else by `str`."""
+    import csv  # noqa: PLC0415  (on use)
+
+    names = list(dict.fromkeys(k for row in rows for k in row)) if rows else list(columns)
+    text = [_csv_texts([row.get(name) for row in rows]) for name in names]
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(names)
+        writer.writerows(zip(*text, strict=True))
+
+
+def _csv_texts(values: list[Any]) -> list[str]:
+    """One column's values as pandas writes them (`write_csv`), by the dtype pandas gives it."""
+    if values and all(isinstance(v, bool | np.bool_) for v in values):
+        return ["True" if v else "False" for v in values]
+    number = (int, float, np.integer, np.floating)
+    if all(v is None or (isinstance(v, number) and not isinstance(v, bool)) for v in values):
+        if values and all(isinstance(v, int | np.integer) for v in values):
+            return [str(int(v)) for v in values]
+        floats = np.array([np.nan if v is None else v for v in values], np.float64)
+        out: list[str] = floats.astype(str).tolist()
+        return ["" if np.isnan(f) else o for f, o in zip(floats, out, strict=True)]
+    return ["" if v is None or (isinstance(v, float) and v != v) else str(v) for v in values]
 
 
 def pose_frame(t: np.ndarray, xyt: np.ndarray) -> pd.DataFrame:
@@ -525,6 +665,19 @@ def read_poses(path: Path) -> pd.DataFrame | None:
     return pq.ParquetFile(path).read().to_pandas() if path.exists() else None
 
 
+def read_pose_stream(path: Path) -> PoseStream | None:
+    """A pose table (t, x, y, theta) as a PoseStream, read straight into numpy (`read_poses`'
+    values, without pandas); None when there is no such file."""
+    if not path.exists():
+        return None
+    table = pq.ParquetFile(path).read()
+    missing = [c for c in POSE_COLUMNS if c not in table.column_names]
+    if missing:
+        raise ValueError(f"pose table lacks columns {missing}")
+    t, x, y, theta = (column_numpy(table.column(c)).astype(np.float64) for c in POSE_COLUMNS)
+    return PoseStream(t, np.column_stack([x, y, theta]))
+
+
 # ---------------------------------------------------------------- provenance
 
 
@@ -747,11 +900,11 @@ def load(path: str | Path) -> Dataset:
     poses = {}
     for p in sorted(path.glob("poses-*.parquet")):
         with reading(p):
-            poses[p.stem.removeprefix("poses-")] = pq.ParquetFile(p).read().to_pandas()
+            poses[p.stem.removeprefix("poses-")] = read_pose_stream(p)
     with reading(path / ODOMETRY):
-        odometry = read_poses(path / ODOMETRY)
+        odometry = read_pose_stream(path / ODOMETRY)
     with reading(path / GROUNDTRUTH):
-        groundtruth = read_poses(path / GROUNDTRUTH)
+        groundtruth = read_pose_stream(path / GROUNDTRUTH)
     return Dataset(
         t=t,
         ranges=ranges,

@@ -385,7 +385,9 @@ def map_run(
             if "trajectory.parquet" in outputs:
                 timing(
                     "trajectory.parquet",
-                    lambda p: write_described(p, result.frame, "trajectory", method=method),
+                    lambda p: write_described(
+                        p, result.stream.table(), "trajectory", method=method
+                    ),
                 )
             if "trajectory.tum" in outputs:
                 timing("trajectory.tum", lambda p: write_tum(p, ds.t, robot))

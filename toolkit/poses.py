@@ -17,19 +17,21 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
+from functools import cached_property
 from typing import TYPE_CHECKING, Literal
 
 import numba as nb
 import numpy as np
-import pandas as pd
 
 from toolkit import align, se2
 from toolkit.align import scan as sc
 from toolkit.align import se2_jit
-from toolkit.dataset import Dataset, PoseStream, pose_frame
+from toolkit.dataset import Dataset, PoseStream
 from toolkit.errors import ToolkitError
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from toolkit.sim.odometry import OdometryModel
 
 
@@ -56,18 +58,27 @@ METHODS: tuple[str, ...] = tuple(m.value for m in Method)
 
 @dataclass
 class TrajectoryResult:
-    """Poses per scan and how they were obtained."""
+    """Poses per scan and how they were obtained: `stream` (numpy), `frame` its DataFrame
+    (pandas loaded then, on use: `toolkit map` does without)."""
 
-    frame: pd.DataFrame  # t, x, y, theta
+    stream: PoseStream  # t, x, y, theta
     method: Method
     matches: sc.PairMatches | None = None  # per pair, for the matching methods
     seconds: float = 0.0  # time spent aligning scan pairs (compilation kept out)
     config: dict[str, object] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)  # s: prepare, compile, match, compose
 
+    @cached_property
+    def frame(self) -> pd.DataFrame:
+        """DataFrame t, x, y, theta (made on first use)."""
+        return self.stream.frame()
+
     @property
     def poses(self) -> np.ndarray:
-        return self.frame[["x", "y", "theta"]].to_numpy()
+        """The poses (S x 3), a new array each time, in Fortran order as the DataFrame's
+        `[["x", "y", "theta"]].to_numpy()` gave them (the numba kernels that take them
+        were compiled, and cached, for that layout)."""
+        return np.array(self.stream.xyt, order="F")
 
     @property
     def pairs_per_second(self) -> float | None:
@@ -111,16 +122,14 @@ def _compose_refs(start: np.ndarray, ref: np.ndarray, steps: np.ndarray) -> np.n
 
 def odometry_poses(ds: Dataset) -> np.ndarray | None:
     """The odometry at every scan time (S x 3), or None when the log has no odometry."""
-    if ds.odometry is None or len(ds.odometry) == 0:
-        return None
-    return poses_at(ds.odometry, ds.t)
+    stream = ds.stream("odometry")
+    return stream.at(ds.t) if stream is not None and len(stream) else None
 
 
 def truth_poses(ds: Dataset) -> np.ndarray | None:
     """The ground truth at every scan time (S x 3), or None."""
-    if ds.groundtruth is None or len(ds.groundtruth) == 0:
-        return None
-    return poses_at(ds.groundtruth, ds.t)
+    stream = ds.stream("groundtruth")
+    return stream.at(ds.t) if stream is not None and len(stream) else None
 
 
 #: Scan pairs the default matcher runs at once between two progress steps: large enough that
@@ -150,10 +159,10 @@ def build(
         if odo is None:
             raise ToolkitError("method odometry needs odometry; the dataset has none", file=ds.path)
         prepare = {"prepare": time.perf_counter() - t_start}
-        return TrajectoryResult(pose_frame(ds.t, odo), method, timings=prepare)
+        return TrajectoryResult(PoseStream(ds.t, odo), method, timings=prepare)
     start = odo[0] if odo is not None else np.zeros(3)
     if n < 2:
-        return TrajectoryResult(pose_frame(ds.t, np.tile(start, (n, 1))), method)
+        return TrajectoryResult(PoseStream(ds.t, np.tile(start, (n, 1))), method)
     config = config or sc.MatchConfig()
     if odo is not None:
         ref = sc.keyframes(odo, config.keyframe_distance, config.keyframe_angle)
@@ -196,7 +205,7 @@ def build(
         "match": seconds,
         "compose": time.perf_counter() - t0 - seconds,
     }
-    return TrajectoryResult(pose_frame(ds.t, poses), method, matches, seconds, used, timings)
+    return TrajectoryResult(PoseStream(ds.t, poses), method, matches, seconds, used, timings)
 
 
 def trajectory(
@@ -233,5 +242,5 @@ def with_drift(ds: Dataset, seed: int = 0, **params: float) -> Dataset:
     odo = model.integrate(truth, np.random.default_rng(seed))
     meta = {**ds.meta, "odometry": "simulated wheel odometry along the ground truth (drift added)"}
     return replace(
-        ds, odometry=pose_frame(ds.t, odo), groundtruth=pose_frame(ds.t, truth), meta=meta
+        ds, odometry=PoseStream(ds.t, odo), groundtruth=PoseStream(ds.t, truth), meta=meta
     )

@@ -42,7 +42,7 @@ import numpy as np
 
 from toolkit import se2
 from toolkit.align import scan as sc
-from toolkit.dataset import Dataset, LaserGeometry, pose_frame
+from toolkit.dataset import Dataset, LaserGeometry, PoseStream
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
 
 STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
@@ -198,9 +198,8 @@ def sequential(
             if progress is not None and (k % STREAM_STEP == 0 or k == ds.n_scans - 1):
                 progress(k % STREAM_STEP or STREAM_STEP)
     seconds = time.perf_counter() - t0
-    frame = pose_frame(ds.t, poses)
     used = config.to_dict()
-    return TrajectoryResult(frame, Method.GAUSSIAN, matches, seconds, used)
+    return TrajectoryResult(PoseStream(ds.t, poses), Method.GAUSSIAN, matches, seconds, used)
 
 
 __all__ = ["MotionMatcher", "sequential", "standing", "start_velocity"]

@@ -8,7 +8,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from toolkit import se2
 from toolkit.dataset import Dataset
@@ -24,6 +23,8 @@ def relation_metrics(ds: Dataset, poses: np.ndarray) -> dict[str, Any] | None:
     derived from the truth; None without either."""
     path = ds.path / RELATIONS if ds.path is not None else None
     if path is not None and path.is_file():
+        import pandas as pd  # noqa: PLC0415  (on use: only a Rawseeds log has the file)
+
         rel = pd.read_parquet(path)
         i = _nearest(ds.t, rel["t1"].to_numpy())
         j = _nearest(ds.t, rel["t2"].to_numpy())

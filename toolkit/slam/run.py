@@ -21,10 +21,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from toolkit.align import scan as sc
-from toolkit.dataset import Dataset
+from toolkit.dataset import Dataset, PoseStream, write_csv
 from toolkit.metrics import evaluate
 from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.slam import graph as pg
@@ -73,9 +72,7 @@ class SlamRun:
             "axis_x",
             "axis_y",
         ]
-        pd.DataFrame(table, columns=None if table else columns).to_csv(
-            out / "loops.csv", index=False
-        )
+        write_csv(out / "loops.csv", table, columns)
         if not maps:
             return
         panels = []
@@ -129,9 +126,7 @@ def slam_trajectory(
     matching = time.perf_counter() - t0 - result.timings.get("compile", 0.0)
     before = result.poses
     poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
-    frame = result.frame.copy()
-    frame[["x", "y", "theta"]] = poses
-    out = replace(result, frame=frame)
+    out = replace(result, stream=PoseStream(result.stream.t, poses))
     run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)
     return out, run
 

@@ -46,7 +46,7 @@ import numpy as np
 from toolkit import poses as trajectories
 from toolkit import se2
 from toolkit.align import scan as sc
-from toolkit.dataset import Dataset, LaserGeometry, pose_frame
+from toolkit.dataset import Dataset, LaserGeometry, PoseStream
 from toolkit.poses import Method, TrajectoryResult, odometry_poses
 from toolkit.slam.grid import LikelihoodGrid, bounds, correlative_search, stamp_segments
 from toolkit.slam.localmap import MotionMatcher
@@ -911,7 +911,7 @@ def scan_to_map(
     used = settings(config)
     timings = {"compile": compile_s}
     return TrajectoryResult(
-        pose_frame(ds.t, poses), Method.GAUSSIAN, matches, seconds, used, timings=timings
+        PoseStream(ds.t, poses), Method.GAUSSIAN, matches, seconds, used, timings=timings
     )
 
 

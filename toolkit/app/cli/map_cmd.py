@@ -81,7 +81,7 @@ def map_command(
     cloud.pcd, map.png, map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with
     loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
     """
-    # on use: the matcher (numba) and pandas load for `map` alone, with loops also the loop
+    # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
     from toolkit.app.startup import imports_kept
 
