@@ -128,6 +128,8 @@ def test_plain_values_are_coerced_as_typer_coerces_them(tmp_path: Path) -> None:
 
     from toolkit.app import cli
 
+    if not hasattr(cli, "_typer_runtime_param"):  # another typer: it coerces everything itself
+        pytest.skip(f"typer {typer.__version__} has other internals; no shortcut installed")
     (tmp_path / "f").write_text("x")
     values: dict[object, list[object]] = {
         str: ["gaussian", "", "a b"],
