@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import cache
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from rich.progress import TaskID
 
@@ -317,6 +318,22 @@ def _sample() -> tuple[bytes, np.ndarray]:
         return capture.read_bytes(), _expected(ds)
 
 
+def _crc_blind(data: bytes, damaged: bytes) -> int:
+    """Frames that bit flips changed while their CRC still checks: SICK's CRC feeds every
+    byte in twice (as it is and, shifted, with the next), so some flips cancel (bits 760 and
+    796 of the sample's first frame: the same CRC); no reader can tell those from intact."""
+    length = 2 * 181 + 4
+    header = b"\x02\x80" + length.to_bytes(2, "little") + b"\xb0"
+    blind = 0
+    for at in (m.start() for m in re.finditer(re.escape(header), data)):
+        frame, crc = damaged[at : at + 4 + length], damaged[at + 4 + length : at + 6 + length]
+        if frame != data[at : at + 4 + length] and crc16_sick(frame) == int.from_bytes(
+            crc, "little"
+        ):
+            blind += 1
+    return blind
+
+
 _mutation = st.one_of(
     st.tuples(st.just("truncate"), st.floats(0, 1)),
     st.tuples(st.just("flip"), st.lists(st.integers(0, 10**9), min_size=1, max_size=12)),
@@ -354,6 +371,7 @@ def _damage(data: bytes, kind: str, arg: object) -> bytes:
     max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(mutation=_mutation)
+@example(mutation=("flip", [760, 796]))  # a change SICK's CRC cannot see (`_crc_blind`)
 def test_damaged_input_never_crashes_nor_yields_a_corrupt_scan(
     tmp_path: Path, mutation: tuple[str, object]
 ) -> None:
@@ -367,7 +385,8 @@ def test_damaged_input_never_crashes_nor_yields_a_corrupt_scan(
     known = {rows[i].tobytes(): i for i in range(len(rows))}
     found = [known.get(r.tobytes()) for r in back.ranges]  # NaN patterns compare bytewise
     indices = [i for i in found if i is not None]
-    assert len(indices) == len(found), "a scan that is no intact frame was accepted"
+    undetectable = _crc_blind(data, _damage(data, *mutation)) if mutation[0] == "flip" else 0
+    assert len(found) - len(indices) <= undetectable, "a scan that is no intact frame was accepted"
     assert indices == sorted(indices) and back.n_beams == 181
     assert np.all(np.diff(back.t) > 0)
     report = back.meta["import_report"]
