@@ -41,6 +41,12 @@ class LikelihoodGrid:
     likelihood: np.ndarray  # H x W float32 in [0, 1]
     likelihood_t: np.ndarray  # its transpose, contiguous (W x H): the search's layout
     distance: np.ndarray  # H x W float32: distance (m) to the nearest map point, capped
+    # `window`'s with `reads`: which _TILE x _TILE blocks of cells (columns / _TILE, rows /
+    # _TILE) hold values (the rest is left unwritten), the grid's largest distance when the
+    # tiles show it, and the dense grid, built when a lookup reaches beyond the tiles
+    tiles: np.ndarray | None = None
+    distance_max: float | None = None
+    dense: Callable[[], LikelihoodGrid] | None = None
 
     @classmethod
     def build(
@@ -88,6 +94,7 @@ class LikelihoodGrid:
         margin: float = 1.0,
         cap: float = 2.0,
         pad: float = 0.6,
+        reads: FineReads | None = None,
     ) -> LikelihoodGrid:
         """The part of `build(points, resolution, sigma, margin, cap)`'s grid that covers the
         box `lo`-`hi`, the same cells (same origin and rasterisation) and, within `pad` m of
@@ -96,7 +103,11 @@ class LikelihoodGrid:
         exp(-pad^2/2 sigma^2), nil). Each occupied cell stamps the disc of cells within `pad`
         (numba) instead of a distance transform of the whole map: a correlative search's fine
         level needs only where the query lands, and the whole map at the fine resolution was
-        most of a loop test's time."""
+        most of a loop test's time.
+
+        With `reads` (the fine search's poses) only the _TILE x _TILE blocks of cells its
+        lookups reach are written (`tiles`), the same values in them to the bit: the fine
+        search reads about 400 points' 11 x 11 patches of a box of ~1,000 x 700 cells."""
         full_lo, shape, ij = _raster(points, resolution, margin)
         n_pad = math.ceil(pad / resolution) + 1
         i0 = np.maximum(
@@ -117,8 +128,21 @@ class LikelihoodGrid:
         like_of = like_of.astype(np.float32)
         like_of[-1] = 0.0
         sub = i1 - i0
-        dist, like_t = _disc_field(cells, int(sub[1]), int(sub[0]), r, dist_of, like_of)
         origin = full_lo + i0 * resolution
+        if reads is not None:
+            tiles = _fine_tiles(
+                origin, resolution, reads.points, reads.centres, reads.thetas, reads.half,
+                int(sub[0]), int(sub[1]), _TILE_MARGIN,
+            )  # fmt: skip
+            dist, like_t, far_seen = _disc_tiles(
+                cells, int(sub[1]), int(sub[0]), r, dist_of, like_of, tiles
+            )
+            return cls(
+                origin, resolution, like_t.T, like_t, dist, tiles,
+                float(dist_of[-1]) if far_seen else None,
+                lambda: cls.window(points, resolution, sigma, lo, hi, margin, cap, pad),
+            )  # fmt: skip
+        dist, like_t = _disc_field(cells, int(sub[1]), int(sub[0]), r, dist_of, like_of)
         return cls(origin, resolution, like_t.T, like_t, dist)
 
     @classmethod
@@ -183,7 +207,20 @@ class LikelihoodGrid:
         pts = np.ascontiguousarray(points, dtype=np.float64)
         out = np.empty(len(pts))
         origin = np.asarray(self.origin, dtype=np.float64)
-        outside = _lookup(self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out)
+        if self.tiles is not None:
+            outside = _lookup(
+                self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out,
+                self.tiles,
+            )  # fmt: skip
+            missing = outside.shape[0] == 0  # a lookup beyond the tiles: the dense grid's
+            if missing or (outside.any() and self.distance_max is None):
+                assert self.dense is not None
+                return self.dense().distances(points, pose)
+            out[outside] = self.distance_max
+            return out
+        outside = _lookup(
+            self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out, None
+        )
         if outside.any():  # the grid's largest distance (a pass over every cell) only if needed
             out[outside] = float(self.distance.max())
         return out
@@ -200,9 +237,11 @@ def _lookup(
     c: float,
     s: float,
     out: np.ndarray,
+    tiles: np.ndarray | None,
 ) -> np.ndarray:
     """`LikelihoodGrid.distances`' lookups (numpy's arithmetic, in one pass) into `out`;
-    returns which points fall off the grid (their `out` is left to the caller)."""
+    returns which points fall off the grid (their `out` is left to the caller), or an
+    empty array when one falls in a tile of `tiles` (if given) that holds no values."""
     h, w = dist.shape
     outside = np.zeros(pts.shape[0], dtype=np.bool_)
     for k in range(pts.shape[0]):
@@ -211,6 +250,8 @@ def _lookup(
         i = math.floor((x - origin[0]) / res)
         j = math.floor((y - origin[1]) / res)
         if 0 <= i < w and 0 <= j < h:
+            if tiles is not None and not tiles[i // _TILE, j // _TILE]:
+                return np.zeros(0, dtype=np.bool_)
             out[k] = dist[j, i]
         else:
             outside[k] = True
@@ -362,6 +403,167 @@ def _disc_field(
                 dist[j, i] = dist_of[d]
                 like_t[i, j] = like_of[d]
     return dist, like_t
+
+
+_TILE = 32  # cells a side of `LikelihoodGrid.window`'s tiles (with `reads`)
+_CLIP = 1  # `_disc_tiles` clips a disc by the occupied cells up to this far (cells, x and y)
+_TILE_MARGIN = 2  # cells around the fine search's patches also in the tiles (its final lookups)
+
+
+@dataclass(frozen=True)
+class FineReads:
+    """Where a correlative search's fine level reads its grid: `points` (N x 2) at each of
+    `centres` (K x 3) turned by each of `thetas` and moved by (-half .. half) cells in x, y."""
+
+    points: np.ndarray
+    centres: np.ndarray
+    thetas: np.ndarray
+    half: int
+
+
+@nb.njit(cache=True, nogil=True)
+def _fine_tiles(
+    origin: np.ndarray,
+    res: float,
+    pts: np.ndarray,
+    centres: np.ndarray,
+    thetas: np.ndarray,
+    half: int,
+    w: int,
+    h: int,
+    margin: int,
+) -> np.ndarray:
+    """The _TILE x _TILE tiles (columns / _TILE, rows / _TILE) of a w x h grid that `_search`
+    reads for `pts` at every (centre, theta) with offsets +-`half` cells (its arithmetic),
+    and `margin` cells more around each patch."""
+    tw, th = (w + _TILE - 1) // _TILE, (h + _TILE - 1) // _TILE
+    mask = np.zeros((tw, th), dtype=np.bool_)
+    inv = 1.0 / res
+    for m in range(centres.shape[0]):
+        for a in range(thetas.shape[0]):
+            t = centres[m, 2] + thetas[a]
+            c, s = math.cos(t), math.sin(t)
+            for k in range(pts.shape[0]):
+                ci0 = math.floor((centres[m, 0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv)
+                cj0 = math.floor((centres[m, 1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv)
+                i0, i1 = max(ci0 - half - margin, 0), min(ci0 + half + margin, w - 1)
+                j0, j1 = max(cj0 - half - margin, 0), min(cj0 + half + margin, h - 1)
+                if i0 > i1 or j0 > j1:
+                    continue
+                for tx in range(i0 // _TILE, i1 // _TILE + 1):
+                    for ty in range(j0 // _TILE, j1 // _TILE + 1):
+                        mask[tx, ty] = True
+    return mask
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _occ_at(occ: np.ndarray, i: int, j: int, w: int, h: int) -> bool:
+    """Whether cell (i, j) of a w x h grid is occupied in `occ` (its own frame: no border)."""
+    return 0 <= i < w and 0 <= j < h and occ[j, i] > 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _disc_tiles(
+    cells: np.ndarray,
+    h: int,
+    w: int,
+    r: int,
+    dist_of: np.ndarray,
+    like_of: np.ndarray,
+    mask: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """`_disc_field` written only in the tiles of `mask` (_TILE x _TILE cells; elsewhere the
+    arrays are left unwritten), the same values there: the squared distances are kept per
+    tile, and only occupied cells within r cells (in x and y) of a tile stamp, which
+    includes every tile cell's nearest (its disc clipped by the same rule). Also whether a
+    cell of the tiles is beyond r (then the grid's largest distance is the tables' last)."""
+    far = r * r + 1
+    tw, th = mask.shape
+    tid = np.full((tw, th), -1, dtype=np.int64)
+    n_tiles = 0
+    for tx in range(tw):
+        for ty in range(th):
+            if mask[tx, ty]:
+                tid[tx, ty] = n_tiles
+                n_tiles += 1
+    d2 = np.full((n_tiles, _TILE, _TILE), far, dtype=np.int32)  # (tile, row, column)
+    nbr = np.empty(((2 * _CLIP + 1) ** 2, 2), dtype=np.int64)
+    occ = np.zeros((h, w), dtype=np.uint8)  # 1 occupied, 2 stamped
+    for k in range(cells.shape[0]):
+        occ[cells[k, 1], cells[k, 0]] = 1
+    for k in range(cells.shape[0]):
+        ci, cj = cells[k, 0], cells[k, 1]
+        if occ[cj, ci] == 2:
+            continue
+        occ[cj, ci] = 2
+        near = False
+        for tx in range(max(ci - r, 0) // _TILE, min(ci + r, w - 1) // _TILE + 1):
+            for ty in range(max(cj - r, 0) // _TILE, min(cj + r, h - 1) // _TILE + 1):
+                near = near or mask[tx, ty]
+        if not near:
+            continue
+        # the occupied cells e away (|e| <= _CLIP in x and y): p with 2 (p - c) . e > e . e is
+        # strictly nearer c + e, so c stamps only the cells of the half-planes' intersection
+        ne = 0
+        dy0, dy1 = -r, r
+        for ey in range(-_CLIP, _CLIP + 1):
+            for ex in range(-_CLIP, _CLIP + 1):
+                if (ex != 0 or ey != 0) and _occ_at(occ, ci + ex, cj + ey, w, h):
+                    if ex == 0:  # whole rows: 2 dy ey <= ey^2
+                        if ey > 0:
+                            dy1 = min(dy1, ey // 2)
+                        else:
+                            dy0 = max(dy0, -((-ey) // 2))
+                    else:
+                        nbr[ne, 0], nbr[ne, 1] = ex, ey
+                        ne += 1
+        for dj in range(dy0, dy1 + 1):
+            j = cj + dj
+            if j < 0 or j >= h:
+                continue
+            m = r
+            while m * m + dj * dj > r * r:
+                m -= 1
+            lo, hi = -m, m
+            for q in range(ne):
+                ex, ey = nbr[q, 0], nbr[q, 1]
+                num = ex * ex + ey * ey - 2 * dj * ey  # 2 dx ex <= num
+                if ex > 0:
+                    hi = min(hi, num // (2 * ex))
+                else:
+                    lo = max(lo, -((-num) // (2 * ex)))
+            if lo > hi:
+                continue
+            ty, jl = j // _TILE, j % _TILE
+            i, end = max(ci + lo, 0), min(ci + hi + 1, w)
+            while i < end:
+                tx = i // _TILE
+                stop = min((tx + 1) * _TILE, end)
+                t = tid[tx, ty]
+                if t >= 0:
+                    row = d2[t, jl]
+                    for ii in range(i, stop):
+                        d = (ii - ci) * (ii - ci) + dj * dj
+                        il = ii - tx * _TILE
+                        if d < row[il]:
+                            row[il] = d
+                i = stop
+    dist = np.empty((h, w), dtype=np.float32)
+    like_t = np.empty((w, h), dtype=np.float32)
+    far_seen = False
+    for tx in range(tw):
+        for ty in range(th):
+            t = tid[tx, ty]
+            if t < 0:
+                continue
+            for j in range(ty * _TILE, min((ty + 1) * _TILE, h)):
+                row = d2[t, j - ty * _TILE]
+                for i in range(tx * _TILE, min((tx + 1) * _TILE, w)):
+                    d = row[i - tx * _TILE]
+                    far_seen = far_seen or d == far
+                    dist[j, i] = dist_of[d]
+                    like_t[i, j] = like_of[d]
+    return dist, like_t, far_seen
 
 
 @nb.njit(cache=True, nogil=True)
@@ -957,9 +1159,20 @@ def _coarse_level(
     return starts, float(vol[best_a, best_i, best_j]), runner_up, offsets, thetas
 
 
+def _fine_thetas(turn_step: float) -> np.ndarray:
+    """The fine level's headings around each coarse start."""
+    return np.linspace(-turn_step, turn_step, 7)
+
+
+def _centres(prediction: np.ndarray, tops: list[np.ndarray]) -> np.ndarray:
+    """The fine level's centres (K x 3): `prediction` moved by each coarse start's offsets."""
+    rows = [[prediction[0] + p[0], prediction[1] + p[1], prediction[2] + p[2]] for p in tops]
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
-    fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
+    fine: LikelihoodGrid | Callable[..., LikelihoodGrid],
     points: np.ndarray,
     prediction: np.ndarray,
     window: float,
@@ -972,6 +1185,7 @@ def correlative_search(
     candidates: int = 3,
     fine_resolution: float = 0.0,
     exhaustive: bool = False,
+    fine_reads: bool = False,
 ) -> SearchResult:
     """Exhaustive coarse search of the window (+-`window` m, +-`turn` rad around
     `prediction`), then a fine search around the `candidates` best coarse poses. The runner-up
@@ -982,7 +1196,8 @@ def correlative_search(
 
     The coarse level is searched by branch and bound (`_bounded_starts`: the same starts,
     winner's score and runner-up, to the bit, from a fraction of the lookups); `exhaustive`
-    scores every coarse pose instead (what the bounding is checked against)."""
+    scores every coarse pose instead (what the bounding is checked against). With
+    `fine_reads` a callable `fine` is also given where the fine level reads (`FineReads`)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     coarse_pts = (
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
@@ -1004,13 +1219,17 @@ def correlative_search(
             th = prediction[2] + p[2]
             c, s = math.cos(th), math.sin(th)
             _placed_bounds(pts, prediction[0] + p[0], prediction[1] + p[1], c, s, box[m])
-        fine = fine(box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach)
+        box_lo, box_hi = box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach
+        if fine_reads:
+            reads = FineReads(pts, _centres(prediction, tops), _fine_thetas(turn_step), fine_half)
+            fine = fine(box_lo, box_hi, reads)
+        else:
+            fine = fine(box_lo, box_hi)
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
-    fine_thetas = np.linspace(-turn_step, turn_step, 7)
+    fine_thetas = _fine_thetas(turn_step)
     best = (-1.0, prediction)
-    for p in tops:
-        centre = np.array([prediction[0] + p[0], prediction[1] + p[1], prediction[2] + p[2]])
+    for centre in _centres(prediction, tops):
         fv = _search(
             fine.likelihood_t, fine.origin, fine.resolution, pts, centre, fine_thetas, fine_half
         )

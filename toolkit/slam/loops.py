@@ -34,6 +34,7 @@ import numpy as np
 from toolkit.dataset import LaserGeometry
 from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
+    FineReads,
     LikelihoodGrid,
     SearchResult,
     bounds,
@@ -251,9 +252,11 @@ def _search(
     coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
     grids: list[LikelihoodGrid] = []
 
-    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
+    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray, reads: FineReads) -> LikelihoodGrid:
         grids.append(
-            LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
+            LikelihoodGrid.window(
+                ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5, reads=reads
+            )
         )
         return grids[-1]
 
@@ -267,6 +270,7 @@ def _search(
         turn_step=cfg.turn_step,
         coarse_voxel=cfg.coarse_voxel,
         fine_resolution=cfg.fine,
+        fine_reads=True,
     )
     return found, coarse, grids[0]
 
