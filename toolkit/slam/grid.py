@@ -406,7 +406,6 @@ def _disc_field(
 
 
 _TILE = 32  # cells a side of `LikelihoodGrid.window`'s tiles (with `reads`)
-_CLIP = 1  # `_disc_tiles` clips a disc by the occupied cells up to this far (cells, x and y)
 _TILE_MARGIN = 2  # cells around the fine search's patches also in the tiles (its final lookups)
 
 
@@ -456,12 +455,6 @@ def _fine_tiles(
     return mask
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _occ_at(occ: np.ndarray, i: int, j: int, w: int, h: int) -> bool:
-    """Whether cell (i, j) of a w x h grid is occupied in `occ` (its own frame: no border)."""
-    return 0 <= i < w and 0 <= j < h and occ[j, i] > 0
-
-
 @nb.njit(cache=True, nogil=True)
 def _disc_tiles(
     cells: np.ndarray,
@@ -473,50 +466,39 @@ def _disc_tiles(
     mask: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """`_disc_field` written only in the tiles of `mask` (_TILE x _TILE cells; elsewhere the
-    arrays are left unwritten), the same values there: the squared distances are kept per
-    tile, and only occupied cells within r cells (in x and y) of a tile stamp, which
-    includes every tile cell's nearest (its disc clipped by the same rule). Also whether a
-    cell of the tiles is beyond r (then the grid's largest distance is the tables' last)."""
+    arrays are left unwritten), the same values there: the squared distances start at
+    "beyond r" in the tiles only (elsewhere they are never read), and only the occupied
+    cells within r cells (in x and y) of a tile stamp, which includes every tile cell's
+    nearest. Also whether a cell of the tiles is beyond r (then the grid's largest distance
+    is the tables' last)."""
     far = r * r + 1
     tw, th = mask.shape
-    tid = np.full((tw, th), -1, dtype=np.int64)
-    n_tiles = 0
+    d2 = np.empty((h, w), dtype=np.int32)
     for tx in range(tw):
         for ty in range(th):
             if mask[tx, ty]:
-                tid[tx, ty] = n_tiles
-                n_tiles += 1
-    d2 = np.full((n_tiles, _TILE, _TILE), far, dtype=np.int32)  # (tile, row, column)
-    nbr = np.empty(((2 * _CLIP + 1) ** 2, 2), dtype=np.int64)
-    occ = np.zeros((h, w), dtype=np.uint8)  # 1 occupied, 2 stamped
+                d2[ty * _TILE : (ty + 1) * _TILE, tx * _TILE : (tx + 1) * _TILE] = far
+    occ = np.zeros((h + 2, w + 2), dtype=np.uint8)  # 1 occupied, 2 stamped; a border of 0
     for k in range(cells.shape[0]):
-        occ[cells[k, 1], cells[k, 0]] = 1
+        occ[cells[k, 1] + 1, cells[k, 0] + 1] = 1
     for k in range(cells.shape[0]):
         ci, cj = cells[k, 0], cells[k, 1]
-        if occ[cj, ci] == 2:
+        if occ[cj + 1, ci + 1] == 2:
             continue
-        occ[cj, ci] = 2
+        occ[cj + 1, ci + 1] = 2
         near = False
         for tx in range(max(ci - r, 0) // _TILE, min(ci + r, w - 1) // _TILE + 1):
             for ty in range(max(cj - r, 0) // _TILE, min(cj + r, h - 1) // _TILE + 1):
                 near = near or mask[tx, ty]
         if not near:
             continue
-        # the occupied cells e away (|e| <= _CLIP in x and y): p with 2 (p - c) . e > e . e is
-        # strictly nearer c + e, so c stamps only the cells of the half-planes' intersection
-        ne = 0
-        dy0, dy1 = -r, r
-        for ey in range(-_CLIP, _CLIP + 1):
-            for ex in range(-_CLIP, _CLIP + 1):
-                if (ex != 0 or ey != 0) and _occ_at(occ, ci + ex, cj + ey, w, h):
-                    if ex == 0:  # whole rows: 2 dy ey <= ey^2
-                        if ey > 0:
-                            dy1 = min(dy1, ey // 2)
-                        else:
-                            dy0 = max(dy0, -((-ey) // 2))
-                    else:
-                        nbr[ne, 0], nbr[ne, 1] = ex, ey
-                        ne += 1
+        # `_disc_field`'s clipped disc (outside the tiles the minimum is of unread values)
+        east, west = occ[cj + 1, ci + 2] > 0, occ[cj + 1, ci] > 0
+        north, south = occ[cj + 2, ci + 1] > 0, occ[cj, ci + 1] > 0
+        ne, nw = occ[cj + 2, ci + 2] > 0, occ[cj + 2, ci] > 0
+        se, sw = occ[cj, ci + 2] > 0, occ[cj, ci] > 0
+        dy0 = 0 if south else -r
+        dy1 = 0 if north else r
         for dj in range(dy0, dy1 + 1):
             j = cj + dj
             if j < 0 or j >= h:
@@ -525,44 +507,40 @@ def _disc_tiles(
             while m * m + dj * dj > r * r:
                 m -= 1
             lo, hi = -m, m
-            for q in range(ne):
-                ex, ey = nbr[q, 0], nbr[q, 1]
-                num = ex * ex + ey * ey - 2 * dj * ey  # 2 dx ex <= num
-                if ex > 0:
-                    hi = min(hi, num // (2 * ex))
-                else:
-                    lo = max(lo, -((-num) // (2 * ex)))
-            if lo > hi:
-                continue
-            ty, jl = j // _TILE, j % _TILE
-            i, end = max(ci + lo, 0), min(ci + hi + 1, w)
-            while i < end:
-                tx = i // _TILE
-                stop = min((tx + 1) * _TILE, end)
-                t = tid[tx, ty]
-                if t >= 0:
-                    row = d2[t, jl]
-                    for ii in range(i, stop):
-                        d = (ii - ci) * (ii - ci) + dj * dj
-                        il = ii - tx * _TILE
-                        if d < row[il]:
-                            row[il] = d
-                i = stop
+            if east:
+                hi = min(hi, 0)
+            if west:
+                lo = max(lo, 0)
+            if ne:  # dx + dy <= 1
+                hi = min(hi, 1 - dj)
+            if se:  # dx - dy <= 1
+                hi = min(hi, 1 + dj)
+            if nw:  # -dx + dy <= 1
+                lo = max(lo, dj - 1)
+            if sw:  # -dx - dy <= 1
+                lo = max(lo, -dj - 1)
+            row = d2[j]
+            for i in range(max(ci + lo, 0), min(ci + hi + 1, w)):
+                d = (i - ci) * (i - ci) + dj * dj
+                if d < row[i]:
+                    row[i] = d
     dist = np.empty((h, w), dtype=np.float32)
     like_t = np.empty((w, h), dtype=np.float32)
     far_seen = False
     for tx in range(tw):
         for ty in range(th):
-            t = tid[tx, ty]
-            if t < 0:
+            if not mask[tx, ty]:
                 continue
-            for j in range(ty * _TILE, min((ty + 1) * _TILE, h)):
-                row = d2[t, j - ty * _TILE]
-                for i in range(tx * _TILE, min((tx + 1) * _TILE, w)):
-                    d = row[i - tx * _TILE]
+            j0, j1 = ty * _TILE, min((ty + 1) * _TILE, h)
+            i0, i1 = tx * _TILE, min((tx + 1) * _TILE, w)
+            for j in range(j0, j1):  # each array written along its rows
+                for i in range(i0, i1):
+                    d = d2[j, i]
                     far_seen = far_seen or d == far
                     dist[j, i] = dist_of[d]
-                    like_t[i, j] = like_of[d]
+            for i in range(i0, i1):
+                for j in range(j0, j1):
+                    like_t[i, j] = like_of[d2[j, i]]
     return dist, like_t, far_seen
 
 
