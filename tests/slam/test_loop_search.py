@@ -1,8 +1,8 @@
 """The loop closer's shortcuts give what the long way gave: the fine grid over the query's
-landing box (and the tiles of it the fine search reads) has the whole grid's values where they
-matter, the correlative search with it finds the same poses, the keyframe hash finds the
-candidates a scan of every earlier keyframe finds, and the second round verifies no pair
-twice while the building's loops still close with no false one."""
+landing box has the whole grid's values where they matter, the correlative search with it
+finds the same poses, the keyframe hash finds the candidates a scan of every earlier keyframe
+finds, and the second round verifies no pair twice while the building's loops still close
+with no false one."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.se2 import between
 from toolkit.sim import Simulation
 from toolkit.slam import loops as lp_mod
-from toolkit.slam.grid import _TILE, FineReads, LikelihoodGrid, correlative_search
+from toolkit.slam.grid import LikelihoodGrid, correlative_search
 from toolkit.slam.loops import KeyIndex, LoopCloser, LoopConfig, path_length
 from toolkit.slam.pipeline import SlamConfig, close_loops, keyframes_of
 
@@ -100,20 +100,6 @@ def test_search_over_the_window_finds_what_the_whole_grid_finds(
         query = closer._local(b, np.array([b]), odo)
         ref, coarse, whole = reference_grids(closer, a, odo, along, keys)
         prediction = between(odo[a], odo[b])
-        tiled: list[LikelihoodGrid] = []
-
-        def by_tiles(
-            lo: np.ndarray,
-            hi: np.ndarray,
-            reads: FineReads,
-            ref: np.ndarray = ref,
-            tiled: list[LikelihoodGrid] = tiled,
-        ) -> LikelihoodGrid:
-            tiled.append(
-                LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, lo, hi, 0.5, reads=reads)
-            )
-            return tiled[-1]
-
         found = [
             correlative_search(
                 coarse,
@@ -125,37 +111,19 @@ def test_search_over_the_window_finds_what_the_whole_grid_finds(
                 turn_step=cfg.turn_step,
                 coarse_voxel=cfg.coarse_voxel,
                 fine_resolution=cfg.fine,
-                fine_reads=reads,
             )
-            for fine, reads in (
-                (whole, False),
-                (
-                    lambda lo, hi, ref=ref: LikelihoodGrid.window(
-                        ref, cfg.fine, cfg.fine_sigma, lo, hi, margin=0.5
-                    ),
-                    False,
+            for fine in (
+                whole,
+                lambda lo, hi, ref=ref: LikelihoodGrid.window(
+                    ref, cfg.fine, cfg.fine_sigma, lo, hi, margin=0.5
                 ),
-                (by_tiles, True),
             )
         ]
-        for other in found[1:]:
-            np.testing.assert_array_equal(found[0].pose, other.pose)
-            assert found[0].coarse_score == other.coarse_score
-            assert found[0].runner_up == other.runner_up
-            assert found[0].inliers == other.inliers
-            assert found[0].score == pytest.approx(other.score, abs=1e-9)
-        assert found[1].score == found[2].score  # the same cells read, in the same order
-        # the tiles hold the dense window's values, and only part of its cells
-        grid = tiled[0]
-        assert grid.tiles is not None and grid.dense is not None
-        dense = grid.dense()
-        h, w = dense.distance.shape
-        built = np.kron(grid.tiles.T, np.ones((_TILE, _TILE), dtype=bool))[:h, :w]
-        assert 0 < built.mean() < 1
-        np.testing.assert_array_equal(grid.distance[built], dense.distance[built])
-        np.testing.assert_array_equal(grid.likelihood[built], dense.likelihood[built])
-        if grid.distance_max is not None:
-            assert grid.distance_max == float(dense.distance.max())
+        np.testing.assert_array_equal(found[0].pose, found[1].pose)
+        assert found[0].coarse_score == found[1].coarse_score
+        assert found[0].runner_up == found[1].runner_up
+        assert found[0].inliers == found[1].inliers
+        assert found[0].score == pytest.approx(found[1].score, abs=1e-9)
 
 
 def test_second_round_verifies_no_pair_twice_and_the_building_still_closes(

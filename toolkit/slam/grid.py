@@ -41,12 +41,6 @@ class LikelihoodGrid:
     likelihood: np.ndarray  # H x W float32 in [0, 1]
     likelihood_t: np.ndarray  # its transpose, contiguous (W x H): the search's layout
     distance: np.ndarray  # H x W float32: distance (m) to the nearest map point, capped
-    # `window`'s with `reads`: which _TILE x _TILE blocks of cells (columns / _TILE, rows /
-    # _TILE) hold values (the rest is left unwritten), the grid's largest distance when the
-    # tiles show it, and the dense grid, built when a lookup reaches beyond the tiles
-    tiles: np.ndarray | None = None
-    distance_max: float | None = None
-    dense: Callable[[], LikelihoodGrid] | None = None
 
     @classmethod
     def build(
@@ -94,7 +88,6 @@ class LikelihoodGrid:
         margin: float = 1.0,
         cap: float = 2.0,
         pad: float = 0.6,
-        reads: FineReads | None = None,
     ) -> LikelihoodGrid:
         """The part of `build(points, resolution, sigma, margin, cap)`'s grid that covers the
         box `lo`-`hi`, the same cells (same origin and rasterisation) and, within `pad` m of
@@ -103,11 +96,7 @@ class LikelihoodGrid:
         exp(-pad^2/2 sigma^2), nil). Each occupied cell stamps the disc of cells within `pad`
         (numba) instead of a distance transform of the whole map: a correlative search's fine
         level needs only where the query lands, and the whole map at the fine resolution was
-        most of a loop test's time.
-
-        With `reads` (the fine search's poses) only the _TILE x _TILE blocks of cells its
-        lookups reach are written (`tiles`), the same values in them to the bit: the fine
-        search reads about 400 points' 11 x 11 patches of a box of ~1,000 x 700 cells."""
+        most of a loop test's time."""
         full_lo, shape, ij = _raster(points, resolution, margin)
         n_pad = math.ceil(pad / resolution) + 1
         i0 = np.maximum(
@@ -128,21 +117,8 @@ class LikelihoodGrid:
         like_of = like_of.astype(np.float32)
         like_of[-1] = 0.0
         sub = i1 - i0
-        origin = full_lo + i0 * resolution
-        if reads is not None:
-            tiles = _fine_tiles(
-                origin, resolution, reads.points, reads.centres, reads.thetas, reads.half,
-                int(sub[0]), int(sub[1]), _TILE_MARGIN,
-            )  # fmt: skip
-            dist, like_t, far_seen = _disc_tiles(
-                cells, int(sub[1]), int(sub[0]), r, dist_of, like_of, tiles
-            )
-            return cls(
-                origin, resolution, like_t.T, like_t, dist, tiles,
-                float(dist_of[-1]) if far_seen else None,
-                lambda: cls.window(points, resolution, sigma, lo, hi, margin, cap, pad),
-            )  # fmt: skip
         dist, like_t = _disc_field(cells, int(sub[1]), int(sub[0]), r, dist_of, like_of)
+        origin = full_lo + i0 * resolution
         return cls(origin, resolution, like_t.T, like_t, dist)
 
     @classmethod
@@ -207,20 +183,7 @@ class LikelihoodGrid:
         pts = np.ascontiguousarray(points, dtype=np.float64)
         out = np.empty(len(pts))
         origin = np.asarray(self.origin, dtype=np.float64)
-        if self.tiles is not None:
-            outside = _lookup(
-                self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out,
-                self.tiles,
-            )  # fmt: skip
-            missing = outside.shape[0] == 0  # a lookup beyond the tiles: the dense grid's
-            if missing or (outside.any() and self.distance_max is None):
-                assert self.dense is not None
-                return self.dense().distances(points, pose)
-            out[outside] = self.distance_max
-            return out
-        outside = _lookup(
-            self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out, None
-        )
+        outside = _lookup(self.distance, origin, self.resolution, pts, pose[0], pose[1], c, s, out)
         if outside.any():  # the grid's largest distance (a pass over every cell) only if needed
             out[outside] = float(self.distance.max())
         return out
@@ -237,11 +200,9 @@ def _lookup(
     c: float,
     s: float,
     out: np.ndarray,
-    tiles: np.ndarray | None,
 ) -> np.ndarray:
     """`LikelihoodGrid.distances`' lookups (numpy's arithmetic, in one pass) into `out`;
-    returns which points fall off the grid (their `out` is left to the caller), or an
-    empty array when one falls in a tile of `tiles` (if given) that holds no values."""
+    returns which points fall off the grid (their `out` is left to the caller)."""
     h, w = dist.shape
     outside = np.zeros(pts.shape[0], dtype=np.bool_)
     for k in range(pts.shape[0]):
@@ -250,8 +211,6 @@ def _lookup(
         i = math.floor((x - origin[0]) / res)
         j = math.floor((y - origin[1]) / res)
         if 0 <= i < w and 0 <= j < h:
-            if tiles is not None and not tiles[i // _TILE, j // _TILE]:
-                return np.zeros(0, dtype=np.bool_)
             out[k] = dist[j, i]
         else:
             outside[k] = True
@@ -403,145 +362,6 @@ def _disc_field(
                 dist[j, i] = dist_of[d]
                 like_t[i, j] = like_of[d]
     return dist, like_t
-
-
-_TILE = 32  # cells a side of `LikelihoodGrid.window`'s tiles (with `reads`)
-_TILE_MARGIN = 2  # cells around the fine search's patches also in the tiles (its final lookups)
-
-
-@dataclass(frozen=True)
-class FineReads:
-    """Where a correlative search's fine level reads its grid: `points` (N x 2) at each of
-    `centres` (K x 3) turned by each of `thetas` and moved by (-half .. half) cells in x, y."""
-
-    points: np.ndarray
-    centres: np.ndarray
-    thetas: np.ndarray
-    half: int
-
-
-@nb.njit(cache=True, nogil=True)
-def _fine_tiles(
-    origin: np.ndarray,
-    res: float,
-    pts: np.ndarray,
-    centres: np.ndarray,
-    thetas: np.ndarray,
-    half: int,
-    w: int,
-    h: int,
-    margin: int,
-) -> np.ndarray:
-    """The _TILE x _TILE tiles (columns / _TILE, rows / _TILE) of a w x h grid that `_search`
-    reads for `pts` at every (centre, theta) with offsets +-`half` cells (its arithmetic),
-    and `margin` cells more around each patch."""
-    tw, th = (w + _TILE - 1) // _TILE, (h + _TILE - 1) // _TILE
-    mask = np.zeros((tw, th), dtype=np.bool_)
-    inv = 1.0 / res
-    for m in range(centres.shape[0]):
-        for a in range(thetas.shape[0]):
-            t = centres[m, 2] + thetas[a]
-            c, s = math.cos(t), math.sin(t)
-            for k in range(pts.shape[0]):
-                ci0 = math.floor((centres[m, 0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv)
-                cj0 = math.floor((centres[m, 1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv)
-                i0, i1 = max(ci0 - half - margin, 0), min(ci0 + half + margin, w - 1)
-                j0, j1 = max(cj0 - half - margin, 0), min(cj0 + half + margin, h - 1)
-                if i0 > i1 or j0 > j1:
-                    continue
-                for tx in range(i0 // _TILE, i1 // _TILE + 1):
-                    for ty in range(j0 // _TILE, j1 // _TILE + 1):
-                        mask[tx, ty] = True
-    return mask
-
-
-@nb.njit(cache=True, nogil=True)
-def _disc_tiles(
-    cells: np.ndarray,
-    h: int,
-    w: int,
-    r: int,
-    dist_of: np.ndarray,
-    like_of: np.ndarray,
-    mask: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, bool]:
-    """`_disc_field` written only in the tiles of `mask` (_TILE x _TILE cells; elsewhere the
-    arrays are left unwritten), the same values there: the squared distances start at
-    "beyond r" in the tiles only (elsewhere they are never read), and only the occupied
-    cells within r cells (in x and y) of a tile stamp, which includes every tile cell's
-    nearest. Also whether a cell of the tiles is beyond r (then the grid's largest distance
-    is the tables' last)."""
-    far = r * r + 1
-    tw, th = mask.shape
-    d2 = np.empty((h, w), dtype=np.int32)
-    for tx in range(tw):
-        for ty in range(th):
-            if mask[tx, ty]:
-                d2[ty * _TILE : (ty + 1) * _TILE, tx * _TILE : (tx + 1) * _TILE] = far
-    occ = np.zeros((h + 2, w + 2), dtype=np.uint8)  # 1 occupied, 2 stamped; a border of 0
-    for k in range(cells.shape[0]):
-        occ[cells[k, 1] + 1, cells[k, 0] + 1] = 1
-    for k in range(cells.shape[0]):
-        ci, cj = cells[k, 0], cells[k, 1]
-        if occ[cj + 1, ci + 1] == 2:
-            continue
-        occ[cj + 1, ci + 1] = 2
-        near = False
-        for tx in range(max(ci - r, 0) // _TILE, min(ci + r, w - 1) // _TILE + 1):
-            for ty in range(max(cj - r, 0) // _TILE, min(cj + r, h - 1) // _TILE + 1):
-                near = near or mask[tx, ty]
-        if not near:
-            continue
-        # `_disc_field`'s clipped disc (outside the tiles the minimum is of unread values)
-        east, west = occ[cj + 1, ci + 2] > 0, occ[cj + 1, ci] > 0
-        north, south = occ[cj + 2, ci + 1] > 0, occ[cj, ci + 1] > 0
-        ne, nw = occ[cj + 2, ci + 2] > 0, occ[cj + 2, ci] > 0
-        se, sw = occ[cj, ci + 2] > 0, occ[cj, ci] > 0
-        dy0 = 0 if south else -r
-        dy1 = 0 if north else r
-        for dj in range(dy0, dy1 + 1):
-            j = cj + dj
-            if j < 0 or j >= h:
-                continue
-            m = r
-            while m * m + dj * dj > r * r:
-                m -= 1
-            lo, hi = -m, m
-            if east:
-                hi = min(hi, 0)
-            if west:
-                lo = max(lo, 0)
-            if ne:  # dx + dy <= 1
-                hi = min(hi, 1 - dj)
-            if se:  # dx - dy <= 1
-                hi = min(hi, 1 + dj)
-            if nw:  # -dx + dy <= 1
-                lo = max(lo, dj - 1)
-            if sw:  # -dx - dy <= 1
-                lo = max(lo, -dj - 1)
-            row = d2[j]
-            for i in range(max(ci + lo, 0), min(ci + hi + 1, w)):
-                d = (i - ci) * (i - ci) + dj * dj
-                if d < row[i]:
-                    row[i] = d
-    dist = np.empty((h, w), dtype=np.float32)
-    like_t = np.empty((w, h), dtype=np.float32)
-    far_seen = False
-    for tx in range(tw):
-        for ty in range(th):
-            if not mask[tx, ty]:
-                continue
-            j0, j1 = ty * _TILE, min((ty + 1) * _TILE, h)
-            i0, i1 = tx * _TILE, min((tx + 1) * _TILE, w)
-            for j in range(j0, j1):  # each array written along its rows
-                for i in range(i0, i1):
-                    d = d2[j, i]
-                    far_seen = far_seen or d == far
-                    dist[j, i] = dist_of[d]
-            for i in range(i0, i1):
-                for j in range(j0, j1):
-                    like_t[i, j] = like_of[d2[j, i]]
-    return dist, like_t, far_seen
 
 
 @nb.njit(cache=True, nogil=True)
@@ -1137,20 +957,9 @@ def _coarse_level(
     return starts, float(vol[best_a, best_i, best_j]), runner_up, offsets, thetas
 
 
-def _fine_thetas(turn_step: float) -> np.ndarray:
-    """The fine level's headings around each coarse start."""
-    return np.linspace(-turn_step, turn_step, 7)
-
-
-def _centres(prediction: np.ndarray, tops: list[np.ndarray]) -> np.ndarray:
-    """The fine level's centres (K x 3): `prediction` moved by each coarse start's offsets."""
-    rows = [[prediction[0] + p[0], prediction[1] + p[1], prediction[2] + p[2]] for p in tops]
-    return np.array(rows, dtype=np.float64).reshape(-1, 3)
-
-
 def correlative_search(
     coarse: LikelihoodGrid,
-    fine: LikelihoodGrid | Callable[..., LikelihoodGrid],
+    fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
     points: np.ndarray,
     prediction: np.ndarray,
     window: float,
@@ -1163,7 +972,6 @@ def correlative_search(
     candidates: int = 3,
     fine_resolution: float = 0.0,
     exhaustive: bool = False,
-    fine_reads: bool = False,
 ) -> SearchResult:
     """Exhaustive coarse search of the window (+-`window` m, +-`turn` rad around
     `prediction`), then a fine search around the `candidates` best coarse poses. The runner-up
@@ -1174,8 +982,7 @@ def correlative_search(
 
     The coarse level is searched by branch and bound (`_bounded_starts`: the same starts,
     winner's score and runner-up, to the bit, from a fraction of the lookups); `exhaustive`
-    scores every coarse pose instead (what the bounding is checked against). With
-    `fine_reads` a callable `fine` is also given where the fine level reads (`FineReads`)."""
+    scores every coarse pose instead (what the bounding is checked against)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     coarse_pts = (
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
@@ -1197,17 +1004,13 @@ def correlative_search(
             th = prediction[2] + p[2]
             c, s = math.cos(th), math.sin(th)
             _placed_bounds(pts, prediction[0] + p[0], prediction[1] + p[1], c, s, box[m])
-        box_lo, box_hi = box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach
-        if fine_reads:
-            reads = FineReads(pts, _centres(prediction, tops), _fine_thetas(turn_step), fine_half)
-            fine = fine(box_lo, box_hi, reads)
-        else:
-            fine = fine(box_lo, box_hi)
+        fine = fine(box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach)
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
-    fine_thetas = _fine_thetas(turn_step)
+    fine_thetas = np.linspace(-turn_step, turn_step, 7)
     best = (-1.0, prediction)
-    for centre in _centres(prediction, tops):
+    for p in tops:
+        centre = np.array([prediction[0] + p[0], prediction[1] + p[1], prediction[2] + p[2]])
         fv = _search(
             fine.likelihood_t, fine.origin, fine.resolution, pts, centre, fine_thetas, fine_half
         )

@@ -34,7 +34,6 @@ import numpy as np
 from toolkit.dataset import LaserGeometry
 from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
-    FineReads,
     LikelihoodGrid,
     SearchResult,
     bounds,
@@ -252,11 +251,9 @@ def _search(
     coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
     grids: list[LikelihoodGrid] = []
 
-    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray, reads: FineReads) -> LikelihoodGrid:
+    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
         grids.append(
-            LikelihoodGrid.window(
-                ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5, reads=reads
-            )
+            LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
         )
         return grids[-1]
 
@@ -270,7 +267,6 @@ def _search(
         turn_step=cfg.turn_step,
         coarse_voxel=cfg.coarse_voxel,
         fine_resolution=cfg.fine,
-        fine_reads=True,
     )
     return found, coarse, grids[0]
 
