@@ -603,12 +603,29 @@ def local_map(
     of the two-sided width; the area of the free space around the robot (from the nearest
     end point per 22.5° of bearing); and per 22.5° from the heading, the nearest end point
     in the four mirror images (ahead left and right, behind left and right), sorted."""
+    beams = np.arange(0, laser.beams, LOCAL_BEAM_STEP)
+    lateral, polar = _profiles(ranges, laser, poses, along, half, rows, beams, LOCAL_SCANS)
+    return _local_finish(lateral, polar)
+
+
+def _profiles(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray | None,
+    along: np.ndarray,
+    half: float,
+    rows: slice | None,
+    beams: np.ndarray,
+    scans: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The lateral profile (S, 2, bins) and the polar nearest end points (S, 4, 4) of the end
+    points of `scans` scans (their `beams`) within `half` m of path of each scan of `rows`,
+    drawn into its frame (`_local_points`): what `local_map` and `opening` describe."""
     rows = rows or slice(0, len(ranges))
     lo, hi = context_windows(along, half, rows)
     own = np.arange(rows.start or 0, (rows.start or 0) + len(lo))
     n = len(ranges)
     pose = np.zeros((n, 3)) if poses is None or len(poses) != n else np.nan_to_num(poses)
-    beams = np.arange(0, laser.beams, LOCAL_BEAM_STEP)
     bearing = laser.angles[beams] + laser.yaw
     nbin = round(2 * LOCAL_REACH / LOCAL_BIN)
     lateral = np.empty((len(lo), 2, nbin))
@@ -624,13 +641,13 @@ def local_map(
         lo,
         hi,
         own,
-        LOCAL_SCANS,
+        scans,
         LOCAL_REACH,
         LOCAL_FAR,
         lateral,
         polar,
     )
-    return _local_finish(lateral, polar)
+    return lateral, polar
 
 
 #: scans (evenly spaced over `LOCAL_REACH` of path either side, every beam) whose end
@@ -656,32 +673,9 @@ def opening(
     side corridor's mouth or a hall's edge is metres wide, and a scan a metre past a door
     has a wall beside it: a single 180-degree scan sees neither the gap's length nor what
     is beside and behind the laser, the scans before and after it do."""
-    rows = rows or slice(0, len(ranges))
-    lo, hi = context_windows(along, LOCAL_REACH, rows)
-    own = np.arange(rows.start or 0, (rows.start or 0) + len(lo))
-    n = len(ranges)
-    pose = np.zeros((n, 3)) if poses is None or len(poses) != n else np.nan_to_num(poses)
-    bearing = laser.angles + laser.yaw
-    nbin = round(2 * LOCAL_REACH / LOCAL_BIN)
-    lateral = np.empty((len(lo), 2, nbin))
-    polar = np.empty((len(lo), 4, 4))
-    _local_points(
-        np.ascontiguousarray(ranges, dtype=np.float32),
-        np.arange(laser.beams),
-        np.cos(bearing),
-        np.sin(bearing),
-        laser.x,
-        laser.y,
-        np.ascontiguousarray(pose, dtype=np.float64),
-        lo,
-        hi,
-        own,
-        OPENING_SCANS,
-        LOCAL_REACH,
-        LOCAL_FAR,
-        lateral,
-        polar,
-    )
+    every = np.arange(laser.beams)
+    lateral, _ = _profiles(ranges, laser, poses, along, LOCAL_REACH, rows, every, OPENING_SCANS)
+    nbin = lateral.shape[2]
     centre = (np.arange(nbin) + 0.5) * LOCAL_BIN - LOCAL_REACH
     near = np.abs(centre) < strip + LOCAL_BIN / 2  # the bins that meet the strip
     open_ = lateral > LOCAL_OPEN
