@@ -21,7 +21,7 @@ def test_mixed_leaves_lower_the_calibration_error_on_another_run() -> None:
     good; and no place's forest probability is below leaf_mix / K anywhere. With the context
     window of the time (1 m of scans either side) and without the opened copies (session 13's
     default: 0.023 mixed against 0.025 unmixed with the old window): with session 12's window
-    this world's ECE is 0.026 mixed against 0.019 unmixed (docs/places.md, session 12); and
+    this world's ECE is 0.026 mixed against 0.019 unmixed (docs/journal/places.md, session 12); and
     with the no-returns ahead of the place (`glass_ahead`, session 13's descriptors: without
     them the mixed leaves' balanced accuracy here is 0.887 against 0.899)."""
     train, other = simulate("random", seed=13), simulate("random", seed=13, route=1)

@@ -195,9 +195,9 @@ def test_opened_copies_find_a_hall_of_the_other_kind(seed: int) -> None:
     world whose hall opens on both (protocol c): without the taught scans' copies with the
     less open side opened, none of that hall is found (measured 0.00, balanced accuracy
     0.578); with them almost all of it (0.98, 0.818). The same world's runs gain too
-    ((a) 0.795 -> 0.821, (b) 0.818 -> 0.849; docs/places.md, session 13). With the no-returns
-    ahead (`glass_ahead`, session 13's descriptors: without them the hall is found in 0.54 of
-    its scans without the opened copies)."""
+    ((a) 0.795 -> 0.821, (b) 0.818 -> 0.849; docs/journal/places.md, session 13). With the
+    no-returns ahead (`glass_ahead`, session 13's descriptors: without them the hall is found
+    in 0.54 of its scans without the opened copies)."""
     runs = worlds(seed)
     with_copies = protocol_scores(Config(glass_ahead=True), runs)
     without = protocol_scores(Config(augment_open=0.0, glass_ahead=True), runs)

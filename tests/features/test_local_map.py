@@ -71,7 +71,7 @@ def test_sparse_scans_get_the_local_map_instead_of_the_context() -> None:
     assert "local map" in model.fit_report["context"]
     # and no opened copies of the taught scans: without the context, a corridor's door
     # copied to both sides looks like a room (the Intel log's rooms: 0.815 -> 0.793 with
-    # them; on random worlds thinned to 1 m they are neutral: docs/places.md, session 13)
+    # them; on random worlds thinned to 1 m they are neutral: docs/journal/places.md, session 13)
     assert model.config.augment_open == 0.0 and "no opened copies" in model.fit_report["context"]
     off = fit(ds.ranges[every], ds.laser, training, Config(sparse_local_map=0.0), None, poses)
     assert off.config.local_map == 0.0

@@ -83,7 +83,7 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     assert model["config"]["context"] == 0.0 and model["fit_report"]["context"].startswith("off")
     assert model["config"]["local_map"] == 2.0
     # nor the taught scans' opened copies (one corridor scan's copy, its door opened on both
-    # sides, took the rooms to 0.793: docs/places.md, session 13)
+    # sides, took the rooms to 0.793: docs/journal/places.md, session 13)
     assert model["config"]["augment_open"] == 0.0
     assert "no opened copies" in model["fit_report"]["context"]
     assert found("corridor", corridor) > 0.5
@@ -127,7 +127,7 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     # the expert setting that describes the view ahead too (`Config(view_ahead=True)`): on
     # this lab, whose corridor is told from its rooms by the long view, the corridor is found
     # in 0.67 of its scans (rooms 0.85); on random worlds, dense or thinned to this log's
-    # 1 m, it loses (docs/places.md, session 13), so it is not the default
+    # 1 m, it loses (docs/journal/places.md, session 13), so it is not the default
     monkeypatch.setattr(fitting, "MIN_CONTEXT_SCANS", 3)
     ahead = fit(
         ds.ranges, ds.laser, training_indices(spans_), Config(view_ahead=True), spans_, poses

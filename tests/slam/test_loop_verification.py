@@ -1,5 +1,5 @@
 """Loop verification on real logs: what the reference could see (line of sight) and the
-ambiguity among those points (docs/maps.md, session 12); a loop anchored on a front-end slip
+ambiguity among those points (docs/journal/maps.md, session 12); a loop anchored on a front-end slip
 (session 13)."""
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def test_real_freiburg_campus_loops_anchored_on_a_front_end_slip_are_refused(rea
     local map 0.47 m off (`anchor`). On seed 0 draw 2, 230 -> 1244 (0.53 m, 1.0 deg off) passes
     that test, but the query fits scan 230 alone 0.50 m from where the local map put it
     (`anchor_match`). With both (the default) neither run has a false loop; without the one
-    check that refuses it, each has its own (docs/maps.md, session 14)."""
+    check that refuses it, each has its own (docs/journal/maps.md, session 14)."""
     from bench.bench_slam import nudged
 
     front: dict[tuple[int, int], np.ndarray] = {}

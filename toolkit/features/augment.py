@@ -5,7 +5,7 @@ wall along the path at the log's usual distance).
 Why: a place is taught by about ten scans at one spot, and what lies on the far side of the
 path there is that spot's accident. A random world's hall opens on one side of its
 corridor or on both; taught with one kind and met with the other, the hall was found in
-0.12 and 0.00 of its scans (docs/places.md, session 4). Both copies keep what is on the
+0.12 and 0.00 of its scans (docs/journal/places.md, session 4). Both copies keep what is on the
 more open side of the path (the place's own opening) and vary the other side. They are
 whole logs, so the context along the path is described on the copied neighbours too.
 The default learns both (`Config.augment_closed`, `augment_open`). The opened ones cost

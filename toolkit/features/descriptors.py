@@ -94,7 +94,7 @@ ABSOLUTE = ("beside_abs_near_min", "beside_abs_near_max", "beside_abs_far_max")
 
 #: the no-returns that see glass ahead of the place: the whole scan's return fraction and the
 #: no-return share at 30-60 degrees reach a window 0.5-2 m before the robot is beside it
-#: (docs/places.md, session 14); the place's own no-returns are those at 60-90 degrees
+#: (docs/journal/places.md, session 14); the place's own no-returns are those at 60-90 degrees
 GLASS_AHEAD = ("return_fraction", "no_return_30_45deg", "no_return_45_60deg")
 
 
@@ -429,7 +429,7 @@ def context_ahead(context: float, strip: float, laser: LaserGeometry) -> float:
     nothing behind itself: each scan's strip beside the laser (`strip`) lies ahead of it, and
     a window reaching `context` ahead would see `context + strip` ahead but only `context`
     behind. Such a window called the scans up to 0.6 m before a door's zone (and 0.9 m before
-    a window's) doors and windows (docs/places.md, session 12). A scanner that sees behind
+    a window's) doors and windows (docs/journal/places.md, session 12). A scanner that sees behind
     itself gets the symmetric window."""
     bearing = np.abs(laser.angles + laser.yaw)
     if bearing.max() > np.pi / 2 + 1e-6:

@@ -120,7 +120,7 @@ class Config:
     # units of the free width (descriptors.ABSOLUTE)
     glass_ahead: bool = False  # also the no-returns that see glass ahead of the place (the
     # whole scan's return fraction, the no-return share at 30-60 degrees;
-    # descriptors.GLASS_AHEAD): session 13's descriptors (docs/places.md, session 14)
+    # descriptors.GLASS_AHEAD): session 13's descriptors (docs/journal/places.md, session 14)
     beside: float = BESIDE  # m ahead and behind the laser whose end points are beside it
     # (the descriptors of the place's width, its doors' and windows' openings; 1.0 before)
     context: float = 1.0  # m of path before and after a scan whose descriptors' mean and

@@ -73,7 +73,7 @@ class LoopConfig:
     # m); False: anywhere within the field of view and `max_range`. With `seen_ambiguity`, the
     # ambiguity test on the seen query points too (the others can confirm neither the winner
     # nor a runner-up). Both off by default: they close orebro's return (ATE 0.32 -> 0.15 m)
-    # but accept more of freiburg-campus's marginal false loops (docs/maps.md, session 12);
+    # but accept more of freiburg-campus's marginal false loops (docs/journal/maps.md, session 12);
     # with the anchor tests below those are refused, but infinite-corridor loses (session 13)
     line_of_sight: bool = False
     seen_ambiguity: bool = False
@@ -84,7 +84,8 @@ class LoopConfig:
     corridor_along: float = 100.0  # a corridor loop's spread along its axis (m): no pull there
     # a loop is in scan a's frame: a front-end slip there (scan a placed off its neighbours,
     # or keyframes of a's local map off each other) is carried into the loop, and the loops
-    # nearby that share the local map carry it too, so they agree (docs/maps.md, session 13).
+    # nearby that share the local map carry it too, so they agree (docs/journal/maps.md,
+    # session 13).
     # `anchor`: scan a matched against the rest of its local map; `anchor_match`: the query
     # matched against scan a alone, from the loop's pose; either fit `anchor_slip` m away
     # (across a corridor loop's axis), with `anchor_inliers` of its points within 0.1 m, is a
