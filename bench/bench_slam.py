@@ -44,8 +44,9 @@ from toolkit.poses import build, odometry_poses, truth_poses, with_drift
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 CARMEN = REAL / "carmen_radish_corrected"
-#: drift seeds the mapper was tuned on or diagnosed with (every log's seed 0; some seeds 1-2);
-#: seeds 3-5 are held out since session 11 (docs/maps.md), freiburg-campus 3 and 5 excepted
+#: drift seeds the mapper was first tuned on (every log's seed 0; some seeds 1-2): the csv's
+#: `tuned` column. Since then each session has held out fresh seeds, run them once and spent
+#: them for development (docs/maps.md, "Where it stands": 0-23 used, the next set 24 and up)
 TUNED_SEEDS = (0, 1, 2)
 
 
