@@ -684,8 +684,11 @@ def opening(
     label = np.where(
         open_, np.maximum.accumulate(np.where(first_bin, np.arange(nbin), -1), axis=2), -1
     )
-    same = (label[..., :, None] == label[..., None, :]) & open_[..., :, None]
-    length = np.where(open_ & near, same.sum(axis=3) * LOCAL_BIN, 0.0)  # (S, 2, N)
+    # ... and of its last bin: each open bin's run length is the bins from first to last
+    last_bin = open_ & ~np.concatenate([open_[..., 1:], np.zeros_like(open_[..., :1])], axis=2)
+    last = np.minimum.accumulate(np.where(last_bin, np.arange(nbin), nbin)[..., ::-1], axis=2)
+    bins = last[..., ::-1] - label + 1
+    length = np.where(open_ & near, bins * LOCAL_BIN, 0.0)  # (S, 2, N)
     best = length.argmax(axis=2)
     run = np.take_along_axis(length, best[..., None], axis=2)[..., 0]
     chosen = np.take_along_axis(label, best[..., None], axis=2)
