@@ -38,6 +38,16 @@ def test_default_tells_the_untaught_corridor_as_none(corridor_sim: Simulation) -
     assert closed.recall["none"] < 0.2 and closed.ece > 0.5
 
 
+def test_untaught_corridor_is_none_on_another_scenario_seed() -> None:
+    """The corridor scenario at seed 1: the door's two spans sit at the doorway's edges,
+    and with the claims until session 17 (a tenth of the held-out spans' scans may be missed)
+    the door claimed the plain corridor: no "none" was learnt (balanced accuracy 0.770,
+    ECE 0.822). A quarter: the plain corridor comes out "none"."""
+    ours = score("corridor", Config(), seed=1)
+    assert ours.recall["none"] >= 0.9  # 0.978
+    assert ours.balanced_accuracy >= 0.95 and ours.ece <= 0.05  # 0.964, 0.011
+
+
 def test_open_set_stays_off_where_every_place_is_taught() -> None:
     """A random world (seed 3) whose places are all taught, the corridor by one span: the
     claims leave no background (a one-span place keeps the scans the trees give it), so
@@ -56,3 +66,30 @@ def test_open_set_stays_off_where_every_place_is_taught() -> None:
     assert "no 'none' learnt" in models[0].fit_report["open_set"]
     assert not np.any(labels[0].label == "none")
     assert np.array_equal(labels[0].label, labels[1].label)
+
+
+def test_open_set_stays_off_where_a_taught_place_is_most_of_the_log() -> None:
+    """A random world (seed 717) whose corridor is 77% of the log, taught by two spans at the
+    log's start, where windows and a door are in view ahead. The claims until session 17
+    (`claim_shape`: also Mozos et al.'s whole-scan shape, the view to the range limit)
+    learnt that view, claimed 0.03 of the corridor and 0.245 of the log, and "none" took
+    0.81 of the scans; on what is beside the laser the places claim 0.62 of the log: no
+    "none" is learnt and the default labels as the closed set does."""
+    run = simulate("random", seed=717)
+    ds = run.dataset
+    spans = spans_from_frame(run.regions, ds.t)
+    training = training_indices(spans)
+    assert ds.groundtruth is not None
+    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
+    truth = np.asarray(run.labels)
+    assert np.mean(truth == "corridor") > 0.7 and set(truth) == {s.feature for s in spans}
+    configs = (Config(), Config(open_set="never"), Config(claim_shape=True, claim_quantile=0.1))
+    models = [fit(ds.ranges, ds.laser, training, config, spans, poses) for config in configs]
+    labels = [classify(model, ds.ranges, poses).label for model in models]
+    assert "no 'none' learnt" in models[0].fit_report["open_set"]
+    assert not np.any(labels[0] == "none")
+    assert np.array_equal(labels[0], labels[1])
+    assert np.mean(labels[0][truth == "corridor"] == "corridor") > 0.9  # 0.988
+    # session 16's claims: "none" learnt, and it takes most of the corridor
+    assert "'none' learnt" in models[2].fit_report["open_set"]
+    assert np.mean(labels[2][truth == "corridor"] == "none") > 0.5  # corridor found in 0.05

@@ -80,6 +80,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + the opening beside the robot (opening: the gap's length along the path and its depth, from the scans around)", dataclasses.replace(FULL, opening=True)),
     ("alternative: + the opening and the dwell of two stages", dataclasses.replace(FULL, opening=True, dwell_stages=2)),
     ("alternative: + the opening and the dwell of three stages", dataclasses.replace(FULL, opening=True, dwell_stages=3)),
+    ("alternative: the open set's claims of session 16 (also on the whole-scan shape, quantile 0.1)", dataclasses.replace(FULL, claim_shape=True, claim_quantile=0.1)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -21,6 +21,7 @@ from toolkit.features.descriptors import (
     context_windows,
     describe,
     features,
+    mozos_columns,
     path_length,
 )
 from toolkit.features.likelihood import (
@@ -219,7 +220,13 @@ def _fit_places(
     open_set = config.open_set if config.none_class else "never"
     claim = None
     if open_set != "never" and config.classifier == "trees":  # the claims' wider strip
-        wide = describe(ranges, laser, CLAIM_BESIDE)[:, columns]
+        # on what is beside the laser: Mozos et al.'s whole-scan shape (the differences,
+        # gaps, polygon and ellipse) is the view to the range limit, and where a place is
+        # most of the log its claim learnt from that view what sets the taught spots' view
+        # apart from the rest of the place (docs/journal/places.md, session 17)
+        shape = np.isin(columns, mozos_columns())
+        own = columns if config.claim_shape or shape.all() else columns[~shape]
+        wide = describe(ranges, laser, CLAIM_BESIDE)[:, own]
         claim = (wide[idx], wide[rest])
     # the taught scans' copies with the less open side of the path closed (or opened): what
     # lies across the path from a place is that spot's accident (a hall opens on one side or
@@ -239,6 +246,7 @@ def _fit_places(
         config.priors, forest=config.classifier == "trees", gate=len(columns),
         open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
         extra=tuple(np.concatenate(v) for v in zip(*extra, strict=True)) if extra else None,
+        claim_quantile=config.claim_quantile,
     )  # fmt: skip
 
 

@@ -64,7 +64,7 @@ from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
 from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP, context_ahead
-from toolkit.features.places import C_DEFAULT, LEAF_MIX, PlaceClassifier
+from toolkit.features.places import C_DEFAULT, CLAIM_QUANTILE, LEAF_MIX, PlaceClassifier
 
 #: 9: the no-returns ahead of the place left out (`glass_ahead`, descriptors.GLASS_AHEAD);
 #: 8: the taught scans' opened copies by default (`augment_open`; not where the context is
@@ -134,6 +134,12 @@ class Config:
     open_set: OpenSet = "auto"  # the trees' own "none" class, learnt from the training
     # log's scans no taught place claims (places.log_claims): "auto" when those are most
     # of the log (taught spots in an untaught background), "always", "never"
+    claim_shape: bool = False  # the claims also test Mozos et al.'s whole-scan shape
+    # descriptors (differences, gaps, polygon, ellipse), as until session 17; by default only
+    # the descriptors of what is beside the laser (a place that is most of the log was
+    # claimed in 0.03 of its scans: docs/journal/places.md, session 17)
+    claim_quantile: float = CLAIM_QUANTILE  # share of a place's held-out training spans'
+    # scans its claim may miss (places.log_claims; 0.1 until session 17)
     beam_term: float = 0.0  # weight of the per-beam model's log-posterior added to the
     # descriptors' (0: not used)
     local_map: float = 0.0  # m of path before and after a scan whose scans' end points,
@@ -170,6 +176,8 @@ class Config:
             raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
         if self.dwell_stages < 1:
             raise ToolkitError(f"dwell_stages {self.dwell_stages}: at least 1")
+        if not 0.0 < self.claim_quantile < 1.0:
+            raise ToolkitError(f"claim_quantile {self.claim_quantile}: a share in (0, 1)")
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
