@@ -74,3 +74,53 @@ def test_real_freiburg_campus_loops_anchored_on_a_front_end_slip_are_refused(rea
     assert (216, 1162) in false_loops(3, 1, anchor=False)
     assert false_loops(0, 2) == set()
     assert (230, 1244) in false_loops(0, 2, anchor_match=False)
+
+
+def test_real_fhw_corridor_loop_on_a_scan_its_local_map_does_not_pin_is_refused(
+    real: Path,
+) -> None:
+    """fhw seed 4: the robot turns 112 deg over scans 55-58 and back; a narrow second fit of
+    the front end (session 17, not kept) placed scans 55-62 as below (relative to scan 54),
+    scan 57 8 deg off its neighbours by the truth. The query 370 matches 57's local map as a
+    corridor loop (inliers 0.73, ambiguity 0.90) that carries that 8 deg. Scan 57 fits its own
+    local map with only 0.70 of its returns (the expert setting `anchor_agree` 0.75; off by
+    default): refused; 56 -> 370, whose anchor its map agrees with, is right and kept
+    (docs/journal/maps.md, session 17)."""
+    from toolkit.se2 import compose
+    from toolkit.slam.loops import LoopCloser, LoopConfig, loop_truth_error, path_length
+    from toolkit.slam.pipeline import keyframes_of
+
+    ds = drifted_carmen(real, "fhw", seed=4)
+    truth = truth_poses(ds)
+    assert truth is not None
+    poses = scan_to_map(ds).poses
+    narrow = np.array(
+        [
+            [0.304, 0.1501, -0.0818],
+            [0.2501, 0.0501, -0.6567],
+            [0.2834, 0.1101, -1.6254],
+            [0.2592, 0.1164, -2.0523],
+            [0.324, -0.0072, -0.9112],
+            [0.3421, 0.033, -0.5214],
+            [0.327, -0.0492, 0.0722],
+            [0.1944, 0.0223, -0.309],
+        ]
+    )
+    poses[55:63] = compose(np.broadcast_to(poses[54], (8, 3)), narrow)
+    keys = keyframes_of(poses, 0.5, 0.3)
+    along = path_length(poses)
+    assert 56 in keys and 57 in keys
+
+    def verify(a: int, agree: float) -> Loop:
+        cfg = replace(LoopConfig(), anchor_agree=agree)
+        found = LoopCloser(ds.ranges, ds.laser, cfg).verify(a, 370, 3.0, poses, along, keys)
+        assert found is not None and found.axis is not None  # a corridor loop
+        return found
+
+    off = verify(57, LoopConfig().anchor_agree)  # the default: off
+    assert off.accepted and is_false_loop(off, truth)
+    assert loop_truth_error(off, truth)[1] > 7.0
+    refused = verify(57, 0.75)
+    assert not refused.accepted and refused.reason.startswith("anchor: scan 57 fits its local")
+    kept = verify(56, 0.75)
+    assert kept.accepted and not is_false_loop(kept, truth)

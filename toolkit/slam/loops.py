@@ -17,8 +17,9 @@ alike poses lie along one axis with none across it (`corridor_axis`), is kept as
 loop: trusted across the axis and in heading only (`Loop.covariance`). A loop is in the earlier
 keyframe's frame, and a front-end slip there passes into it: it is refused when that scan fits
 the rest of its local map, or the query fits that scan alone, 0.3 m from where the trajectory
-put it (`anchor`, `anchor_match`). Whether the loops agree with each other is
-`toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
+put it (`anchor`, `anchor_match`); an expert setting refuses a corridor loop, trusted in
+heading, when scan a agrees poorly with the rest of its local map (`anchor_agree`). Whether the loops agree
+with each other is `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
 """
@@ -96,6 +97,13 @@ class LoopConfig:
     anchor_inliers: float = 0.3
     anchor_window: float = 1.0  # their search's window (m, +-) ...
     anchor_turn: float = 0.1  # ... and heading window (rad, +-)
+    # a corridor loop is trusted in heading, and that heading is scan a's in its local map as
+    # the trajectory placed it: refused when scan a fits its local map (`anchor`'s fit) with
+    # fewer than this share of its returns (those the others could see) within 0.1 m (a scan
+    # its neighbours do not agree with, as one taken in a fast turn, does not pin its heading:
+    # fhw's 57 -> 370, 8 deg off, docs/journal/maps.md session 17). 0 (the default): off; an
+    # expert setting (0.75 refuses that loop), set on one loop and no gain on the other logs
+    anchor_agree: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -287,7 +295,7 @@ class LoopCloser:
         self._sin = np.sin(laser.angles + mount[2])
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
-        self._slips: dict[int, float] = {}
+        self._slips: dict[int, tuple[float, float]] = {}
 
     def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -366,9 +374,14 @@ class LoopCloser:
                 pose = pose.copy()
                 pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
         if not why and cfg.anchor:
-            moved = self.slip(a, along, keys, poses, cfg)
+            moved, agree = self.anchor_fit(a, along, keys, poses, cfg)
             if moved > cfg.anchor_slip:
                 why.append(f"anchor: scan {a} fits its local map {moved:.2f} m off")
+            elif axis is not None and agree < cfg.anchor_agree:
+                why.append(
+                    f"anchor: scan {a} fits its local map with {agree:.2f} of its returns"
+                    f" < {cfg.anchor_agree} (a corridor loop's heading)"
+                )
         if not why and cfg.anchor_match:
             slip = self.anchor_shift(a, query, found.pose, poses, cfg)
             if slip is not None and slip[1] >= cfg.anchor_inliers:
@@ -403,12 +416,21 @@ class LoopCloser:
         """How far (m) keyframe `k` fits its local map off where the trajectory put it (0 when
         too few of its returns overlap the map or agree with it to tell); kept per keyframe
         for the closer's life (the trajectory's rounds move a local map as a whole)."""
+        return self.anchor_fit(k, along, keys, poses, config)[0]
+
+    def anchor_fit(
+        self, k: int, along: np.ndarray, keys: np.ndarray, poses: np.ndarray, config: LoopConfig
+    ) -> tuple[float, float]:
+        """`slip`, and the share of keyframe `k`'s returns (those its local map's scans could
+        see) within 0.1 m of that map at its fit (1 when too few overlap to tell); kept per
+        keyframe as `slip`."""
         if k not in self._slips:
             found = self.anchor_consistency(
                 k, self.reference_keys(k, along, keys, config), poses, config
             )
             ok = found is not None and found[1] >= config.anchor_inliers
-            self._slips[k] = float(np.hypot(*found[0][:2])) if found is not None and ok else 0.0
+            moved = float(np.hypot(*found[0][:2])) if found is not None and ok else 0.0
+            self._slips[k] = (moved, 1.0 if found is None else float(found[1]))
         return self._slips[k]
 
     def anchor_consistency(
