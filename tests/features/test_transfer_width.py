@@ -20,6 +20,6 @@ def test_a_wider_buildings_corridor_is_found_at_a_canonical_width() -> None:
     canonical = protocol_scores(Config(canonical_width=2.0), runs)["c"]
     assert default["recall"]["corridor"] < 0.05  # 0.000: every corridor scan called hall
     assert default["ece"] > 0.5  # 0.728
-    assert canonical["recall"]["corridor"] > 0.9  # 0.978
+    assert canonical["recall"]["corridor"] > 0.9  # 0.975
     assert canonical["ba"] > default["ba"] + 0.2  # 0.698 against 0.440
-    assert canonical["ece"] < 0.1  # 0.055
+    assert canonical["ece"] < 0.1  # 0.057
