@@ -7,7 +7,16 @@ from __future__ import annotations
 import numpy as np
 
 from tests.features.world import LASER, cast, drive
-from toolkit.features.augment import changed, closed, mirror_index, opened, usual_wall
+from toolkit.features.augment import (
+    changed,
+    closed,
+    mirror_index,
+    opened,
+    stretched,
+    to_width,
+    usual_wall,
+    usual_width,
+)
 
 
 def _scans() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -50,3 +59,20 @@ def test_closed_walls_the_less_open_side_at_the_usual_distance() -> None:
     corridor = np.flatnonzero((label == "corridor") & (poses[:, 0] < 11))
     assert changed(r[corridor], c[corridor], LASER).mean() < 0.1
     assert changed(r[hall], c[hall], LASER).mean() > 0.5  # (the hall walled: a new kind)
+
+
+def test_stretched_doubles_the_width_and_keeps_the_length_along_the_path() -> None:
+    r, _, label = _scans()
+    corridor = np.flatnonzero(label == "corridor")
+    assert 1.9 < usual_width(r[corridor], LASER) < 2.1  # the 2 m corridor
+    s = stretched(r, LASER, 2.0)
+    assert 3.8 < usual_width(s[corridor], LASER) < 4.2
+    # an end point (x, y) lands at (x, 2 y): beside the laser the walls are twice as far
+    side = np.abs(np.sin(LASER.angles)) > 0.99
+    assert np.allclose(
+        np.nanmedian(s[corridor][:, side]), 2 * np.nanmedian(r[corridor][:, side]), rtol=0.05
+    )
+    ahead = np.argmin(np.abs(LASER.angles))  # the beam straight ahead: x kept
+    assert np.allclose(s[:, ahead], r[:, ahead], equal_nan=True)
+    w = to_width(r[corridor], LASER, 3.0)
+    assert 2.85 < usual_width(w, LASER) < 3.15

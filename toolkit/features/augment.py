@@ -90,3 +90,56 @@ def _openness(r: np.ndarray, angles: np.ndarray, left: bool) -> np.ndarray:
 def _log_range(r: np.ndarray) -> np.ndarray:
     """log(range + 0.1 m), a no-return or a range beyond 20 m taken as 20 m."""
     return np.asarray(np.log(np.fmin(np.nan_to_num(r, nan=20.0), 20.0) + 0.1))
+
+
+def stretched(ranges: np.ndarray, laser: LaserGeometry, factor: float) -> np.ndarray:
+    """Each scan with what it sees stretched across the path by `factor` (y -> factor * y in
+    the laser's frame, x along the path kept): a corridor `factor` times as wide, its doors'
+    and windows' length along the path unchanged. Per beam, the scan's range at the bearing
+    that lands there, interpolated between its two beams where they see one surface (ranges
+    within 10 % of each other), else the nearer beam's; a range beyond the laser's
+    `range_max` is a no-return (NaN)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    b = laser.angles
+    a = np.arctan2(np.sin(b), factor * np.cos(b))  # the source bearing of each output beam
+    f = (a - laser.angle_min) / laser.angle_increment
+    ok = (f > -0.5) & (f < len(b) - 0.5)
+    lo = np.clip(np.floor(f).astype(np.int64), 0, len(b) - 1)
+    hi = np.clip(lo + 1, 0, len(b) - 1)
+    w = np.clip(f - lo, 0.0, 1.0).astype(np.float32)
+    r0, r1 = r[:, lo], r[:, hi]
+    near = np.where(w[None, :] < 0.5, r0, r1)
+    with np.errstate(invalid="ignore"):
+        smooth = np.abs(r0 - r1) <= 0.1 * np.fmin(r0, r1)
+    src = np.where(smooth, (1.0 - w)[None, :] * r0 + w[None, :] * r1, near)
+    x, y = src * np.cos(a)[None, :], src * np.sin(a)[None, :]
+    out = np.hypot(x, factor * y).astype(np.float32)
+    out[:, ~ok] = np.nan
+    with np.errstate(invalid="ignore"):
+        out[out > laser.range_max] = np.nan
+    return np.asarray(out, dtype=np.float32)
+
+
+def usual_width(ranges: np.ndarray, laser: LaserGeometry) -> float:
+    """The median over the log's scans of the free width across the path: the nearest
+    lateral distance to an end point (|y| of beams at 30-150 degrees) on the left plus that
+    on the right (scans with both sides seen); where the robot runs off the centre line
+    does not move it."""
+    angles = laser.angles
+    lateral = np.abs(ranges * np.sin(angles)[None, :])
+    lateral = np.where(np.abs(np.sin(angles))[None, :] >= LATERAL, lateral, np.nan)
+    with np.errstate(all="ignore"):
+        near = [np.nanmin(np.where((angles > 0) == s, lateral, np.nan), axis=1) for s in (0, 1)]
+    width = near[0] + near[1]
+    width = width[np.isfinite(width)]
+    return float(np.median(width)) if len(width) else 2.0
+
+
+def to_width(ranges: np.ndarray, laser: LaserGeometry, width: float) -> np.ndarray:
+    """The log stretched across the path (`stretched`) so that its usual free width
+    (`usual_width`, on at most about 20,000 of its scans) is `width` m: every building's
+    corridor at one width, for descriptors that measure in metres
+    (`Config.canonical_width`)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    sample = r[:: max(1, len(r) // 20000)]
+    return stretched(r, laser, width / max(usual_width(sample, laser), 0.2)) if len(r) else r

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from toolkit.dataset import LaserGeometry
+from toolkit.features.augment import to_width
 from toolkit.features.descriptors import chosen_columns, features, path_length
 from toolkit.features.likelihood import CHUNK, loglik, per_class, softmax
 from toolkit.features.model import Config, FeatureModel
@@ -248,6 +249,8 @@ def class_scores(
     out = np.empty((len(ranges), len(model.classes)))
     columns = chosen_columns(cfg.view_ahead, cfg.mozos, cfg.absolute_reach, cfg.glass_ahead)
     along = path_length(len(ranges), poses)
+    if cfg.descriptors and model.places is not None and cfg.canonical_width > 0:
+        ranges = to_width(ranges, model.laser, cfg.canonical_width)
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
         block = ranges[rows]

@@ -14,7 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.augment import changed, closed, opened
+from toolkit.features.augment import changed, closed, opened, to_width
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -203,6 +203,8 @@ def _fit_places(
     poses: np.ndarray | None = None,
 ) -> PlaceClassifier:
     """The descriptor classifier from the training scans, each component a span."""
+    if config.canonical_width > 0:  # every building at one width (an expert setting)
+        ranges = to_width(ranges, laser, config.canonical_width)
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])

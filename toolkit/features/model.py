@@ -159,6 +159,10 @@ class Config:
     # more open side mirrored onto it: a hall open on one side taught, one open on both met;
     # left out where the context is off; 0: none, session 12's default; docs/places.md,
     # session 13)
+    canonical_width: float = 0.0  # m: each log, for the descriptors, stretched across the path
+    # so that its usual free width is this (augment.to_width): a corridor 1.9 m wide where
+    # taught and 3.9 m where met is the same width (0: as measured, the default; 2 m gains
+    # in another world and costs in the taught one: docs/journal/places.md, session 17)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""
