@@ -11,7 +11,7 @@ from toolkit.features.classify import classify
 from toolkit.features.evaluate import score
 from toolkit.features.fitting import fit
 from toolkit.features.model import PAPER, SURROUNDINGS, Config
-from toolkit.features.regions import spans_from_frame, training_indices
+from toolkit.features.regions import Span, spans_from_frame, training_indices
 from toolkit.sim import Simulation, simulate
 
 
@@ -52,12 +52,8 @@ def test_open_set_stays_off_where_every_place_is_taught() -> None:
     """A random world (seed 3) whose places are all taught, the corridor by one span: the
     claims leave no background (a one-span place keeps the scans the trees give it), so
     the default labels exactly as the closed set does, with no "none"."""
-    run = simulate("random", seed=3)
+    run, spans, training, poses = _taught_world(3)
     ds = run.dataset
-    spans = spans_from_frame(run.regions, ds.t)
-    training = training_indices(spans)
-    assert ds.groundtruth is not None
-    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
     models = [
         fit(ds.ranges, ds.laser, training, config, spans, poses)
         for config in (Config(), Config(open_set="never"))
@@ -75,12 +71,8 @@ def test_open_set_stays_off_where_a_taught_place_is_most_of_the_log() -> None:
     learnt that view, claimed 0.03 of the corridor and 0.245 of the log, and "none" took
     0.81 of the scans; on what is beside the laser the places claim 0.62 of the log: no
     "none" is learnt and the default labels as the closed set does."""
-    run = simulate("random", seed=717)
+    run, spans, training, poses = _taught_world(717)
     ds = run.dataset
-    spans = spans_from_frame(run.regions, ds.t)
-    training = training_indices(spans)
-    assert ds.groundtruth is not None
-    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
     truth = np.asarray(run.labels)
     assert np.mean(truth == "corridor") > 0.7 and set(truth) == {s.feature for s in spans}
     configs = (Config(), Config(open_set="never"), Config(claim_shape=True, claim_quantile=0.1))
@@ -93,3 +85,16 @@ def test_open_set_stays_off_where_a_taught_place_is_most_of_the_log() -> None:
     # session 16's claims: "none" learnt, and it takes most of the corridor
     assert "'none' learnt" in models[2].fit_report["open_set"]
     assert np.mean(labels[2][truth == "corridor"] == "none") > 0.5  # corridor found in 0.05
+
+
+def _taught_world(seed: int) -> tuple[Simulation, list[Span], dict[str, np.ndarray], np.ndarray]:
+    """A random world's run, its regions' spans and training scans, and its true poses."""
+    run = simulate("random", seed=seed)
+    spans = spans_from_frame(run.regions, run.dataset.t)
+    assert run.dataset.groundtruth is not None
+    return (
+        run,
+        spans,
+        training_indices(spans),
+        run.dataset.groundtruth[["x", "y", "theta"]].to_numpy(),
+    )
