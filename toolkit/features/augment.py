@@ -71,13 +71,22 @@ def closed(ranges: np.ndarray, laser: LaserGeometry, wall: float | None = None) 
 def usual_wall(ranges: np.ndarray, laser: LaserGeometry) -> float:
     """The median over the log's scans and sides of the nearest lateral distance to an end
     point (|y| of beams at 30-150 degrees): how far the path usually runs from a wall."""
+    values = np.concatenate(_nearest_beside(ranges, laser))
+    values = values[np.isfinite(values)]
+    return float(np.median(values)) if len(values) else 1.0
+
+
+def _nearest_beside(ranges: np.ndarray, laser: LaserGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Per scan, the nearest lateral distance to an end point (|y| of beams at 30-150
+    degrees) on the right and on the left (NaN where that side has none)."""
     angles = laser.angles
     lateral = np.abs(ranges * np.sin(angles)[None, :])
     lateral = np.where(np.abs(np.sin(angles))[None, :] >= LATERAL, lateral, np.nan)
-    near = [np.nanmin(np.where((angles > 0) == s, lateral, np.nan), axis=1) for s in (0, 1)]
-    values = np.concatenate(near)
-    values = values[np.isfinite(values)]
-    return float(np.median(values)) if len(values) else 1.0
+    with np.errstate(all="ignore"):
+        right, left = (
+            np.nanmin(np.where((angles > 0) == s, lateral, np.nan), axis=1) for s in (0, 1)
+        )
+    return right, left
 
 
 def _openness(r: np.ndarray, angles: np.ndarray, left: bool) -> np.ndarray:
@@ -125,12 +134,8 @@ def usual_width(ranges: np.ndarray, laser: LaserGeometry) -> float:
     lateral distance to an end point (|y| of beams at 30-150 degrees) on the left plus that
     on the right (scans with both sides seen); where the robot runs off the centre line
     does not move it."""
-    angles = laser.angles
-    lateral = np.abs(ranges * np.sin(angles)[None, :])
-    lateral = np.where(np.abs(np.sin(angles))[None, :] >= LATERAL, lateral, np.nan)
-    with np.errstate(all="ignore"):
-        near = [np.nanmin(np.where((angles > 0) == s, lateral, np.nan), axis=1) for s in (0, 1)]
-    width = near[0] + near[1]
+    right, left = _nearest_beside(ranges, laser)
+    width = right + left
     width = width[np.isfinite(width)]
     return float(np.median(width)) if len(width) else 2.0
 

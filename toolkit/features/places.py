@@ -521,6 +521,7 @@ def log_claims(
     too narrow."""
     from sklearn.linear_model import LogisticRegression  # noqa: PLC0415
 
+    share = CLAIM_QUANTILE if quantile is None else quantile
     spread = np.vstack([z, zu]).std(axis=0)
     spread = np.where(spread > 1e-9, spread, 1.0)
     z, zu = z / spread, zu / spread
@@ -541,7 +542,6 @@ def log_claims(
         testable.add(str(k))
         rest = [np.concatenate(parts[:j] + parts[j + 1 :]) for j in range(len(parts))]
         held = [against_log(z[r]).decision_function(z[p]) for r, p in zip(rest, parts, strict=True)]
-        share = CLAIM_QUANTILE if quantile is None else quantile
         edge = float(np.quantile(np.concatenate(held), share))
         claimed |= against_log(z[own]).decision_function(zu) >= edge
     return claimed, testable

@@ -410,20 +410,14 @@ class LoopCloser:
         pts = query[self.seen(query, pose, a, np.array([a]), poses)]
         return self._refit(own, pts, pose, config)
 
-    def slip(
-        self, k: int, along: np.ndarray, keys: np.ndarray, poses: np.ndarray, config: LoopConfig
-    ) -> float:
-        """How far (m) keyframe `k` fits its local map off where the trajectory put it (0 when
-        too few of its returns overlap the map or agree with it to tell); kept per keyframe
-        for the closer's life (the trajectory's rounds move a local map as a whole)."""
-        return self.anchor_fit(k, along, keys, poses, config)[0]
-
     def anchor_fit(
         self, k: int, along: np.ndarray, keys: np.ndarray, poses: np.ndarray, config: LoopConfig
     ) -> tuple[float, float]:
-        """`slip`, and the share of keyframe `k`'s returns (those its local map's scans could
-        see) within 0.1 m of that map at its fit (1 when too few overlap to tell); kept per
-        keyframe as `slip`."""
+        """How far (m) keyframe `k` fits its local map off where the trajectory put it (0 when
+        too few of its returns overlap the map or agree with it to tell), and the share of its
+        returns (those the map's scans could see) within 0.1 m of the map at that fit (1 when
+        too few overlap to tell); kept per keyframe for the closer's life (the trajectory's
+        rounds move a local map as a whole)."""
         if k not in self._slips:
             found = self.anchor_consistency(
                 k, self.reference_keys(k, along, keys, config), poses, config
