@@ -26,8 +26,7 @@ def test_real_orebro_return_to_the_start_is_accepted(real: Path) -> None:
     never looked; counted as unseen (line of sight) and left out of the ambiguity test too, the
     return passes and ties the end down (ATE 0.32 -> 0.15 m). Either option alone, or the
     default (the field-of-view test), refuses it. On the front end as it was then: the narrow
-    refit at scan 213 (session 18) puts the end right, and line of sight alone passes it too
-    (ATE 0.101 m; both 0.100, neither 0.124)."""
+    refit at scan 213 (session 18) changes the end and the loops found there."""
     ds = drifted_carmen(real, "orebro", seed=0)
     truth = truth_poses(ds)
     assert truth is not None
