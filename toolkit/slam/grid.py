@@ -439,15 +439,23 @@ def _search(
         for k in range(npts):
             ci0 = math.floor((centre[0] + c * pts[k, 0] - s * pts[k, 1] - origin[0]) * inv)
             cj0 = math.floor((centre[1] + s * pts[k, 0] + c * pts[k, 1] - origin[1]) * inv)
-            jlo = max(0, half - cj0)
-            jhi = min(n, h - cj0 + half)
-            for i in range(n):
-                ci = ci0 + i - half
-                if ci < 0 or ci >= w:
-                    continue
-                row = like_t[ci]
-                for j in range(jlo, jhi):
-                    acc[i, j] += row[cj0 + j - half]
+            x0, y0 = ci0 - half, cj0 - half  # the cell of offset (0, 0)
+            ilo, ihi = max(0, -x0), min(n, w - x0)
+            jlo, jhi = max(0, -y0), min(n, h - y0)
+            if jlo == 0 and jhi == n:
+                # every y offset on the grid (most points): a run of n from 0, which the
+                # compiler vectorises (twice the speed of the clipped loop below)
+                for i in range(ilo, ihi):
+                    row = like_t[x0 + i, y0 : y0 + n]
+                    ai = acc[i]
+                    for j in range(n):
+                        ai[j] += row[j]
+            else:
+                for i in range(ilo, ihi):
+                    row = like_t[x0 + i]
+                    ai = acc[i]
+                    for j in range(jlo, jhi):
+                        ai[j] += row[y0 + j]
         out[a] = acc / max(npts, 1)
     return out
 
@@ -521,13 +529,39 @@ def _sum_at(grid: np.ndarray, cells: np.ndarray, a: int, dx: int, dy: int, pad: 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _sum_quad(
-    grid: np.ndarray, cells: np.ndarray, a: int, dx: int, dy: int, s: int, pad: int, out: np.ndarray
+    grid: np.ndarray,
+    cells: np.ndarray,
+    box: np.ndarray,
+    a: int,
+    dx: int,
+    dy: int,
+    s: int,
+    pad: int,
+    out: np.ndarray,
 ) -> None:
     """`_sum_at` at the four offsets (dx, dy) + (0 or s, 0 or s) in one pass over the points
     (out[2 i + j]: + (i s, j s)), each sum in point order as `_sum_at`'s: a block's four
-    children read neighbouring cells, so one pass reads each point's cache lines once."""
+    children read neighbouring cells, so one pass reads each point's cache lines once. When
+    the points' cells at heading `a` (their bounding box `box[a]`: x least, largest, y least,
+    largest) land on the grid at all four offsets, as nearly always, without a test per
+    point (the same sums)."""
     w, h = grid.shape
     t00 = t01 = t10 = t11 = 0.0
+    if (
+        box[a, 0] + dx + pad >= 0
+        and box[a, 1] + dx + s + pad < w
+        and box[a, 2] + dy + pad >= 0
+        and box[a, 3] + dy + s + pad < h
+    ):
+        for k in range(cells.shape[1]):
+            x = cells[a, k, 0] + dx + pad
+            y = cells[a, k, 1] + dy + pad
+            t00 += grid[x, y]
+            t01 += grid[x, y + s]
+            t10 += grid[x + s, y]
+            t11 += grid[x + s, y + s]
+        out[0], out[1], out[2], out[3] = t00, t01, t10, t11
+        return
     for k in range(cells.shape[1]):
         x = cells[a, k, 0] + dx + pad
         y = cells[a, k, 1] + dy + pad
@@ -625,6 +659,7 @@ def _bnb_next(
     state: np.ndarray,
     seen: np.ndarray,
     seen_key: np.ndarray,
+    box: np.ndarray,
 ) -> bool:
     """Expand the heap's best blocks until its best entry is one offset (scored: its key is
     `_search`'s score); move it to `seen`. Offsets so come out best first: a block's key
@@ -654,9 +689,9 @@ def _bnb_next(
             continue
         s = 1 << (lv - 1)
         if lv == 1:
-            _sum_quad(like_t, cells, a, x0 - half, y0 - half, s, 0, sums)
+            _sum_quad(like_t, cells, box, a, x0 - half, y0 - half, s, 0, sums)
         else:
-            _sum_quad(pyramid[lv - 1], cells, a, x0 - half, y0 - half, s, pad, sums)
+            _sum_quad(pyramid[lv - 1], cells, box, a, x0 - half, y0 - half, s, pad, sums)
         for dx in range(2):
             for dy in range(2):
                 xx, yy = x0 + dx * s, y0 + dy * s
@@ -808,6 +843,24 @@ def _bounded_starts(
 
 
 @nb.njit(cache=True, nogil=True)
+def _cell_box(cells: np.ndarray) -> np.ndarray:
+    """Per heading, the bounding box of the points' cells (A x N x 2): A x 4, x least, x
+    largest, y least, y largest (`_sum_quad`'s test that every point lands on the grid)."""
+    out = np.zeros((cells.shape[0], 4), dtype=np.int64)
+    if cells.shape[1] == 0:
+        return out
+    for a in range(cells.shape[0]):
+        out[a, 0] = out[a, 1] = cells[a, 0, 0]
+        out[a, 2] = out[a, 3] = cells[a, 0, 1]
+        for k in range(1, cells.shape[1]):
+            out[a, 0] = min(out[a, 0], cells[a, k, 0])
+            out[a, 1] = max(out[a, 1], cells[a, k, 0])
+            out[a, 2] = min(out[a, 2], cells[a, k, 1])
+            out[a, 3] = max(out[a, 3], cells[a, k, 1])
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def _bnb_after(k: int, budget: float, bnb: tuple) -> bool:  # type: ignore[type-arg]
     """Offset number k has come out of the branch and bound `bnb` (`_bnb_next`'s arguments)
     (False: none left, or the lookups are over `budget`)."""
@@ -847,7 +900,8 @@ def _bnb_picks(
     seen_key = np.empty(n_a * n * n)
     state = np.zeros(3, dtype=np.int64)
     _bnb_start(pyramid, cells, half, heap, key, state)
-    bnb = (like_t, pyramid, cells, half, heap, key, state, seen, seen_key)
+    box = _cell_box(cells)
+    bnb = (like_t, pyramid, cells, half, heap, key, state, seen, seen_key, box)
     free = np.ones((n_a, n, n), dtype=np.bool_)
     near_t = 1.5 * turn_step
     picks = 0
