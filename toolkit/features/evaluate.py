@@ -81,7 +81,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + the opening and the dwell of two stages", dataclasses.replace(FULL, opening=True, dwell_stages=2)),
     ("alternative: + the opening and the dwell of three stages", dataclasses.replace(FULL, opening=True, dwell_stages=3)),
     ("alternative: the open set's claims of session 16 (also on the whole-scan shape, quantile 0.1)", dataclasses.replace(FULL, claim_shape=True, claim_quantile=0.1)),
-    ("alternative: each log stretched across the path to a usual free width of 2 m for the descriptors (canonical_width 2)", dataclasses.replace(FULL, canonical_width=2.0)),
+    ("alternative: each log stretched across the path to a usual free width of 2 m for the descriptors (canonical_width 2, canonical_how stretch: session 17)", dataclasses.replace(FULL, canonical_width=2.0, canonical_how="stretch")),
+    ("alternative: each log's widths beside the laser rescaled to a usual free width of 2 m, no resampling (canonical_width 2, canonical_how rescale)", dataclasses.replace(FULL, canonical_width=2.0, canonical_how="rescale")),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))
