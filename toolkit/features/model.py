@@ -160,13 +160,15 @@ class Config:
     # more open side mirrored onto it: a hall open on one side taught, one open on both met;
     # left out where the context is off; 0: none, session 12's default; docs/places.md,
     # session 13)
-    canonical_width: float = 0.0  # m: each log, for the descriptors, brought across the path
+    canonical_width: float = 2.0  # m: each log, for the descriptors, brought across the path
     # to a usual free width of this (augment.width_factor): a corridor 1.9 m wide where
-    # taught and 3.9 m where met is the same width (0: as measured, the default)
-    canonical_how: CanonicalHow = "rescale"  # "rescale": the widths beside the laser
+    # taught and 3.9 m where met is the same width (0: as measured, until session 18). With
+    # "rescale" the value itself does not matter (the trees see every log shifted alike)
+    canonical_how: CanonicalHow = "rescale"  # "rescale": the widths across the path
     # rescaled by the log's factor, every other descriptor of the scan as it is
-    # (descriptors.WIDTH_LIKE, session 18); "stretch": the whole log stretched and resampled
-    # first (augment.to_width: gains in another world, costs in the taught one, session 17)
+    # (descriptors.WIDTH_LIKE: the taught world's runs as they were, session 18); "stretch":
+    # the whole log stretched and resampled first (augment.to_width: costs the taught
+    # world's runs, session 17)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""
@@ -205,8 +207,8 @@ class Config:
         return cls(**{k: v for k, v in known.items() if k in cls.__dataclass_fields__})
 
 
-#: fields whose value, before they were added, was not their default: the stretch that
-#: session 17 saved without saying how it was made
+#: fields whose value, before they were added, was not their default: a model saved before
+#: session 17 measured widths in metres, and session 17's canonical width was a stretch
 LEGACY: dict[str, Any] = {"canonical_width": 0.0, "canonical_how": "stretch"}
 
 
