@@ -16,7 +16,9 @@ from toolkit.features.augment import (
     to_width,
     usual_wall,
     usual_width,
+    width_factor,
 )
+from toolkit.features.descriptors import WIDTH_LIKE, describe, names, place_columns, rescaled
 
 
 def _scans() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,3 +78,21 @@ def test_stretched_doubles_the_width_and_keeps_the_length_along_the_path() -> No
     assert np.allclose(s[:, ahead], r[:, ahead], equal_nan=True)
     w = to_width(r[corridor], LASER, 3.0)
     assert 2.85 < usual_width(w, LASER) < 3.15
+
+
+def test_rescaled_widths_are_the_stretched_scans_without_resampling() -> None:
+    r, _, label = _scans()
+    corridor = np.flatnonzero(label == "corridor")
+    columns = place_columns()
+    width = np.isin(np.asarray(names())[columns], WIDTH_LIKE)
+    x = describe(r[corridor], LASER)[:, columns]
+    s = describe(stretched(r[corridor], LASER, 2.0), LASER)[:, columns]
+    y = rescaled(x.copy(), columns, 2.0)
+    # the widths beside the laser are the stretched scan's: log 2 more (medians over scans)
+    assert np.allclose(np.median(y[:, width], axis=0), np.median(s[:, width], axis=0), atol=0.05)
+    assert np.allclose(np.median(y[:, width] - x[:, width], axis=0), np.log(2.0))
+    # every other descriptor is the scan's own, where the resampled scan's are not
+    assert np.array_equal(y[:, ~width], x[:, ~width])
+    assert np.abs(s[:, ~width] - x[:, ~width]).max() > 0.1
+    assert np.array_equal(rescaled(x.copy(), columns, 1.0), x)  # factor 1: the scan's
+    assert 0.95 < width_factor(r[corridor], LASER, 2.0) < 1.05  # the 2 m corridor

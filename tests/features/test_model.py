@@ -252,6 +252,17 @@ def test_model_json_round_trip_and_sensor_check(world, tmp_path: Path) -> None: 
         FeatureModel.load(tmp_path / "bad.json")
 
 
+def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
+    now = Config().to_dict()
+    assert Config.from_dict(now) == Config()
+    # session 17 saved canonical_width without canonical_how: its log was stretched
+    stretch = {k: v for k, v in now.items() if k != "canonical_how"} | {"canonical_width": 2.0}
+    assert Config.from_dict(stretch).canonical_how == "stretch"
+    # before session 17, no canonical width at all: the descriptors as measured
+    before = {k: v for k, v in now.items() if not k.startswith("canonical_")}
+    assert Config.from_dict(before).canonical_width == 0.0
+
+
 def test_background_density_integrates_to_one() -> None:
     ranges = cast(drive()[1])
     bg = fit_background(ranges, LASER)

@@ -140,11 +140,17 @@ def usual_width(ranges: np.ndarray, laser: LaserGeometry) -> float:
     return float(np.median(width)) if len(width) else 2.0
 
 
-def to_width(ranges: np.ndarray, laser: LaserGeometry, width: float) -> np.ndarray:
-    """The log stretched across the path (`stretched`) so that its usual free width
-    (`usual_width`, on at most about 20,000 of its scans) is `width` m: every building's
-    corridor at one width, for descriptors that measure in metres
-    (`Config.canonical_width`)."""
+def width_factor(ranges: np.ndarray, laser: LaserGeometry, width: float) -> float:
+    """The stretch across the path that brings the log's usual free width (`usual_width`,
+    on at most about 20,000 of its scans) to `width` m (1 for an empty log)."""
     r = np.asarray(ranges, dtype=np.float32)
     sample = r[:: max(1, len(r) // 20000)]
-    return stretched(r, laser, width / max(usual_width(sample, laser), 0.2)) if len(r) else r
+    return width / max(usual_width(sample, laser), 0.2) if len(r) else 1.0
+
+
+def to_width(ranges: np.ndarray, laser: LaserGeometry, width: float) -> np.ndarray:
+    """The log stretched across the path (`stretched`) by `width_factor`: every building's
+    corridor at one width, for descriptors that measure in metres
+    (`Config.canonical_width` with `canonical_how` "stretch")."""
+    r = np.asarray(ranges, dtype=np.float32)
+    return stretched(r, laser, width_factor(r, laser, width)) if len(r) else r

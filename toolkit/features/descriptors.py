@@ -91,6 +91,14 @@ def names() -> list[str]:
 #: (a hall is metres deep beside the robot whether it opens on one side or both)
 ABSOLUTE = ("beside_abs_near_min", "beside_abs_near_max", "beside_abs_far_max")
 
+#: the descriptors that are logs of lengths across the path, in metres: the free width and
+#: the reaches beside the laser, the side sectors' width, the end points' minor axis (a
+#: corridor's spread across it). A corridor k times as wide (y -> k y) adds log k to each;
+#: the others are ratios, shares or views ahead. A log is brought to another width by
+#: adding it (`rescaled`), with no resampling of its beams (`Config.canonical_width`;
+#: docs/journal/places.md, session 18: the minor axis added (c) 0.002 on four sets)
+WIDTH_LIKE = ("log_side_width", "log_width_beside", *ABSOLUTE, "log_minor_axis")
+
 
 #: the no-returns that see glass ahead of the place: the whole scan's return fraction and the
 #: no-return share at 30-60 degrees reach a window 0.5-2 m before the robot is beside it
@@ -515,6 +523,18 @@ def chosen_columns(
     return place_columns(absolute, glass_ahead)
 
 
+def rescaled(x: np.ndarray, columns: np.ndarray, factor: float) -> np.ndarray:
+    """Descriptors `columns` of scans (S x len(columns)) as those of the scans stretched
+    across the path by `factor`: log `factor` added to the `WIDTH_LIKE` ones (in place).
+    Why: a stretched scan is resampled, each beam drawn from another bearing, and that
+    changes the differences, gaps and sectors of the taught world's own scans as much at a
+    factor of 1.1 as of 2 (session 17); the widths alone carry the building's scale."""
+    if factor != 1.0:
+        for j in np.flatnonzero(np.isin(np.asarray(names())[columns], WIDTH_LIKE)):
+            x[:, j] += np.log(factor)  # a column at a time: no copy of the whole block
+    return x
+
+
 def features(
     ranges: np.ndarray,
     laser: LaserGeometry,
@@ -527,6 +547,7 @@ def features(
     local: float = 0.0,
     ahead: float | None = None,
     gap: bool = False,
+    factor: float = 1.0,
 ) -> np.ndarray:
     """The classifier's input for scans `rows` (default all) of a log: their descriptors
     `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
@@ -534,15 +555,16 @@ def features(
     `context`; see `context_ahead`) after each; only the scans those windows reach are
     described. `strip`: see `describe`. With `local` > 0, the descriptors of the local map of
     the scans within `local` metres of path (`local_map`, drawn by `poses`) follow; with
-    `gap`, the opening beside the robot (`opening`)."""
+    `gap`, the opening beside the robot (`opening`). `factor`: the descriptors of the scans
+    stretched across the path by this (`rescaled`)."""
     rows = rows or slice(0, len(ranges))
     if context <= 0:
-        x = describe(ranges[rows], laser, strip)[:, columns]
+        x = rescaled(describe(ranges[rows], laser, strip)[:, columns], columns, factor)
     else:
         lo, hi = context_windows(along, context, rows, ahead)
         first, last = int(lo.min()), int(hi.max())
         own = np.arange(len(lo)) + (rows.start or 0) - first
-        x = describe(ranges[first:last], laser, strip)[:, columns]
+        x = rescaled(describe(ranges[first:last], laser, strip)[:, columns], columns, factor)
         x = with_context(x, lo - first, hi - first, own)
     if local > 0:
         x = np.hstack([x, local_map(ranges, laser, poses, along, local, rows)])

@@ -48,8 +48,12 @@ from toolkit.sim.truth import REGION_PARTS, training_regions
 FULL = Config()
 BEAMS = Config(descriptors=False)  # the per-beam model alone (the former default)
 LATERAL2 = dataclasses.replace(SURROUNDINGS, lateral_weight=2.0)  # bench: as its spans choose
-LOGISTIC = dataclasses.replace(FULL, classifier="logistic", context=0.0, beam_term=1.0)
-MOZOS = dataclasses.replace(FULL, mozos=True, context=0.0)  # the peer baseline
+# the chain of defaults (rows 4-7) measures widths in metres until the last step
+LOGISTIC = dataclasses.replace(
+    FULL, classifier="logistic", context=0.0, beam_term=1.0, canonical_width=0.0
+)
+# the peer baseline: Mozos et al.'s descriptors as they measure (no canonical width)
+MOZOS = dataclasses.replace(FULL, mozos=True, context=0.0, canonical_width=0.0)
 ABLATION: list[tuple[str, Config]] = [
     ("paper: per-beam Gaussians, Eq. 8-9 literal (--paper)", PAPER),
     ("per-beam model, robust, none = world, HMM (--none-model world)", BEAMS),
@@ -57,8 +61,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("Mozos et al. 2005 descriptors alone, same classifier (trees), no context: the peer baseline", MOZOS),
     ("last default: place descriptors, logistic regression + temperature, self-training, none gate, per-beam term 1, HMM", LOGISTIC),
     ("- the per-beam term", dataclasses.replace(LOGISTIC, beam_term=0.0)),
-    ("+ extremely randomised trees instead of the regression (no temperature)", dataclasses.replace(FULL, context=0.0)),
-    ("+ context: the descriptors' mean and spread over 1 m of path either side", FULL),
+    ("+ extremely randomised trees instead of the regression (no temperature)", dataclasses.replace(FULL, context=0.0, canonical_width=0.0)),
+    ("+ context: the descriptors' mean and spread over 1 m of path either side; each log's widths across the path rescaled to a usual free width of 2 m (canonical_width)", FULL),
     ("alternative: Mozos et al. 2005 descriptors + context", dataclasses.replace(MOZOS, context=FULL.context)),
     ("alternative: without the HMM (per scan)", dataclasses.replace(FULL, smoothing="none")),
     ("alternative: without self-training", dataclasses.replace(FULL, self_training=0)),
@@ -81,7 +85,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + the opening and the dwell of two stages", dataclasses.replace(FULL, opening=True, dwell_stages=2)),
     ("alternative: + the opening and the dwell of three stages", dataclasses.replace(FULL, opening=True, dwell_stages=3)),
     ("alternative: the open set's claims of session 16 (also on the whole-scan shape, quantile 0.1)", dataclasses.replace(FULL, claim_shape=True, claim_quantile=0.1)),
-    ("alternative: each log stretched across the path to a usual free width of 2 m for the descriptors (canonical_width 2)", dataclasses.replace(FULL, canonical_width=2.0)),
+    ("alternative: each log stretched across the path to a usual free width of 2 m for the descriptors (canonical_width 2, canonical_how stretch: session 17)", dataclasses.replace(FULL, canonical_width=2.0, canonical_how="stretch")),
+    ("alternative: widths in metres as measured, no canonical width (canonical_width 0: the default until session 18)", dataclasses.replace(FULL, canonical_width=0.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

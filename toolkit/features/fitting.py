@@ -14,7 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.augment import changed, closed, opened, to_width
+from toolkit.features.augment import changed, closed, opened, to_width, width_factor
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -23,6 +23,7 @@ from toolkit.features.descriptors import (
     features,
     mozos_columns,
     path_length,
+    rescaled,
 )
 from toolkit.features.likelihood import (
     background_bins,
@@ -203,8 +204,11 @@ def _fit_places(
     poses: np.ndarray | None = None,
 ) -> PlaceClassifier:
     """The descriptor classifier from the training scans, each component a span."""
-    if config.canonical_width > 0:  # every building at one width (an expert setting)
+    factor = 1.0  # every building at one width: the log's widths rescaled, or it stretched
+    if config.canonical_width > 0 and config.canonical_how == "stretch":
         ranges = to_width(ranges, laser, config.canonical_width)
+    elif config.canonical_width > 0:
+        factor = width_factor(ranges, laser, config.canonical_width)
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
@@ -215,7 +219,7 @@ def _fit_places(
     ahead = config.ahead(laser)
     x = features(
         ranges, laser, columns, along, config.context, None, config.beside, poses,
-        config.local_map, ahead, config.opening,
+        config.local_map, ahead, config.opening, factor,
     )  # fmt: skip
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
@@ -228,7 +232,7 @@ def _fit_places(
         # apart from the rest of the place (docs/journal/places.md, session 17)
         shape = np.isin(columns, mozos_columns())
         own = columns if config.claim_shape or shape.all() else columns[~shape]
-        wide = describe(ranges, laser, CLAIM_BESIDE)[:, own]
+        wide = rescaled(describe(ranges, laser, CLAIM_BESIDE)[:, own], own, factor)
         claim = (wide[idx], wide[rest])
     # the taught scans' copies with the less open side of the path closed (or opened): what
     # lies across the path from a place is that spot's accident (a hall opens on one side or
@@ -239,7 +243,7 @@ def _fit_places(
             copied = copy(ranges, laser)
             xa = features(
                 copied, laser, columns, along, config.context, None, config.beside, poses,
-                config.local_map, ahead, config.opening,
+                config.local_map, ahead, config.opening, factor,
             )  # fmt: skip
             new = changed(ranges[idx], copied[idx], laser)  # not the scan again
             extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))

@@ -83,6 +83,7 @@ Smoothing = Literal["none", "forward", "forward-backward"]
 Temperature = Literal["loo", "none"]
 Classifier = Literal["trees", "logistic"]
 OpenSet = Literal["auto", "always", "never"]
+CanonicalHow = Literal["rescale", "stretch"]
 
 
 @dataclass(frozen=True)
@@ -159,10 +160,15 @@ class Config:
     # more open side mirrored onto it: a hall open on one side taught, one open on both met;
     # left out where the context is off; 0: none, session 12's default; docs/places.md,
     # session 13)
-    canonical_width: float = 0.0  # m: each log, for the descriptors, stretched across the path
-    # so that its usual free width is this (augment.to_width): a corridor 1.9 m wide where
-    # taught and 3.9 m where met is the same width (0: as measured, the default; 2 m gains
-    # in another world and costs in the taught one: docs/journal/places.md, session 17)
+    canonical_width: float = 2.0  # m: each log, for the descriptors, brought across the path
+    # to a usual free width of this (augment.width_factor): a corridor 1.9 m wide where
+    # taught and 3.9 m where met is the same width (0: as measured, until session 18). With
+    # "rescale" the value itself does not matter (the trees see every log shifted alike)
+    canonical_how: CanonicalHow = "rescale"  # "rescale": the widths across the path
+    # rescaled by the log's factor, every other descriptor of the scan as it is
+    # (descriptors.WIDTH_LIKE: the taught world's runs as they were, session 18); "stretch":
+    # the whole log stretched and resampled first (augment.to_width: costs the taught
+    # world's runs, session 17)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""
@@ -172,6 +178,7 @@ class Config:
             ("temperature", Temperature),
             ("classifier", Classifier),
             ("open_set", OpenSet),
+            ("canonical_how", CanonicalHow),
         ):
             value, allowed = getattr(self, name), get_args(kind)
             if value not in allowed:
@@ -194,7 +201,15 @@ class Config:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Config:
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """A saved Config; a field it lacks takes the value it had before it existed
+        (`LEGACY`), else its default: a model saved before applies as it did."""
+        known = {**LEGACY, **d}
+        return cls(**{k: v for k, v in known.items() if k in cls.__dataclass_fields__})
+
+
+#: fields whose value, before they were added, was not their default: a model saved before
+#: session 17 measured widths in metres, and session 17's canonical width was a stretch
+LEGACY: dict[str, Any] = {"canonical_width": 0.0, "canonical_how": "stretch"}
 
 
 PAPER = Config(
