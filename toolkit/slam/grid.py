@@ -1171,7 +1171,7 @@ def _first_in_cell(pts: np.ndarray, size: float, most: int) -> np.ndarray | None
 _EPS = 1e-6  # slack (m) of the stamped regions' bounds: a cell on a bound is stamped
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _cut(
     lo: float, hi: float, nx: float, ny: float, vx: float, vy: float, y: float, c: float
 ) -> tuple[float, float]:
@@ -1186,7 +1186,7 @@ def _cut(
     return lo, hi
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _disc(vx: float, vy: float, y: float, cap: float) -> tuple[float, float]:
     """The interval of x on the row at y within `cap` of (vx, vy) (empty: inf, -inf)."""
     e = y - vy
@@ -1196,7 +1196,7 @@ def _disc(vx: float, vy: float, y: float, cap: float) -> tuple[float, float]:
     return vx - r, vx + r
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _cells(
     dist: np.ndarray,
     j: int,
@@ -1218,28 +1218,37 @@ def _cells(
         return
     i0 = max(math.ceil((lo - ox) * inv - 0.5), 0)
     i1 = min(math.floor((hi - ox) * inv - 0.5) + 1, dist.shape[1])
-    for i in range(i0, i1):
-        cx = ox + (i + 0.5) * res
-        t = 0.0
-        if ll > 0.0:
-            t = min(max(((cx - ax) * dx + (cy - ay) * dy) / ll, 0.0), 1.0)
+    if i0 >= i1:
+        return
+    row = dist[j, i0:i1]
+    ey0 = cy - ay
+    if ll == 0.0:
+        e2y = ey0 * ey0
+        for k in range(i1 - i0):
+            ex = ox + (i0 + k + 0.5) * res - ax
+            now = row[k]
+            d = np.float32(math.sqrt(ex * ex + e2y))
+            row[k] = d if d < now else now
+        return
+    py = ey0 * dy
+    for k in range(i1 - i0):
+        # branch-free (the loop vectorises): float32(d) <= a float32 `now` iff d <= now
+        cx = ox + (i0 + k + 0.5) * res
+        t = min(max(((cx - ax) * dx + py) / ll, 0.0), 1.0)
         ex = cx - ax - t * dx
-        ey = cy - ay - t * dy
-        e2 = ex * ex + ey * ey
-        now = np.float64(dist[j, i])
-        if e2 < now * now:  # else sqrt(e2) >= now: the square of a float32 is exact
-            d = math.sqrt(e2)
-            if d < now:
-                dist[j, i] = d
+        ey = ey0 - t * dy
+        now = row[k]
+        d = np.float32(math.sqrt(ex * ex + ey * ey))
+        row[k] = d if d < now else now
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _rows(y0: float, y1: float, oy: float, inv: float, h: int) -> tuple[int, int]:
     """The rows whose centres lie in [y0, y1]."""
     return max(math.ceil((y0 - oy) * inv - 0.5), 0), min(math.floor((y1 - oy) * inv - 0.5) + 1, h)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _one(
     dist: np.ndarray,
     ox: float,
@@ -1318,7 +1327,7 @@ def _one(
             _cells(dist, j, lo, hi, ox, y, res, inv, ax, ay, dx, dy, ll)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def stamp_segments(
     dist: np.ndarray, origin: np.ndarray, res: float, seg: np.ndarray, cap: float
 ) -> None:
