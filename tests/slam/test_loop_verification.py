@@ -84,8 +84,8 @@ def test_real_fhw_corridor_loop_on_a_scan_its_local_map_does_not_pin_is_refused(
     the front end (session 17, not kept) placed scans 55-62 as below (relative to scan 54),
     scan 57 8 deg off its neighbours by the truth. The query 370 matches 57's local map as a
     corridor loop (inliers 0.73, ambiguity 0.90) that carries that 8 deg. Scan 57 fits its own
-    local map with only 0.70 of its returns (the expert setting `anchor_agree` 0.75; off by
-    default): refused; 56 -> 370, whose anchor its map agrees with, is right and kept
+    local map with only 0.70 of its returns (`anchor_agree` 0.75, the default since session
+    18): refused; 56 -> 370, whose anchor its map agrees with, is right and kept
     (docs/journal/maps.md, session 17)."""
     from toolkit.se2 import compose
     from toolkit.slam.loops import LoopCloser, LoopConfig, loop_truth_error, path_length
@@ -118,10 +118,10 @@ def test_real_fhw_corridor_loop_on_a_scan_its_local_map_does_not_pin_is_refused(
         assert found is not None and found.axis is not None  # a corridor loop
         return found
 
-    off = verify(57, LoopConfig().anchor_agree)  # the default: off
+    off = verify(57, 0.0)  # the test off: the loop passes and is false
     assert off.accepted and is_false_loop(off, truth)
     assert loop_truth_error(off, truth)[1] > 7.0
-    refused = verify(57, 0.75)
+    refused = verify(57, LoopConfig().anchor_agree)  # the default
     assert not refused.accepted and refused.reason.startswith("anchor: scan 57 fits its local")
-    kept = verify(56, 0.75)
+    kept = verify(56, LoopConfig().anchor_agree)
     assert kept.accepted and not is_false_loop(kept, truth)

@@ -17,8 +17,8 @@ alike poses lie along one axis with none across it (`corridor_axis`), is kept as
 loop: trusted across the axis and in heading only (`Loop.covariance`). A loop is in the earlier
 keyframe's frame, and a front-end slip there passes into it: it is refused when that scan fits
 the rest of its local map, or the query fits that scan alone, 0.3 m from where the trajectory
-put it (`anchor`, `anchor_match`); an expert setting refuses a corridor loop, trusted in
-heading, when scan a agrees poorly with the rest of its local map (`anchor_agree`). Whether the loops agree
+put it (`anchor`, `anchor_match`); a corridor loop, trusted in heading, is refused when
+scan a agrees poorly with the rest of its local map (`anchor_agree`). Whether the loops agree
 with each other is `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
@@ -103,9 +103,10 @@ class LoopConfig:
     # the trajectory placed it: refused when scan a fits its local map (`anchor`'s fit) with
     # fewer than this share of its returns (those the others could see) within 0.1 m (a scan
     # its neighbours do not agree with, as one taken in a fast turn, does not pin its heading:
-    # fhw's 57 -> 370, 8 deg off, docs/journal/maps.md session 17). 0 (the default): off; an
-    # expert setting (0.75 refuses that loop), set on one loop and no gain on the other logs
-    anchor_agree: float = 0.0
+    # fhw's 57 -> 370, 6-8 deg off, docs/journal/maps.md sessions 17-18). On by default since
+    # session 18: on the spent held-out seeds 27-29 it refused 3 of their 4 false loops with
+    # the ATE unchanged; 0: off (the default until then)
+    anchor_agree: float = 0.75
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
