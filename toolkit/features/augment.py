@@ -154,3 +154,17 @@ def to_width(ranges: np.ndarray, laser: LaserGeometry, width: float) -> np.ndarr
     (`Config.canonical_width` with `canonical_how` "stretch")."""
     r = np.asarray(ranges, dtype=np.float32)
     return stretched(r, laser, width_factor(r, laser, width)) if len(r) else r
+
+
+def canonical(
+    ranges: np.ndarray, laser: LaserGeometry, width: float, how: str
+) -> tuple[np.ndarray, float]:
+    """The log as its descriptors see it at a usual free width of `width` m
+    (`Config.canonical_width`; 0: as measured): with `how` "stretch", the log stretched
+    (`to_width`) and a factor of 1; with "rescale", the log as it is and the factor by which
+    `descriptors.rescaled` shifts its widths. Learning and applying a model resolve it alike."""
+    if width <= 0:
+        return ranges, 1.0
+    if how == "stretch":
+        return to_width(ranges, laser, width), 1.0
+    return ranges, width_factor(ranges, laser, width)

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from toolkit.dataset import LaserGeometry
-from toolkit.features.augment import to_width, width_factor
+from toolkit.features.augment import canonical
 from toolkit.features.descriptors import chosen_columns, features, path_length
 from toolkit.features.likelihood import CHUNK, loglik, per_class, softmax
 from toolkit.features.model import Config, FeatureModel
@@ -250,11 +250,8 @@ def class_scores(
     columns = chosen_columns(cfg.view_ahead, cfg.mozos, cfg.absolute_reach, cfg.glass_ahead)
     along = path_length(len(ranges), poses)
     factor = 1.0  # the log's widths rescaled to the canonical one, or the log stretched
-    if cfg.descriptors and model.places is not None and cfg.canonical_width > 0:
-        if cfg.canonical_how == "stretch":
-            ranges = to_width(ranges, model.laser, cfg.canonical_width)
-        else:
-            factor = width_factor(ranges, model.laser, cfg.canonical_width)
+    if cfg.descriptors and model.places is not None:
+        ranges, factor = canonical(ranges, model.laser, cfg.canonical_width, cfg.canonical_how)
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
         block = ranges[rows]

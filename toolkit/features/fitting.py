@@ -14,7 +14,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.augment import changed, closed, opened, to_width, width_factor
+from toolkit.features.augment import canonical, changed, closed, opened
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -204,11 +204,8 @@ def _fit_places(
     poses: np.ndarray | None = None,
 ) -> PlaceClassifier:
     """The descriptor classifier from the training scans, each component a span."""
-    factor = 1.0  # every building at one width: the log's widths rescaled, or it stretched
-    if config.canonical_width > 0 and config.canonical_how == "stretch":
-        ranges = to_width(ranges, laser, config.canonical_width)
-    elif config.canonical_width > 0:
-        factor = width_factor(ranges, laser, config.canonical_width)
+    # every building at one width: the log's widths rescaled, or it stretched
+    ranges, factor = canonical(ranges, laser, config.canonical_width, config.canonical_how)
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])

@@ -329,7 +329,7 @@ class LoopCloser:
         self._sin = np.sin(laser.angles + mount[2])
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
-        self._slips: dict[int, tuple[float, float]] = {}
+        self._anchor_fits: dict[int, tuple[float, float]] = {}
 
     def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -451,14 +451,14 @@ class LoopCloser:
         returns (those the map's scans could see) within 0.1 m of the map at that fit (1 when
         too few overlap to tell); kept per keyframe for the closer's life (the trajectory's
         rounds move a local map as a whole)."""
-        if k not in self._slips:
+        if k not in self._anchor_fits:
             found = self.anchor_consistency(
                 k, self.reference_keys(k, along, keys, config), poses, config
             )
             ok = found is not None and found[1] >= config.anchor_inliers
             moved = float(np.hypot(*found[0][:2])) if found is not None and ok else 0.0
-            self._slips[k] = (moved, 1.0 if found is None else float(found[1]))
-        return self._slips[k]
+            self._anchor_fits[k] = (moved, 1.0 if found is None else float(found[1]))
+        return self._anchor_fits[k]
 
     def anchor_consistency(
         self, a: int, refs: np.ndarray, poses: np.ndarray, config: LoopConfig

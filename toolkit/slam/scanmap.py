@@ -524,7 +524,6 @@ class MapMatcher:
         self.searches = 0
         self._searched = 0
         self.narrowed = 0  # low-overlap fits replaced by their narrow refit (`_narrow`)
-        self._logged = False  # the scan being matched came with logged odometry
         self.drift = 0.0  # the odometry's learned heading drift (rad per m)
         self._drift_sums = (0.0, 0.0)  # the fits' heading minus the odometry's, its path
         self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
@@ -577,8 +576,7 @@ class MapMatcher:
         pts = _scan_points(
             np.asarray(ranges), self._cos, self._sin, self._mount[0], self._mount[1], cfg.max_range
         )
-        self._logged = logged
-        pose = self._match(pts, predicted, info, by_odometry)
+        pose = self._match(pts, predicted, info, by_odometry, logged)
         if logged and odo is not None and by_odometry and cfg.heading_drift > 0:
             self._learn(predicted, pose, odo, sig[1])
         self._finish(pose, odo, t)
@@ -597,7 +595,12 @@ class MapMatcher:
         return pose
 
     def _match(
-        self, pts: np.ndarray, predicted: np.ndarray, info: np.ndarray, by_odometry: bool = True
+        self,
+        pts: np.ndarray,
+        predicted: np.ndarray,
+        info: np.ndarray,
+        by_odometry: bool = True,
+        logged: bool = False,
     ) -> np.ndarray:
         cfg = self.config
         grid = self._grid
@@ -655,7 +658,7 @@ class MapMatcher:
                 )
                 if clear and out3[4] > out[4] + 0.1:
                     out, cov = out3, cov3
-        if self._logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
+        if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(pts, predicted, info, out, cov)
         self.stats = out
         self.covariance = cov
