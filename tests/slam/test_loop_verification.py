@@ -1,6 +1,6 @@
 """Loop verification on real logs: what the reference could see (line of sight) and the
 ambiguity among those points (docs/journal/maps.md, session 12); a loop anchored on a front-end slip
-(session 13)."""
+(session 13), and one on a slip at its later scan (session 19)."""
 
 from __future__ import annotations
 
@@ -124,4 +124,37 @@ def test_real_fhw_corridor_loop_on_a_scan_its_local_map_does_not_pin_is_refused(
     refused = verify(57, LoopConfig().anchor_agree)  # the default
     assert not refused.accepted and refused.reason.startswith("anchor: scan 57 fits its local")
     kept = verify(56, LoopConfig().anchor_agree)
+    assert kept.accepted and not is_false_loop(kept, truth)
+
+
+def test_real_freiburg_campus_loop_on_a_slip_at_its_later_scan_is_refused(real: Path) -> None:
+    """freiburg-campus seed 28, the bench's draw 2: the front end places scan 1245 off its
+    successors, and the corridor loop 241 -> 1245 (its query is 1245-1246) carries that slip
+    (0.56 m across its axis off the truth); its neighbours' loops run through the same chain
+    and agree, and scan 241 is clean, so no test on scan a refuses it. Scan 1245 fits its own
+    local map 0.37 m off (`anchor_later`): refused; 243 -> 1249 beside it, right, is kept
+    (docs/journal/maps.md, session 19)."""
+    from bench.bench_slam import nudged
+    from toolkit.slam.loops import LoopCloser, LoopConfig, path_length
+    from toolkit.slam.pipeline import keyframes_of
+
+    ds = nudged(drifted_carmen(real, "freiburg-campus", seed=28), 2)
+    truth = truth_poses(ds)
+    assert truth is not None
+    poses = scan_to_map(ds).poses
+    keys = keyframes_of(poses, 0.5, 0.3)
+    along = path_length(poses)
+
+    def verify(a: int, b: int, later: bool) -> Loop:
+        cfg = replace(LoopConfig(), anchor_later=later)
+        found = LoopCloser(ds.ranges, ds.laser, cfg).verify(a, b, 3.0, poses, along, keys)
+        assert found is not None and found.axis is not None  # a corridor loop
+        return found
+
+    off = verify(241, 1245, False)  # the test off: the loop passes and is false
+    assert off.accepted and is_false_loop(off, truth)
+    refused = verify(241, 1245, True)
+    assert not refused.accepted
+    assert refused.reason.startswith("anchor: later scan 1245 fits its local map")
+    kept = verify(243, 1249, True)
     assert kept.accepted and not is_false_loop(kept, truth)
