@@ -18,11 +18,9 @@ loop: trusted across the axis and in heading only (`Loop.covariance`). A loop is
 keyframe's frame, and a front-end slip there passes into it: it is refused when that scan fits
 the rest of its local map, or the query fits that scan alone, 0.3 m from where the trajectory
 put it (`anchor`, `anchor_match`); a corridor loop, trusted in heading, is refused when
-scan a agrees poorly with the rest of its local map (`anchor_agree`); a slip at the later
-scan b, which the loops nearby share through the sequential chain, is refused with
-`anchor_later` (b fits its own local map `anchor_slip` m off). Whether the loops agree with
-each other is `toolkit.slam.consistency`'s test (`consistency_along`: a corridor loop's spread
-along its axis there). The mapper runs these rounds with its own windows
+scan a agrees poorly with the rest of its local map (`anchor_agree`). Whether the loops agree
+with each other is `toolkit.slam.consistency`'s test (`consistency_along`: a corridor loop's
+spread along its axis there). The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
 """
@@ -110,12 +108,6 @@ class LoopConfig:
     # session 18: on the spent held-out seeds 27-29 it refused 3 of their 4 false loops with
     # the ATE unchanged; 0: off (the default until then)
     anchor_agree: float = 0.75
-    # the same slip at the loop's later scan: the query is b's local scans placed by the
-    # trajectory, so a b placed off its successors is matched where its neighbours' loops,
-    # whose cycles run through the same chain, agree with it (freiburg-campus seed 28 draw 2,
-    # 241 -> 1245, docs/journal/maps.md session 19): refused when scan b fits its own local
-    # map (`anchor`'s fit, cached per keyframe) more than `anchor_slip` m off
-    anchor_later: bool = False
     # in the consistency test only (the graph keeps `corridor_along`): a corridor loop's spread
     # along its axis (m), 0 for `corridor_along`. Two corridor loops whose axes lie a few
     # degrees apart leave a cycle free across too when each spreads 100 m along its own axis
@@ -433,10 +425,6 @@ class LoopCloser:
                     f"anchor: scan {a} fits its local map with {agree:.2f} of its returns"
                     f" < {cfg.anchor_agree} (a corridor loop's heading)"
                 )
-        if not why and cfg.anchor_later:
-            moved_b, _ = self.anchor_fit(b, along, keys, poses, cfg)
-            if moved_b > cfg.anchor_slip:
-                why.append(f"anchor: later scan {b} fits its local map {moved_b:.2f} m off")
         if not why and cfg.anchor_match:
             slip = self.anchor_shift(a, query, found.pose, poses, cfg)
             if slip is not None and slip[1] >= cfg.anchor_inliers:
