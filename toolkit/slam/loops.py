@@ -113,7 +113,10 @@ class LoopConfig:
     # degrees apart leave a cycle free across too when each spreads 100 m along its own axis
     # (infinite-corridor seed 29 draw 0, 44 -> 768, 2.6 deg off, agrees with its neighbours
     # 1.5-3.2 deg apart); both take their along position from the same trajectory, so the
-    # cycle's along error is the drift between them, metres at most
+    # cycle's along error is the drift between them, metres at most. 2 m drops 44 -> 768 and
+    # keeps the right 44 -> 756 with `anchor_agree` off; with it on (the default, which
+    # refuses both) no false loop fewer on seeds 0-29, infinite-corridor moved both ways by
+    # 0.002-0.08 m: off (docs/journal/maps.md, session 19)
     consistency_along: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
