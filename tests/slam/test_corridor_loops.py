@@ -57,6 +57,28 @@ def test_the_buildings_corridor_revisit_is_a_corridor_loop_along_its_corridor(
     assert rejected and all(lp.reason.startswith("ambiguity") for lp in rejected)
 
 
+def test_a_corridor_loops_along_spread_can_be_bounded_for_the_consistency_test(
+    building_run: SlamRun,
+) -> None:
+    """`Loop.covariance(sigma, along)`: the spread along a corridor loop's axis is `along` m
+    instead of its own 100 m (`LoopConfig.consistency_along`), the rest unchanged; a full
+    loop's covariance does not depend on it."""
+    sigma = SlamConfig().loop_sigma
+    corridor = [lp for lp in building_run.loops if lp.accepted and lp.axis is not None]
+    full = [lp for lp in building_run.loops if lp.accepted and lp.axis is None]
+    assert corridor and full
+    for lp in corridor:
+        u = lp.free_axis()
+        assert u is not None
+        wide, tight = lp.covariance(sigma), lp.covariance(sigma, 2.0)
+        assert u @ wide[:2, :2] @ u == pytest.approx(100.0**2)
+        assert u @ tight[:2, :2] @ u == pytest.approx(2.0**2)
+        n = np.array([-u[1], u[0]])
+        assert n @ tight[:2, :2] @ n == pytest.approx(n @ wide[:2, :2] @ n)
+        assert tight[2, 2] == wide[2, 2]
+    assert np.array_equal(full[0].covariance(sigma, 2.0), full[0].covariance(sigma))
+
+
 def test_a_corridor_loop_does_not_confirm_a_full_loop_off_along_its_axis(
     building: toolkit.Dataset, building_run: SlamRun
 ) -> None:

@@ -19,7 +19,8 @@ keyframe's frame, and a front-end slip there passes into it: it is refused when 
 the rest of its local map, or the query fits that scan alone, 0.3 m from where the trajectory
 put it (`anchor`, `anchor_match`); a corridor loop, trusted in heading, is refused when
 scan a agrees poorly with the rest of its local map (`anchor_agree`). Whether the loops agree
-with each other is `toolkit.slam.consistency`'s test. The mapper runs these rounds with its own windows
+with each other is `toolkit.slam.consistency`'s test (`consistency_along`: a corridor loop's
+spread along its axis there). The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
 last one up to `SlamConfig.wide_window` where no loop closed yet).
 """
@@ -107,6 +108,16 @@ class LoopConfig:
     # session 18: on the spent held-out seeds 27-29 it refused 3 of their 4 false loops with
     # the ATE unchanged; 0: off (the default until then)
     anchor_agree: float = 0.75
+    # in the consistency test only (the graph keeps `corridor_along`): a corridor loop's spread
+    # along its axis (m), 0 for `corridor_along`. Two corridor loops whose axes lie a few
+    # degrees apart leave a cycle free across too when each spreads 100 m along its own axis
+    # (infinite-corridor seed 29 draw 0, 44 -> 768, 2.6 deg off, agrees with its neighbours
+    # 1.5-3.2 deg apart); both take their along position from the same trajectory, so the
+    # cycle's along error is the drift between them, metres at most. 2 m drops 44 -> 768 and
+    # keeps the right 44 -> 756 with `anchor_agree` off; with it on (the default, which
+    # refuses both) no false loop fewer on seeds 0-29, infinite-corridor moved both ways by
+    # 0.002-0.08 m: off (docs/journal/maps.md, session 19)
+    consistency_along: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -128,13 +139,15 @@ class Loop:
     axis: np.ndarray | None = None  # a corridor loop: unit vector (a's frame) it leaves free
     along: float = 0.0  # ... and its spread along that axis (m)
 
-    def covariance(self, sigma: tuple[float, float]) -> np.ndarray:
+    def covariance(self, sigma: tuple[float, float], along: float = 0.0) -> np.ndarray:
         """The loop edge's covariance (GTSAM's tangent order, in `b`'s frame): `sigma`
-        (m, rad) in every direction, or for a corridor loop `along` m along its axis."""
+        (m, rad) in every direction, or for a corridor loop `along` m along its axis (the
+        argument, when > 0, instead of the loop's own)."""
         cov = np.diag([sigma[0] ** 2, sigma[0] ** 2, sigma[1] ** 2])
         u = self.free_axis()
         if u is not None:
-            cov[:2, :2] += (max(self.along, sigma[0]) ** 2 - sigma[0] ** 2) * np.outer(u, u)
+            spread = along if along > 0 else self.along
+            cov[:2, :2] += (max(spread, sigma[0]) ** 2 - sigma[0] ** 2) * np.outer(u, u)
         return cov
 
     def free_axis(self) -> np.ndarray | None:

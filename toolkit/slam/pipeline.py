@@ -243,7 +243,9 @@ def close_loops(
             before,
             along,
             sequential_only,
-            np.array([lp.covariance(config.loop_sigma) for lp in fit]).reshape(-1, 3, 3),
+            np.array(
+                [lp.covariance(config.loop_sigma, config.loop.consistency_along) for lp in fit]
+            ).reshape(-1, 3, 3),
             config.consistency_path,
             config.consistency_chi2,
             config.confirm,
