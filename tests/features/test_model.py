@@ -31,6 +31,7 @@ from toolkit.features.likelihood import (
 )
 from toolkit.features.metrics import balanced_accuracy, expected_calibration_error
 from toolkit.features.model import MODEL_VERSION
+from toolkit.features.places import stay_cores
 
 
 @pytest.fixture(scope="module")
@@ -210,6 +211,21 @@ def test_dwell_stages_leave_out_short_stays_and_keep_long_ones() -> None:
     changed[150:] = 0.5
     fwd = smooth(emit, eps, "forward", 2)
     assert np.allclose(smooth(changed, eps, "forward", 2)[:150], fwd[:150])
+
+
+def test_stay_cores_leave_out_the_ends_of_each_stay() -> None:
+    label = np.array(list("aaaaaabbbaaaaaaaa"))
+    along = np.arange(len(label)) * 0.1
+    # 0.15 m: the scan next to another label's is an end; the log's own ends are not
+    core = stay_cores(label, along, 0.15)
+    assert core.tolist() == [bool(int(c)) for c in "11111001001111111"]
+    # the whole 0.4 m stay of "b" (from the last "a" before to the first after) is an end
+    assert not stay_cores(label, along, 0.25)[6:9].any()
+    # off: every scan, and without a path every scan too
+    assert stay_cores(label, along, 0.0).all() and stay_cores(label, None, 0.3).all()
+    # scans unevenly spaced: the distance is along the path, not in scans
+    along2 = np.r_[along[:6], along[6:] + 1.0]  # 1.1 m between the last "a" and the "b"
+    assert not core[5] and stay_cores(label, along2, 0.15)[5]
 
 
 def test_standing_still_adds_no_evidence(world) -> None:  # type: ignore[no-untyped-def]

@@ -86,6 +86,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: the open set's claims of session 16 (also on the whole-scan shape, quantile 0.1)", dataclasses.replace(FULL, claim_shape=True, claim_quantile=0.1)),
     ("alternative: each log stretched across the path to a usual free width of 2 m for the descriptors (canonical_width 2, canonical_how stretch: session 17)", dataclasses.replace(FULL, canonical_width=2.0, canonical_how="stretch")),
     ("alternative: widths in metres as measured, no canonical width (canonical_width 0: the default until session 18)", dataclasses.replace(FULL, canonical_width=0.0)),
+    ("alternative: self-training only on the scans more than 0.5 m of path inside their stay (stay_edge 0.5: session 19)", dataclasses.replace(FULL, stay_edge=0.5)),
+    ("alternative: stay_edge 0.5 and the opening beside the robot (session 19)", dataclasses.replace(FULL, stay_edge=0.5, opening=True)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -249,7 +249,7 @@ def _fit_places(
         config.priors, forest=config.classifier == "trees", gate=len(columns),
         open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
         extra=tuple(np.concatenate(v) for v in zip(*extra, strict=True)) if extra else None,
-        claim_quantile=config.claim_quantile,
+        claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,
     )  # fmt: skip
 
 

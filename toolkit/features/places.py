@@ -362,6 +362,8 @@ def fit_places(
     leaf_mix: float = LEAF_MIX,
     extra: tuple[np.ndarray, ...] | None = None,
     claim_quantile: float | None = None,
+    along: np.ndarray | None = None,
+    stay_edge: float = 0.0,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -389,7 +391,12 @@ def fit_places(
     applying the model costs nothing more).
     `extra`: descriptors (m, D), places (m,) and weights (m,) of more training examples for
     the trees only (the taught scans' copies of `toolkit.features.augment`): not in the
-    scaler, the claims, the class centres or the gate."""
+    scaler, the claims, the class centres or the gate.
+    `along` (the path length of each `unlabelled` scan, in log order) and `stay_edge` (m):
+    a self-trained scan must lie more than `stay_edge` of path inside its stay (the run of
+    scans the trees give its place), so the ends of a stay, where the place's edge is the
+    trees' guess, and stays shorter than twice that teach nothing (`stay_cores`; the rest
+    of the log in log order, so a taught span between two scans does not end a stay)."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
@@ -441,8 +448,11 @@ def fit_places(
             prob = est.predict_proba(zu)
             label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
             zs, ys, ws = [z, za], [y, ya], [np.ones(len(y)), wa]
+            core = stay_cores(label, along, stay_edge)
             for k in classes if rounds > 0 else ():
-                pick = np.flatnonzero((label == k) & (sure > SELF_TRAINING_CONFIDENCE) & claimed)
+                pick = np.flatnonzero(
+                    (label == k) & (sure > SELF_TRAINING_CONFIDENCE) & claimed & core
+                )
                 if len(pick):
                     zs.append(zu[pick])
                     ys.append(label[pick])
@@ -490,6 +500,23 @@ def fit_places(
     if not forest:  # the forest's shares are not over-confident (measured: docs/places.md)
         model.temperature = calibrate(model, x, y, groups, c)
     return model
+
+
+def stay_cores(label: np.ndarray, along: np.ndarray | None, edge: float) -> np.ndarray:
+    """Per scan (in log order), whether it lies more than `edge` of path (`along`, m) from
+    the nearest scan of another label: the core of its stay, where the trees' label is not
+    their guess at a place's edge. The log's first and last scans are no edge. All True when
+    `edge` is 0 or there is no `along`."""
+    n = len(label)
+    if not edge or along is None or n == 0:
+        return np.ones(n, dtype=bool)
+    change = np.flatnonzero(label[1:] != label[:-1]) + 1  # first scan of each new stay
+    run = np.zeros(n, dtype=np.intp)
+    run[change] = 1
+    run = np.cumsum(run)
+    before = np.r_[-np.inf, along[change - 1]][run]  # the other label's last scan before
+    after = np.r_[along[change], np.inf][run]  # and its first scan after
+    return np.asarray(np.minimum(along - before, after - along) > edge)
 
 
 CLAIM_C = 0.01  # inverse L2 strength of each place's regression against the log
