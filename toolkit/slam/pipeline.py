@@ -28,7 +28,7 @@ import numpy as np
 from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
-from toolkit.slam import consistency
+from toolkit.slam import consistency, recognition
 from toolkit.slam import graph as pg
 from toolkit.slam.consistency import CHI2_3DOF_99
 from toolkit.slam.loops import (
@@ -301,6 +301,13 @@ def close_loops(
                 poses = solve()
                 index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
+    if loop_cfg.recognition:  # candidates by appearance where no loop closed yet
+        t0 = time.perf_counter()
+        skip = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
+        for lp in recognition.find(closer, keys, poses, along, loop_cfg, skip=skip, known=found):
+            found.setdefault((lp.a, lp.b), lp)
+        timings["loops"] += time.perf_counter() - t0
+        poses = solve()
     # further rounds from the optimised trajectory where no loop closed yet: smaller windows,
     # then a last one as wide as the drift along the path between
     # (each with whether it leaves out corridor loops' queries)
