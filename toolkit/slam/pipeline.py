@@ -14,6 +14,8 @@
    and the graph optimised again. A second round searches again
    from the optimised trajectory, where the windows can be smaller; a last one, where no loop
    closed yet, with a window as wide as the drift along the path between (`wide_window`).
+   With `LoopConfig.recognition`, a round after the first proposes candidates by appearance
+   (`toolkit.slam.recognition`), where no loop closed yet, whatever the drift.
 4. Every scan's pose: its keyframe's optimised pose composed with its sequential offset.
 """
 
@@ -301,10 +303,15 @@ def close_loops(
                 poses = solve()
                 index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
-    if loop_cfg.recognition:  # candidates by appearance where no loop closed yet
+    if loop_cfg.recognition:
+        # candidates by appearance, where no loop closed yet, whatever the drift (a revisit
+        # 6-37 m off is beyond every window): before the later rounds, which then search from
+        # a trajectory those loops corrected (after them instead, and leaving out corridor
+        # loops' queries as the wide round does: the worst infinite-corridor draws less
+        # improved, 0.45-0.78 m against 0.34-0.40; docs/journal/maps.md, session 19)
         t0 = time.perf_counter()
-        skip = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
-        for lp in recognition.find(closer, keys, poses, along, loop_cfg, skip=skip, known=found):
+        closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
+        for lp in recognition.find(closer, keys, poses, along, loop_cfg, skip=closed, known=found):
             found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()

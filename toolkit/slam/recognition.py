@@ -84,6 +84,7 @@ def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
     both hold points in, with ref's column j - s against query's column j (1 where none
     is shared); the query's heading in the ref's frame at shift s is -s sectors. One FFT
     per ring for all shifts."""
+
     def unit(d: np.ndarray) -> np.ndarray:
         n = np.linalg.norm(d, axis=-2, keepdims=True)
         return np.where(n > 0, d / np.where(n > 0, n, 1.0), 0.0)
