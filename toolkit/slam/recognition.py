@@ -6,8 +6,9 @@ revisit 6-37 m off (freiburg-campus, infinite-corridor; docs/journal/maps.md ses
 17-18), beyond any window, and the right pair is never proposed. Here each keyframe's local
 map (its neighbours within `path` m of path, placed by the trajectory, which is locally right)
 is described by a Scan Context (Kim & Kim, IROS 2018) in 2D: a polar grid of `rings` x
-`sectors` cells around the keyframe, each the square root of how many of the map's points
-(one per `voxel` cell) fall in it. Its ring key (each ring's mean over the sectors) does not
+`sectors` cells around the keyframe, each how many of the map's points (one per `voxel` cell)
+fall in it (kept as bytes: a million-scan log's 100,000 keyframes in 120 MB), compared by
+their square roots. Its ring key (each ring's mean over the sectors) does not
 change with the heading: the earlier keyframes nearest to a query by ring key (a k-d tree)
 are compared by the full descriptor over every circular shift of the sectors (the mean
 cosine distance of the columns both occupy), whose best shift is the relative heading.
@@ -57,7 +58,7 @@ class RecognitionConfig:
 
 def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
     """The 2D Scan Context of `points` (N x 2, in the keyframe's frame): rings x sectors,
-    sqrt of the point count per polar cell, beyond `range` left out."""
+    the point count per polar cell (uint8, at most 255), beyond `range` left out."""
     r = np.hypot(points[:, 0], points[:, 1])
     keep = r < config.range
     ring = (r[keep] * (config.rings / config.range)).astype(np.int64)
@@ -65,22 +66,22 @@ def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
     sector = np.minimum(
         (bearing * (config.sectors / (2 * np.pi))).astype(np.int64), config.sectors - 1
     )
-    counts = np.bincount(
-        ring * config.sectors + sector, minlength=config.rings * config.sectors
-    ).astype(np.float64)
-    out: np.ndarray = np.sqrt(counts).reshape(config.rings, config.sectors)
+    counts = np.bincount(ring * config.sectors + sector, minlength=config.rings * config.sectors)
+    out: np.ndarray = np.minimum(counts, 255).astype(np.uint8).reshape(config.rings, config.sectors)
     return out
 
 
 def ring_key(desc: np.ndarray) -> np.ndarray:
-    """Each ring's mean over its sectors (..., rings): the same at any heading."""
-    out: np.ndarray = desc.mean(axis=-1)
+    """Each ring's mean over its sectors of the counts' square roots (..., rings): the same
+    at any heading."""
+    out: np.ndarray = np.sqrt(desc.astype(np.float64)).mean(axis=-1)
     return out
 
 
 def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
-    """Scan Context distance of `query` (R x S) to each of `refs` (M x R x S) at every
-    circular shift s of the sectors (M x S): 1 - the mean cosine similarity of the columns
+    """Scan Context distance of `query` (R x S counts) to each of `refs` (M x R x S) at every
+    circular shift s of the sectors (M x S): 1 - the mean cosine similarity (of the counts'
+    square roots) of the columns
     both hold points in, with ref's column j - s against query's column j (1 where none
     is shared); the query's heading in the ref's frame at shift s is -s sectors. One FFT
     per ring for all shifts."""
@@ -89,6 +90,7 @@ def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
         n = np.linalg.norm(d, axis=-2, keepdims=True)
         return np.where(n > 0, d / np.where(n > 0, n, 1.0), 0.0)
 
+    query, refs = np.sqrt(query.astype(np.float64)), np.sqrt(refs.astype(np.float64))
     q, c = unit(query), unit(refs)
     sectors = query.shape[-1]
     # corr[m, s] = sum_j sum_r q[r, j] c[m, r, j - s]
@@ -116,7 +118,7 @@ def keyframe_descriptors(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every keyframe's descriptor (K x rings x sectors) of its local map (`path`, `scans`),
     and whether it has one (K,: at least `min_points` points)."""
-    desc = np.zeros((len(keys), config.rings, config.sectors))
+    desc = np.zeros((len(keys), config.rings, config.sectors), dtype=np.uint8)
     ok = np.zeros(len(keys), dtype=bool)
     lo = np.searchsorted(along[keys], along[keys] - config.path, side="left")
     hi = np.searchsorted(along[keys], along[keys] + config.path, side="right")
