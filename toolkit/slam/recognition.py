@@ -14,16 +14,16 @@ are compared by the full descriptor over every circular shift of the sectors (th
 cosine distance of the columns both occupy), whose best shift is the relative heading.
 The nearest few that pass `max_distance` are verified by the loop closer's own seed-free
 correlative search (`LoopCloser.verify`) from that heading and no translation, over a
-`window` m and, by default, every heading (`turn`: a symmetric place matched the wrong way
-round is then the ambiguity test's runner-up, not a loop), with every test of a loop (inliers,
-ambiguity, anchors) and no corridor loops (a match along a corridor says nothing about where
+`window` m and `turn` rad, and from the opposite heading too (a corridor or a symmetric room
+looks alike turned round: the better match wins, and the other scoring within
+`max_ambiguity` of it refuses it), with every test of a loop (inliers, ambiguity, anchors)
+and no corridor loops (a match along a corridor says nothing about where
 along it; another corridor alike is the worse failure). The loops then face the same
 consistency test and graph residual test as the others (`toolkit.slam.pipeline`).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Container
 from dataclasses import dataclass, replace
 
@@ -53,7 +53,10 @@ class RecognitionConfig:
     max_distance: float = 0.35  # full descriptor distance (0 alike .. 1 unlike)
     every: float = 2.0  # a query every this much path
     window: float = 3.0  # verification: translation window (+-) around no translation ...
-    turn: float = math.pi  # ... and heading window (+-) around the descriptor's
+    # ... and heading window (+-) around the descriptor's, and around its opposite (below pi
+    # / 2; from pi / 2 one search: every heading at pi, 1.6x the loop stage and +280 MB peak
+    # on a 200,000-scan log; docs/journal/maps.md, session 19)
+    turn: float = 0.35
 
 
 def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
@@ -189,8 +192,8 @@ def find(
     known: Container[tuple[int, int]] = (),
 ) -> list[Loop]:
     """Appearance candidates (`candidates`) verified by `closer` with `loop_config`'s tests,
-    from the descriptor's heading over `window` / `turn`, no corridor loops; rejected ones
-    too. Pairs in `known` (verified before) are left out."""
+    from the descriptor's heading and its opposite over `window` / `turn`, no corridor loops;
+    rejected ones too. Pairs in `known` (verified before) are left out."""
     cfg = config or RecognitionConfig()
     desc, ok = keyframe_descriptors(closer, keys, poses, along, cfg)
     verify_cfg = replace(loop_config, corridor=False, turn=cfg.turn)
@@ -200,6 +203,21 @@ def find(
             continue
         prediction = np.array([0.0, 0.0, heading])
         loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+        if loop is not None and cfg.turn < np.pi / 2:
+            # a narrow heading window: the opposite heading searched too (a corridor or a
+            # symmetric room looks alike turned round); the better wins, and the other
+            # scoring within `max_ambiguity` of it is an ambiguity
+            prediction[2] = wrap(heading + np.pi)
+            flip = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+            if flip is not None and flip.score > loop.score:
+                loop, flip = flip, loop
+            if flip is not None and flip.score > loop_config.max_ambiguity * loop.score:
+                loop.accepted = loop.fit = False
+                loop.reason = "; ".join(
+                    r
+                    for r in (loop.reason, f"opposite heading scores {flip.score / loop.score:.2f}")
+                    if r
+                )
         if loop is not None:
             loop.recognised = True
             out.append(loop)
