@@ -49,7 +49,7 @@ def test_real_infinite_corridor_revisits_beyond_the_window_closed_by_appearance(
     """infinite-corridor, drift seed 14, the bench's draw 1 (development): the return from
     the western loop comes back into the east-west corridor 6-22 m off the trajectory
     (session 17), beyond the 3 m and 12 m windows: no loop ties that stretch and the ATE is
-    5.2 m. Proposed by appearance the revisits close (0.39 m), and no accepted loop is false."""
+    5.2 m. Proposed by appearance the revisits close (0.34 m), and no accepted loop is false."""
     from bench.bench_slam import nudged
     from toolkit.slam.scanmap import scan_to_map
 

@@ -111,7 +111,7 @@ class LoopConfig:
     # keyframe's local map), not only by nearness on the trajectory: a round of its own after
     # the first (`toolkit.slam.pipeline`), for revisits the drift put beyond every window. On
     # by default since session 19: infinite-corridor seeds 5-14 x 2 draws mean ATE 1.21 ->
-    # 0.40 m (worst 5.23 -> 0.60), no false loop on development seeds 0-14; False: off
+    # 0.38 m (worst 5.23 -> 0.51), no false loop on development seeds 0-14; False: off
     recognition: bool = True
 
     def to_dict(self) -> dict[str, Any]:

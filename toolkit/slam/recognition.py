@@ -74,11 +74,19 @@ def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
     return out
 
 
-def ring_key(desc: np.ndarray) -> np.ndarray:
+#: the square root of every count a cell can hold (the descriptors are uint8)
+_ROOT = np.sqrt(np.arange(256, dtype=np.float64))
+
+
+def ring_key(desc: np.ndarray, chunk: int = 1024) -> np.ndarray:
     """Each ring's mean over its sectors of the counts' square roots (..., rings): the same
-    at any heading."""
-    out: np.ndarray = np.sqrt(desc.astype(np.float64)).mean(axis=-1)
-    return out
+    at any heading. A stack of descriptors `chunk` at a time (all at once in float64 was
+    +280 MB peak on a 200,000-scan log's 15,000 keyframes)."""
+    if desc.ndim < 3:
+        out: np.ndarray = _ROOT[desc].mean(axis=-1)
+        return out
+    parts = [_ROOT[desc[i : i + chunk]].mean(axis=-1) for i in range(0, len(desc), chunk)]
+    return np.concatenate(parts) if parts else np.zeros((0, desc.shape[-2]))
 
 
 def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
@@ -93,7 +101,7 @@ def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
         n = np.linalg.norm(d, axis=-2, keepdims=True)
         return np.where(n > 0, d / np.where(n > 0, n, 1.0), 0.0)
 
-    query, refs = np.sqrt(query.astype(np.float64)), np.sqrt(refs.astype(np.float64))
+    query, refs = _ROOT[query], _ROOT[refs]
     q, c = unit(query), unit(refs)
     sectors = query.shape[-1]
     # corr[m, s] = sum_j sum_r q[r, j] c[m, r, j - s]
