@@ -135,11 +135,14 @@ def test_second_round_verifies_no_pair_twice_and_the_building_still_closes(
     before = scan_to_map(ds).poses
     truth = truth_poses(ds)
     assert truth is not None
-    seen: list[tuple[int, int]] = []
+    seen: list[tuple[int, int, float | None]] = []
     verify = lp_mod.LoopCloser.verify
 
     def counted(self, a, b, *args, **kwargs):  # type: ignore[no-untyped-def]
-        seen.append((a, b))
+        # place recognition verifies a pair from two headings (its descriptor's and the
+        # opposite): a pair and a prediction are verified once
+        pred = kwargs.get("prediction", args[5] if len(args) > 5 else None)
+        seen.append((a, b, None if pred is None else round(float(pred[2]), 6)))
         return verify(self, a, b, *args, **kwargs)
 
     monkeypatch.setattr(lp_mod.LoopCloser, "verify", counted)

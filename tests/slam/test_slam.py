@@ -52,7 +52,10 @@ def test_three_laps_stay_one_map_while_the_odometry_drifts_metres() -> None:
     assert _false(slam, truth) == []
     accepted = [lp for lp in slam.loops if lp.accepted]
     lap = 3556  # scans per lap after the first one's 4,000
-    assert any(lp.a < 4000 and lp.b >= 4000 + lap for lp in accepted)  # third lap to first
+    assert any(lp.a < 4000 and 4000 <= lp.b < 4000 + lap for lp in accepted)  # second to first
+    # third lap to an earlier one (to the first before place recognition, session 19: to the
+    # second now, the ATE the same, 0.0365 -> 0.0366 m)
+    assert any(lp.a < 4000 + lap and lp.b >= 4000 + lap for lp in accepted)
     assert evaluate(odometry, truth)["ate"]["rmse"] > 3.0
     after = evaluate(result.poses, truth)["ate"]["rmse"]
     assert after <= 0.1

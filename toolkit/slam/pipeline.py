@@ -14,6 +14,8 @@
    and the graph optimised again. A second round searches again
    from the optimised trajectory, where the windows can be smaller; a last one, where no loop
    closed yet, with a window as wide as the drift along the path between (`wide_window`).
+   With `LoopConfig.recognition`, a round after the first proposes candidates by appearance
+   (`toolkit.slam.recognition`), where no loop closed yet, whatever the drift.
 4. Every scan's pose: its keyframe's optimised pose composed with its sequential offset.
 """
 
@@ -28,7 +30,7 @@ import numpy as np
 from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset
-from toolkit.slam import consistency
+from toolkit.slam import consistency, recognition
 from toolkit.slam import graph as pg
 from toolkit.slam.consistency import CHI2_3DOF_99
 from toolkit.slam.loops import (
@@ -303,6 +305,18 @@ def close_loops(
                 poses = solve()
                 index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
+    if loop_cfg.recognition:
+        # candidates by appearance, where no loop closed yet, whatever the drift (a revisit
+        # 6-37 m off is beyond every window): before the later rounds, which then search from
+        # a trajectory those loops corrected (after them instead, and leaving out corridor
+        # loops' queries as the wide round does: the worst infinite-corridor draws less
+        # improved, 0.45-0.78 m against 0.34-0.40; docs/journal/maps.md, session 19)
+        t0 = time.perf_counter()
+        closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
+        for lp in recognition.find(closer, keys, poses, along, loop_cfg, skip=closed, known=found):
+            found.setdefault((lp.a, lp.b), lp)
+        timings["loops"] += time.perf_counter() - t0
+        poses = solve()
     # further rounds from the optimised trajectory where no loop closed yet: smaller windows,
     # then a last one as wide as the drift along the path between
     # (each with whether it leaves out corridor loops' queries)

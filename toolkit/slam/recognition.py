@@ -1,0 +1,243 @@
+"""Loop candidates by appearance: place recognition that does not depend on the drifted pose.
+
+The position-based candidates (`toolkit.slam.loops.candidates`) look for an earlier keyframe
+near the later one on the trajectory; after a long stretch without loops the drift puts a
+revisit 6-37 m off (freiburg-campus, infinite-corridor; docs/journal/maps.md sessions
+17-18), beyond any window, and the right pair is never proposed. Here each keyframe's local
+map (its neighbours within `path` m of path, placed by the trajectory, which is locally right)
+is described by a Scan Context (Kim & Kim, IROS 2018) in 2D: a polar grid of `rings` x
+`sectors` cells around the keyframe, each how many of the map's points (one per `voxel` cell)
+fall in it (kept as bytes: a million-scan log's 100,000 keyframes in 120 MB), compared by
+their square roots. Its ring key (each ring's mean over the sectors) does not
+change with the heading: the earlier keyframes nearest to a query by ring key (a k-d tree)
+are compared by the full descriptor over every circular shift of the sectors (the mean
+cosine distance of the columns both occupy), whose best shift is the relative heading.
+The nearest few that pass `max_distance` are verified by the loop closer's own seed-free
+correlative search (`LoopCloser.verify`) from that heading and no translation, over a
+`window` m and `turn` rad, and from the opposite heading too (a corridor or a symmetric room
+looks alike turned round: the better match wins, and the other scoring within
+`max_ambiguity` of it refuses it), with every test of a loop (inliers, ambiguity, anchors)
+and no corridor loops (a match along a corridor says nothing about where
+along it; another corridor alike is the worse failure). The loops then face the same
+consistency test and graph residual test as the others (`toolkit.slam.pipeline`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Container
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from toolkit.se2 import wrap
+from toolkit.slam.grid import voxel_subsample
+from toolkit.slam.loops import Loop, LoopCloser, LoopConfig
+
+
+@dataclass(frozen=True)
+class RecognitionConfig:
+    """Place recognition's parameters; lengths in m, angles in rad."""
+
+    path: float = 10.0  # a keyframe's local map: scans within this path distance of it ...
+    scans: int = 24  # ... at most this many of them, evenly along it
+    voxel: float = 0.2  # one point per cell of this size
+    rings: int = 20  # polar grid: rings of range / rings m each, out to ...
+    range: float = 20.0  # ... this range
+    sectors: int = 60  # ... and sectors of 2 pi / sectors
+    min_points: int = 80  # a local map with fewer points is not described
+    gap: float = 30.0  # candidates lie at least this far back along the path
+    neighbours: int = 150  # ring-key neighbours looked up per query (then those far back kept)
+    compared: int = 150  # ... of which this many nearest are compared by the full descriptor
+    verified: int = 2  # ... and at most this many within `max_distance` verified
+    max_distance: float = 0.35  # full descriptor distance (0 alike .. 1 unlike)
+    every: float = 2.0  # a query every this much path
+    window: float = 3.0  # verification: translation window (+-) around no translation ...
+    # ... and heading window (+-) around the descriptor's, and around its opposite (below pi
+    # / 2; from pi / 2 one search: every heading at pi, 1.6x the loop stage and +280 MB peak
+    # on a 200,000-scan log; docs/journal/maps.md, session 19)
+    turn: float = 0.35
+
+
+def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
+    """The 2D Scan Context of `points` (N x 2, in the keyframe's frame): rings x sectors,
+    the point count per polar cell (uint8, at most 255), beyond `range` left out."""
+    r = np.hypot(points[:, 0], points[:, 1])
+    keep = r < config.range
+    ring = (r[keep] * (config.rings / config.range)).astype(np.int64)
+    bearing = np.arctan2(points[keep, 1], points[keep, 0]) % (2 * np.pi)
+    sector = np.minimum(
+        (bearing * (config.sectors / (2 * np.pi))).astype(np.int64), config.sectors - 1
+    )
+    counts = np.bincount(ring * config.sectors + sector, minlength=config.rings * config.sectors)
+    out: np.ndarray = np.minimum(counts, 255).astype(np.uint8).reshape(config.rings, config.sectors)
+    return out
+
+
+#: the square root of every count a cell can hold (the descriptors are uint8)
+_ROOT = np.sqrt(np.arange(256, dtype=np.float64))
+
+
+def ring_key(desc: np.ndarray, chunk: int = 1024) -> np.ndarray:
+    """Each ring's mean over its sectors of the counts' square roots (..., rings): the same
+    at any heading. A stack of descriptors `chunk` at a time (all at once in float64 was
+    +280 MB peak on a 200,000-scan log's 15,000 keyframes)."""
+    if desc.ndim < 3:
+        out: np.ndarray = _ROOT[desc].mean(axis=-1)
+        return out
+    parts = [_ROOT[desc[i : i + chunk]].mean(axis=-1) for i in range(0, len(desc), chunk)]
+    return np.concatenate(parts) if parts else np.zeros((0, desc.shape[-2]))
+
+
+def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
+    """Scan Context distance of `query` (R x S counts) to each of `refs` (M x R x S) at every
+    circular shift s of the sectors (M x S): 1 - the mean cosine similarity (of the counts'
+    square roots) of the columns
+    both hold points in, with ref's column j - s against query's column j (1 where none
+    is shared); the query's heading in the ref's frame at shift s is -s sectors. One FFT
+    per ring for all shifts."""
+
+    def unit(d: np.ndarray) -> np.ndarray:
+        n = np.linalg.norm(d, axis=-2, keepdims=True)
+        return np.where(n > 0, d / np.where(n > 0, n, 1.0), 0.0)
+
+    query, refs = _ROOT[query], _ROOT[refs]
+    q, c = unit(query), unit(refs)
+    sectors = query.shape[-1]
+    # corr[m, s] = sum_j sum_r q[r, j] c[m, r, j - s]
+    corr = np.fft.irfft(
+        (np.fft.rfft(q, axis=-1)[None] * np.conj(np.fft.rfft(c, axis=-1))).sum(axis=-2),
+        n=sectors,
+        axis=-1,
+    )
+    qa = (query.sum(axis=-2) > 0).astype(np.float64)
+    ca = (refs.sum(axis=-2) > 0).astype(np.float64)
+    shared = np.fft.irfft(
+        np.fft.rfft(qa)[None] * np.conj(np.fft.rfft(ca, axis=-1)), n=sectors, axis=-1
+    )
+    shared = np.rint(shared)
+    out: np.ndarray = np.where(shared > 0, 1.0 - corr / np.maximum(shared, 1.0), 1.0)
+    return out
+
+
+def keyframe_descriptors(
+    closer: LoopCloser,
+    keys: np.ndarray,
+    poses: np.ndarray,
+    along: np.ndarray,
+    config: RecognitionConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every keyframe's descriptor (K x rings x sectors) of its local map (`path`, `scans`),
+    and whether it has one (K,: at least `min_points` points)."""
+    desc = np.zeros((len(keys), config.rings, config.sectors), dtype=np.uint8)
+    ok = np.zeros(len(keys), dtype=bool)
+    lo = np.searchsorted(along[keys], along[keys] - config.path, side="left")
+    hi = np.searchsorted(along[keys], along[keys] + config.path, side="right")
+    for q in range(len(keys)):
+        near = keys[lo[q] : hi[q]]
+        near = near[np.linspace(0, len(near) - 1, min(len(near), config.scans)).astype(np.int64)]
+        pts = voxel_subsample(closer._local(int(keys[q]), near, poses), config.voxel)
+        if len(pts) >= config.min_points:
+            desc[q], ok[q] = describe(pts, config), True
+    return desc, ok
+
+
+def candidates(
+    desc: np.ndarray,
+    ok: np.ndarray,
+    keys: np.ndarray,
+    along: np.ndarray,
+    config: RecognitionConfig,
+    skip: np.ndarray | None = None,
+) -> list[tuple[int, int, float, float]]:
+    """(earlier scan, later scan, descriptor distance, relative heading of the later in the
+    earlier's frame) for a query keyframe every `every` m of path (none within `every` of a
+    scan in `skip`, already closed): the earlier keyframes more than `gap` back whose ring
+    keys are nearest, compared by the full descriptor at every shift; the best `verified`
+    within `max_distance`."""
+    ka = along[keys]
+    idx = np.nonzero(ok)[0]
+    if len(idx) < 2:
+        return []
+    tree = cKDTree(ring_key(desc[idx]))
+    closed = np.sort(along[skip]) if skip is not None and len(skip) else np.zeros(0)
+    step = 2 * np.pi / config.sectors
+    out: list[tuple[int, int, float, float]] = []
+    next_at = 0.0
+    for q in idx:
+        if ka[q] < next_at or ka[q] < config.gap:
+            continue
+        next_at = ka[q] + config.every
+        if len(closed):
+            at = np.searchsorted(closed, ka[q])
+            if (np.abs(closed[max(at - 1, 0) : at + 1] - ka[q]) < config.every).any():
+                continue
+        k = min(config.neighbours, len(idx))
+        _, nn = tree.query(ring_key(desc[q]), k=k)
+        near = idx[np.atleast_1d(nn)]
+        near = near[ka[q] - ka[near] > config.gap][: config.compared]
+        if len(near) == 0:
+            continue
+        d = shift_distances(desc[q], desc[near])
+        best = d.argmin(axis=1)
+        dist = d[np.arange(len(near)), best]
+        order = np.argsort(dist)[: config.verified]
+        for m in order:
+            if dist[m] <= config.max_distance:
+                heading = float(wrap(-best[m] * step))
+                out.append((int(keys[near[m]]), int(keys[q]), float(dist[m]), heading))
+    return out
+
+
+def find(
+    closer: LoopCloser,
+    keys: np.ndarray,
+    poses: np.ndarray,
+    along: np.ndarray,
+    loop_config: LoopConfig,
+    config: RecognitionConfig | None = None,
+    skip: np.ndarray | None = None,
+    known: Container[tuple[int, int]] = (),
+) -> list[Loop]:
+    """Appearance candidates (`candidates`) verified by `closer` with `loop_config`'s tests,
+    from the descriptor's heading and its opposite over `window` / `turn`, no corridor loops;
+    rejected ones too. Pairs in `known` (verified before) are left out."""
+    cfg = config or RecognitionConfig()
+    desc, ok = keyframe_descriptors(closer, keys, poses, along, cfg)
+    verify_cfg = replace(loop_config, corridor=False, turn=cfg.turn)
+    out = []
+    for a, b, _, heading in candidates(desc, ok, keys, along, cfg, skip):
+        if (a, b) in known:
+            continue
+        prediction = np.array([0.0, 0.0, heading])
+        loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+        if loop is not None and cfg.turn < np.pi / 2:
+            # a narrow heading window: the opposite heading searched too (a corridor or a
+            # symmetric room looks alike turned round); the better wins, and the other
+            # scoring within `max_ambiguity` of it is an ambiguity
+            prediction[2] = wrap(heading + np.pi)
+            flip = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+            if flip is not None and flip.score > loop.score:
+                loop, flip = flip, loop
+            if flip is not None and flip.score > loop_config.max_ambiguity * loop.score:
+                loop.accepted = loop.fit = False
+                loop.reason = "; ".join(
+                    r
+                    for r in (loop.reason, f"opposite heading scores {flip.score / loop.score:.2f}")
+                    if r
+                )
+        if loop is not None:
+            loop.recognised = True
+            out.append(loop)
+    return out
+
+
+__all__ = [
+    "RecognitionConfig",
+    "candidates",
+    "describe",
+    "find",
+    "keyframe_descriptors",
+    "ring_key",
+    "shift_distances",
+]
