@@ -70,3 +70,44 @@ def test_real_infinite_corridor_revisits_beyond_the_window_closed_by_appearance(
     ate_on, recognised_on = run(True)
     assert recognised_off == 0 and ate_off > 3.0
     assert recognised_on >= 5 and ate_on < 0.6
+
+
+def test_drift_gate_keeps_revisits_the_drift_explains_and_drops_the_rest() -> None:
+    """A corridor walked out and back, keyframes every 2 m, each place with its own
+    descriptor (seen the same way out and back). Walked out only with one descriptor
+    everywhere (a corridor looks alike): ungated every query has candidates, gated none (the
+    places lie as far apart as the path between them). Out and back with the return 15 m off:
+    only the pairs with enough path between for the drift to explain 15 m (`drift` x (1 m +
+    0.03 m per m)) stay, and they are the same places."""
+    cfg = rc.RecognitionConfig()
+    rng = np.random.default_rng(5)
+    n = 60
+    places = (rng.random((n, cfg.rings, cfg.sectors)) < 0.3) * rng.integers(1, 6, (n, 1, 1))
+    places = places.astype(np.uint8)
+    reach = (1.0, 0.03)
+
+    # out only, alike everywhere
+    keys = np.arange(n)
+    along = 2.0 * keys
+    poses = np.column_stack([along, np.zeros(n), np.zeros(n)])
+    same = np.repeat(places[:1], n, axis=0)
+    ok = np.ones(n, dtype=bool)
+    assert len(rc.candidates(same, ok, keys, along, replace(cfg, drift=np.inf), None, poses, reach))
+    assert rc.candidates(same, ok, keys, along, cfg, None, poses, reach) == []
+
+    # out and back, the return 15 m off across the corridor
+    keys = np.arange(2 * n)
+    along = 2.0 * keys
+    place = np.concatenate([np.arange(n), np.arange(n)[::-1]])
+    poses = np.column_stack([2.0 * place, np.where(keys >= n, 15.0, 0.0), np.zeros(2 * n)])
+    desc = places[place]
+    ok = np.ones(2 * n, dtype=bool)
+    ungated = rc.candidates(desc, ok, keys, along, replace(cfg, drift=np.inf), None, poses, reach)
+    gated = rc.candidates(desc, ok, keys, along, cfg, None, poses, reach)
+    bound = 15.0 / cfg.drift - reach[0]
+    assert gated and len(gated) < len(ungated)
+    assert all(along[b] - along[a] >= bound / reach[1] for a, b, _, _ in gated)
+    assert {(a, b) for a, b, _, _ in ungated if along[b] - along[a] >= bound / reach[1]} == {
+        (a, b) for a, b, _, _ in gated
+    }
+    assert all(place[a] == place[b] for a, b, _, _ in gated)

@@ -12,14 +12,16 @@ their square roots. Its ring key (each ring's mean over the sectors) does not
 change with the heading: the earlier keyframes nearest to a query by ring key (a k-d tree)
 are compared by the full descriptor over every circular shift of the sectors (the mean
 cosine distance of the columns both occupy), whose best shift is the relative heading.
-The nearest few that pass `max_distance` are verified by the loop closer's own seed-free
-correlative search (`LoopCloser.verify`) from that heading and no translation, over a
-`window` m and `turn` rad, and from the opposite heading too (a corridor or a symmetric room
-looks alike turned round: the better match wins, and the other scoring within
-`max_ambiguity` of it refuses it), with every test of a loop (inliers, ambiguity, anchors)
-and no corridor loops (a match along a corridor says nothing about where
-along it; another corridor alike is the worse failure). The loops then face the same
-consistency test and graph residual test as the others (`toolkit.slam.pipeline`).
+The nearest few that pass `max_distance`, and that the trajectory puts close enough for
+the drift over the path between them to explain (`drift`: a corridor without revisit looks
+alike everywhere, and its places tens of metres apart were verified in vain), are verified
+by the loop closer's own seed-free correlative search (`LoopCloser.verify`) from that
+heading and no translation, over a `window` m and `turn` rad, and from the opposite heading
+too (a corridor or a symmetric room looks alike turned round: the better match wins, and
+the other scoring within `max_ambiguity` of it refuses it), with every test of a loop
+(inliers, ambiguity, anchors) and no corridor loops (a match along a corridor says nothing
+about where along it; another corridor alike is the worse failure). The loops then face the
+same consistency test and graph residual test as the others (`toolkit.slam.pipeline`).
 """
 
 from __future__ import annotations
@@ -57,6 +59,12 @@ class RecognitionConfig:
     # / 2; from pi / 2 one search: every heading at pi, 1.6x the loop stage and +280 MB peak
     # on a 200,000-scan log; docs/journal/maps.md, session 19)
     turn: float = 0.35
+    # the drift gate: a candidate pair is verified only if the trajectory puts the two poses
+    # within `drift` times the position candidates' uncertainty (`LoopConfig.radius` +
+    # `LoopConfig.growth` per metre of path between them) of each other; the rest cannot be
+    # the same place given the drift (a corridor without revisit looks alike everywhere).
+    # inf: no gate. (docs/journal/maps.md, session 19: the gate)
+    drift: float = 4.0
 
 
 def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
@@ -149,13 +157,17 @@ def candidates(
     along: np.ndarray,
     config: RecognitionConfig,
     skip: np.ndarray | None = None,
+    poses: np.ndarray | None = None,
+    reach: tuple[float, float] = (np.inf, 0.0),
 ) -> list[tuple[int, int, float, float]]:
     """(earlier scan, later scan, descriptor distance, relative heading of the later in the
     earlier's frame) for a query keyframe every `every` m of path (none within `every` of a
     scan in `skip`, already closed): the earlier keyframes more than `gap` back whose ring
     keys are nearest, compared by the full descriptor at every shift; the best `verified`
-    within `max_distance`."""
+    within `max_distance`, of which those `poses` put within `drift` x (`reach[0]` +
+    `reach[1]` per metre of path between) of each other (all without `poses`)."""
     ka = along[keys]
+    kp = poses[keys, :2] if poses is not None else None
     idx = np.nonzero(ok)[0]
     if len(idx) < 2:
         return []
@@ -182,10 +194,15 @@ def candidates(
         best = d.argmin(axis=1)
         dist = d[np.arange(len(near)), best]
         order = np.argsort(dist)[: config.verified]
+        order = order[dist[order] <= config.max_distance]
+        if kp is not None and len(order):
+            # the drift gate (`RecognitionConfig.drift`), over the query's few at once
+            apart = np.hypot(*(kp[near[order]] - kp[q]).T)
+            bound = config.drift * (reach[0] + reach[1] * (ka[q] - ka[near[order]]))
+            order = order[apart <= bound]
         for m in order:
-            if dist[m] <= config.max_distance:
-                heading = float(wrap(-best[m] * step))
-                out.append((int(keys[near[m]]), int(keys[q]), float(dist[m]), heading))
+            heading = float(wrap(-best[m] * step))
+            out.append((int(keys[near[m]]), int(keys[q]), float(dist[m]), heading))
     return out
 
 
@@ -206,7 +223,8 @@ def find(
     desc, ok = keyframe_descriptors(closer, keys, poses, along, cfg)
     verify_cfg = replace(loop_config, corridor=False, turn=cfg.turn)
     out = []
-    for a, b, _, heading in candidates(desc, ok, keys, along, cfg, skip):
+    reach = (loop_config.radius, loop_config.growth)
+    for a, b, _, heading in candidates(desc, ok, keys, along, cfg, skip, poses, reach):
         if (a, b) in known:
             continue
         prediction = np.array([0.0, 0.0, heading])
