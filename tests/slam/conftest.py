@@ -36,7 +36,7 @@ def reference_grids(
     """Scan `a`'s local map (the returns of `LoopCloser.reference_keys`) and the loop
     closer's coarse and fine grids of all of it (the closer cuts the fine one to the box)."""
     cfg = closer.config
-    ref = closer._local(a, closer.reference_keys(a, along, keys), poses)
+    ref = closer.local_points(a, closer.reference_keys(a, along, keys), poses)
     coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
     return ref, coarse, LikelihoodGrid.build(ref, cfg.fine, cfg.fine_sigma, margin=0.5)
 

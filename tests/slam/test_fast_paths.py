@@ -119,7 +119,7 @@ def test_fine_window_stamping_equals_the_exact_distance_transform(drifted: Datas
     odo = odometry_poses(ds)
     assert odo is not None
     closer = LoopCloser(ds.ranges, ds.laser)
-    pts = closer._local(1000, np.arange(950, 1050, 5), odo)
+    pts = closer.local_points(1000, np.arange(950, 1050, 5), odo)
     res = 0.04
     lo = pts.min(axis=0) - 0.5
     cells = np.floor((pts - lo) / res).astype(np.int64)
@@ -284,7 +284,7 @@ def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
     cfg = closer.config
     assert len(pairs) >= 8
     for a, b, _ in pairs[:12]:
-        query = voxel_subsample(closer._local(b, np.array([b - 2, b, b + 2]), truth), 0.1)
+        query = voxel_subsample(closer.local_points(b, np.array([b - 2, b, b + 2]), truth), 0.1)
         _, coarse, fine = reference_grids(closer, a, truth, along, keys)
         prediction = between(truth[a], truth[b]) + np.array([*rng.normal(0, 0.5, 2), 0.1])
         found = [
@@ -354,7 +354,7 @@ def test_coarse_grid_by_discs_equals_the_distance_transform(drifted: Dataset) ->
     closer = LoopCloser(ds.ranges, ds.laser)
     checked = 0
     for centre in (400, 1500, 2600):
-        ref = closer._local(centre, np.arange(centre - 40, centre + 40, 8), truth)
+        ref = closer.local_points(centre, np.arange(centre - 40, centre + 40, 8), truth)
         for res, sigma, margin, cap in (
             (0.2, 0.25, 1.0, 2.0),
             (0.2, 0.25, 1.5, 2.0),
@@ -441,7 +441,7 @@ def test_search_equals_its_sums_in_point_order() -> None:
 
 
 def test_local_returns_in_one_pass_equal_the_numpy_form(drifted: Dataset) -> None:
-    """`LoopCloser._local` (one numba pass, `_placed_returns`) against the numpy form it
+    """`LoopCloser.local_points` (one numba pass, `_placed_returns`) against the numpy form it
     replaced, on random scan sets of the building: equal to the bit."""
     closer = LoopCloser(drifted.ranges, drifted.laser)
     odo = odometry_poses(drifted)
@@ -459,4 +459,4 @@ def test_local_returns_in_one_pass_equal_the_numpy_form(drifted: Dataset) -> Non
         want = np.column_stack(
             [(rel[:, :1] + c * x - s * y)[ok], (rel[:, 1:2] + s * x + c * y)[ok]]
         )
-        assert np.array_equal(closer._local(centre, scans, odo), want)
+        assert np.array_equal(closer.local_points(centre, scans, odo), want)

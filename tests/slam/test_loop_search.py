@@ -70,7 +70,7 @@ def test_fine_window_has_the_whole_grids_values_where_the_query_lands(
 ) -> None:
     ds, odo = drifted
     closer = LoopCloser(ds.ranges, ds.laser)
-    ref = closer._local(1000, np.arange(950, 1050, 5), odo)
+    ref = closer.local_points(1000, np.arange(950, 1050, 5), odo)
     whole = LikelihoodGrid.build(ref, 0.04, 0.08, margin=0.5)
     lo, hi = np.array([-4.0, -3.0]), np.array([5.0, 2.5])
     part = LikelihoodGrid.window(ref, 0.04, 0.08, lo, hi, margin=0.5)
@@ -97,7 +97,7 @@ def test_search_over_the_window_finds_what_the_whole_grid_finds(
     cfg = closer.config
     assert len(pairs) >= 5
     for a, b, radius in pairs:
-        query = closer._local(b, np.array([b]), odo)
+        query = closer.local_points(b, np.array([b]), odo)
         ref, coarse, whole = reference_grids(closer, a, odo, along, keys)
         prediction = between(odo[a], odo[b])
         found = [

@@ -159,9 +159,9 @@ def test_real_freiburg_campus_false_loop_at_scan_1245_is_the_truths(real: Path) 
         """Scan b's own returns matched against a's local map placed by the truth, from the
         truth's relative pose: where they fit (a's frame)."""
         near = np.nonzero(np.abs(along - along[a]) <= cfg.reference_path)[0]
-        ref = closer._local(a, near, truth)
+        ref = closer.local_points(a, near, truth)
         rel = between(truth[a], truth[b])
-        own = voxel_subsample(closer._local(b, np.array([b]), truth), cfg.query_voxel)
+        own = voxel_subsample(closer.local_points(b, np.array([b]), truth), cfg.query_voxel)
         found = closer._refit(ref, own[closer.seen(own, rel, a, near, truth)], rel, cfg)
         assert found is not None and found[1] > 0.7
         return compose(rel, found[0])

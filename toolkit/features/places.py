@@ -510,10 +510,9 @@ def stay_cores(label: np.ndarray, along: np.ndarray | None, edge: float) -> np.n
     n = len(label)
     if not edge or along is None or n == 0:
         return np.ones(n, dtype=bool)
-    change = np.flatnonzero(label[1:] != label[:-1]) + 1  # first scan of each new stay
-    run = np.zeros(n, dtype=np.intp)
-    run[change] = 1
-    run = np.cumsum(run)
+    new_stay = label[1:] != label[:-1]
+    change = np.flatnonzero(new_stay) + 1  # first scan of each new stay
+    run = np.concatenate(([0], np.cumsum(new_stay)))  # each scan's stay
     before = np.r_[-np.inf, along[change - 1]][run]  # the other label's last scan before
     after = np.r_[along[change], np.inf][run]  # and its first scan after
     return np.asarray(np.minimum(along - before, after - along) > edge)

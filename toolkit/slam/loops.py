@@ -315,7 +315,7 @@ def _placed_returns(
     sin_r: np.ndarray,
     out: np.ndarray,
 ) -> int:
-    """`LoopCloser._local`'s returns in one pass: scan k's (S x B `ranges`, beam directions
+    """`LoopCloser.local_points`'s returns in one pass: scan k's (S x B `ranges`, beam directions
     `cos_b`, `sin_b` with the mount's yaw) finite returns within `max_range` of the robot,
     placed at `rel[k]` (its heading's cos and sin given: numpy's, as before) into `out`,
     scan by scan in beam order, with the numpy form's arithmetic (a dozen temporaries of
@@ -351,7 +351,7 @@ class LoopCloser:
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
         self._anchor_fits: dict[int, tuple[float, float]] = {}
 
-    def _local(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    def local_points(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
         `centre`, scan by scan in beam order (`_placed_returns`)."""
         rel = between(np.broadcast_to(poses[centre], (len(scans), 3)), poses[scans])
@@ -389,13 +389,15 @@ class LoopCloser:
         cfg = config or self.config
         near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
         near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
-        query = _capped(voxel_subsample(self._local(b, near_b, poses), cfg.query_voxel), cfg)
+        query = _capped(voxel_subsample(self.local_points(b, near_b, poses), cfg.query_voxel), cfg)
         if query is None:
             return None
         near_a = self.reference_keys(a, along, keys, cfg)
         if prediction is None:
             prediction = between(poses[a], poses[b])
-        searched = _search(self._local(a, near_a, poses), query, prediction, radius, cfg.turn, cfg)
+        searched = _search(
+            self.local_points(a, near_a, poses), query, prediction, radius, cfg.turn, cfg
+        )
         if searched is None:
             return None
         found, coarse, fine = searched
@@ -462,7 +464,7 @@ class LoopCloser:
         (in b's frame) and its inlier share; None when scan a sees too few of the query's
         points to tell. A local map holds a front-end slip (keyframes placed 0.5 m off their
         neighbours) that a match against it inherits; scan a alone holds none."""
-        own = self._local(a, np.array([a]), poses)
+        own = self.local_points(a, np.array([a]), poses)
         pts = query[self.seen(query, pose, a, np.array([a]), poses)]
         return self._refit(own, pts, pose, config)
 
@@ -492,10 +494,10 @@ class LoopCloser:
         others = refs[refs != a]
         if len(others) == 0:
             return None
-        own = voxel_subsample(self._local(a, np.array([a]), poses), config.query_voxel)
+        own = voxel_subsample(self.local_points(a, np.array([a]), poses), config.query_voxel)
         zero = np.zeros(3)
         pts = own[self.seen(own, zero, a, others, poses)]
-        return self._refit(self._local(a, others, poses), pts, zero, config)
+        return self._refit(self.local_points(a, others, poses), pts, zero, config)
 
     def _refit(
         self, ref: np.ndarray, pts: np.ndarray, pose: np.ndarray, config: LoopConfig

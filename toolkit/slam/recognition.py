@@ -144,7 +144,7 @@ def keyframe_descriptors(
     for q in range(len(keys)):
         near = keys[lo[q] : hi[q]]
         near = near[np.linspace(0, len(near) - 1, min(len(near), config.scans)).astype(np.int64)]
-        pts = voxel_subsample(closer._local(int(keys[q]), near, poses), config.voxel)
+        pts = voxel_subsample(closer.local_points(int(keys[q]), near, poses), config.voxel)
         if len(pts) >= config.min_points:
             desc[q], ok[q] = describe(pts, config), True
     return desc, ok
@@ -171,12 +171,13 @@ def candidates(
     idx = np.nonzero(ok)[0]
     if len(idx) < 2:
         return []
-    tree = cKDTree(ring_key(desc[idx]))
+    rings = ring_key(desc[idx])
+    tree = cKDTree(rings)
     closed = np.sort(along[skip]) if skip is not None and len(skip) else np.zeros(0)
     step = 2 * np.pi / config.sectors
     out: list[tuple[int, int, float, float]] = []
     next_at = 0.0
-    for q in idx:
+    for q, ring in zip(idx, rings, strict=True):
         if ka[q] < next_at or ka[q] < config.gap:
             continue
         next_at = ka[q] + config.every
@@ -185,7 +186,7 @@ def candidates(
             if (np.abs(closed[max(at - 1, 0) : at + 1] - ka[q]) < config.every).any():
                 continue
         k = min(config.neighbours, len(idx))
-        _, nn = tree.query(ring_key(desc[q]), k=k)
+        _, nn = tree.query(ring, k=k)
         near = idx[np.atleast_1d(nn)]
         near = near[ka[q] - ka[near] > config.gap][: config.compared]
         if len(near) == 0:
