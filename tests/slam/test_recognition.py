@@ -94,6 +94,10 @@ def test_drift_gate_keeps_revisits_the_drift_explains_and_drops_the_rest() -> No
     ok = np.ones(n, dtype=bool)
     assert len(rc.candidates(same, ok, keys, along, replace(cfg, drift=np.inf), None, poses, reach))
     assert rc.candidates(same, ok, keys, along, cfg, None, poses, reach) == []
+    # ... known before any descriptor is computed, in one pass or in chunks
+    assert not rc.any_within_drift(keys, poses, along, cfg, reach)
+    assert not rc.any_within_drift(keys, poses, along, cfg, reach, max_pairs=n * n)
+    assert rc.any_within_drift(keys, poses, along, replace(cfg, drift=np.inf), reach)
 
     # out and back, the return 15 m off across the corridor
     keys = np.arange(2 * n)
@@ -111,3 +115,9 @@ def test_drift_gate_keeps_revisits_the_drift_explains_and_drops_the_rest() -> No
         (a, b) for a, b, _, _ in gated
     }
     assert all(place[a] == place[b] for a, b, _, _ in gated)
+    assert rc.any_within_drift(keys, poses, along, cfg, reach, max_pairs=4 * n * n)
+    # a return 20% farther off than the widest pair the gate lets through: nothing can pass
+    far = poses.copy()
+    far[n:, 1] = 1.2 * cfg.drift * (reach[0] + reach[1] * along[-1])
+    assert not rc.any_within_drift(keys, far, along, cfg, reach, max_pairs=4 * n * n)
+    assert rc.candidates(desc, ok, keys, along, cfg, None, far, reach) == []

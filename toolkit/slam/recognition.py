@@ -150,6 +150,35 @@ def keyframe_descriptors(
     return desc, ok
 
 
+def any_within_drift(
+    keys: np.ndarray,
+    poses: np.ndarray,
+    along: np.ndarray,
+    config: RecognitionConfig,
+    reach: tuple[float, float],
+    max_pairs: int = 20_000_000,
+) -> bool:
+    """Whether any two keyframes more than `gap` apart along the path lie within the drift
+    gate's bound of each other: if none does, no candidate by appearance can be verified and
+    the descriptors need not be computed (a corridor without revisit). True, without
+    looking, when there are more than `max_pairs` pairs (a long log: the descriptors pay)."""
+    if not np.isfinite(config.drift) or len(keys) < 2:
+        return len(keys) >= 2
+    if len(keys) ** 2 > max_pairs:
+        return True
+    ka = along[keys]
+    xy = poses[keys, :2]
+    rows = max(1, max_pairs // (4 * len(keys)))
+    for start in range(0, len(keys), rows):
+        b = slice(start, start + rows)
+        path = ka[b, None] - ka[None, :]
+        apart = np.hypot(xy[b, None, 0] - xy[None, :, 0], xy[b, None, 1] - xy[None, :, 1])
+        bound = config.drift * (reach[0] + reach[1] * path)
+        if ((path > config.gap) & (apart <= bound)).any():
+            return True
+    return False
+
+
 def candidates(
     desc: np.ndarray,
     ok: np.ndarray,
@@ -221,10 +250,12 @@ def find(
     from the descriptor's heading and its opposite over `window` / `turn`, no corridor loops;
     rejected ones too. Pairs in `known` (verified before) are left out."""
     cfg = config or RecognitionConfig()
+    reach = (loop_config.radius, loop_config.growth)
+    if not any_within_drift(keys, poses, along, cfg, reach):
+        return []
     desc, ok = keyframe_descriptors(closer, keys, poses, along, cfg)
     verify_cfg = replace(loop_config, corridor=False, turn=cfg.turn)
     out = []
-    reach = (loop_config.radius, loop_config.growth)
     for a, b, _, heading in candidates(desc, ok, keys, along, cfg, skip, poses, reach):
         if (a, b) in known:
             continue
@@ -253,6 +284,7 @@ def find(
 
 __all__ = [
     "RecognitionConfig",
+    "any_within_drift",
     "candidates",
     "describe",
     "find",
