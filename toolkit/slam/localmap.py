@@ -57,7 +57,6 @@ START_SEEN = 1.0  # the first pass's summed squared forward response below which
 # speed is the plain median (no scan observed forward motion: nothing to weigh by)
 PROBE_SHIFT = 0.05  # m: the prediction moved this far forward and back to see whether the fit
 # observes forward motion (0: no probe; the forward velocity filtered like the rest)
-REMAP_POSE = True  # the pose's forward part, too, moved off the prediction by the response only
 PROBE_EVERY = 3  # scans: the probe's response measured on every third scan, kept in between
 REST_CHANGE = 0.1  # m: a beam whose range moved this much since the first scan (or whose
 # return came or went) has seen motion ...
@@ -82,7 +81,6 @@ class MotionMatcher(sc.StreamMatcher):
         probe: float = PROBE_SHIFT,
         probe_every: int = PROBE_EVERY,
         probe_filters: bool = True,
-        remap_pose: bool | None = None,
     ) -> None:
         super().__init__(laser, config)
         self._last = np.zeros(3)
@@ -92,7 +90,6 @@ class MotionMatcher(sc.StreamMatcher):
         self.probe_shift = probe
         self.probe_every = max(1, probe_every)
         self.probe_filters = probe_filters
-        self.remap_pose = REMAP_POSE if remap_pose is None else remap_pose
         self._probed = 0  # scans since the last probe
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
         self._dt = 0.0
@@ -121,8 +118,6 @@ class MotionMatcher(sc.StreamMatcher):
                 self.response = self._forward_response(ranges, predicted)
             self._probed += 1
         pose = self.push(ranges, predicted)
-        if not first and self._known and self.probe_shift > 0 and self.probe_filters:
-            pose = self._remapped(pose, predicted) if self.remap_pose else pose
         if not first:
             if t is not None and self._t is not None:
                 self._dt = t - self._t
@@ -137,18 +132,6 @@ class MotionMatcher(sc.StreamMatcher):
         self._last = pose
         self._t = t
         return pose
-
-    def _remapped(self, pose: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-        """`pose` with its forward offset from the prediction (robot frame) scaled by the
-        response: the part the fit does not observe stays the prediction's (solution remapping
-        of the pose, as of the velocity). A keyframe just taken moves with it."""
-        keyed = bool(np.array_equal(self._key_pose, pose))
-        delta = se2.between(predicted[None], pose[None])[0]
-        delta[0] *= self.response
-        out = np.asarray(se2.compose(predicted[None], delta[None])[0])
-        if keyed:
-            self._key_pose[:] = out
-        return out
 
     def _forward_response(self, ranges: np.ndarray, predicted: np.ndarray) -> float:
         """The share (0..1) of a `probe_shift` forward offset of the prediction that the fit
