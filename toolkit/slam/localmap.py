@@ -19,8 +19,8 @@ without odometry only:
 - the start velocity is not zero: a first pass over the first `START_SCANS` scans (unfiltered,
   so it picks up speed where the walls allow) gives the median motion of its second half, and
   the log is matched from scan 0 with that velocity. Its forward part is the median weighted
-  by the square of each scan's forward `response` (below): an unfiltered pass random-walks along a
-  featureless stretch, and once at "not moved" it stays there (corridor seed 53 parked over
+  by the square of each scan's forward `response` (below): an unfiltered pass random-walks
+  along a featureless stretch, and once at "not moved" it stays there (corridor seed 53 parked over
   scans 90-270 of its pass: plain median 0.002 m a scan against the truth's 0.080, and the
   log lost 11.7 m before doors came into view); the scans whose fit observes forward motion
   give their motion whatever the prediction was;
@@ -32,9 +32,14 @@ without odometry only:
   seed: seeded with 0.7 of the truth's motion it returns 0.7 of it, while its covariance
   claims 3 mm; corridor seed 9), and the forward motion it reports is the prediction plus a
   centimetre of noise, which the filter would otherwise random-walk into the velocity. The
-  forward gain is `VELOCITY_GAIN` times the share of the offset the fit takes out (1: both
-  fits meet, 0: they keep their offset). The eigenvalue test (`degenerate_ratio`) does not
-  see this: the noise of the walls' sampled normals gives the fit its false information.
+  forward gain is `VELOCITY_GAIN` times the square of the share of the offset the fit takes
+  out (the `response`; 1: both fits meet, 0: they keep their offset): a scan's forward motion
+  is the prediction's but for that share, so as a measurement of the velocity its spread
+  grows as 1 / response and its weight (a Kalman gain, against a velocity held steady) as the
+  square. With the share itself (until session 20) the velocity sagged 5-10% over the
+  partly observed stretches (response 0.05-0.2) and the corridor lost 0.5-1 m there. The
+  eigenvalue test (`degenerate_ratio`) does not see any of this: the noise of the walls'
+  sampled normals gives the fit its false information.
 
 Measured on the simulator's corridor and building without odometry (docs/maps.md)."""
 
@@ -68,8 +73,8 @@ class MotionMatcher(sc.StreamMatcher):
     constant velocity plays the odometry's part. The velocity (per scan interval) starts at
     `step` (robot frame; None: standstill, then the first matched motion) and follows the
     matched motion by `gain` of the difference per scan; its forward part (robot x) by `gain`
-    times the share of a `probe` m forward offset of the prediction that the fit takes out
-    (`response`; probe 0: by `gain`). `probe_filters` False: the response is measured, but
+    times the square of the share of a `probe` m forward offset of the prediction that the
+    fit takes out (`response`; probe 0: by `gain`). `probe_filters` False: the response is measured, but
     the forward part follows by `gain` like the rest (the start-velocity pass)."""
 
     def __init__(
@@ -125,7 +130,7 @@ class MotionMatcher(sc.StreamMatcher):
             if self._known:
                 gain = np.full(3, self.gain)
                 if self.probe_filters:
-                    gain[0] *= self.response  # 1.0 without the probe
+                    gain[0] *= self.response**2  # 1.0 without the probe
                 self._step = self._step + gain * (moved - self._step)
             else:
                 self._step, self._known = moved, True
