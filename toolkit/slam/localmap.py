@@ -74,8 +74,9 @@ class MotionMatcher(sc.StreamMatcher):
     `step` (robot frame; None: standstill, then the first matched motion) and follows the
     matched motion by `gain` of the difference per scan; its forward part (robot x) by `gain`
     times the square of the share of a `probe` m forward offset of the prediction that the
-    fit takes out (`response`; probe 0: by `gain`). `probe_filters` False: the response is measured, but
-    the forward part follows by `gain` like the rest (the start-velocity pass)."""
+    fit takes out (`response`; probe 0: by `gain`). `probe_filters` False: the response is
+    measured, but the forward part follows by `gain` like the rest (the start-velocity
+    pass)."""
 
     def __init__(
         self,
