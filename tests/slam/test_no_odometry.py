@@ -19,7 +19,7 @@ from toolkit.dataset import load
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses
 from toolkit.sim import simulate
-from toolkit.slam.localmap import MotionMatcher, standing, start_velocity
+from toolkit.slam.localmap import MotionMatcher, standing, start_velocity, weighted_median
 from toolkit.slam.run import slam_trajectory
 
 
@@ -50,13 +50,16 @@ def test_bag_without_odometry_of_the_corridor_maps_within_half_a_metre(tmp_path:
 
 
 @pytest.mark.parametrize(
-    ("scenario", "fmt", "seed"), [("corridor", "lms200", 11), ("building", "rosbag", 3)]
+    ("scenario", "fmt", "seed"),
+    [("corridor", "lms200", 11), ("building", "rosbag", 3), ("corridor", "lms200", 53)],
 )
 def test_logs_that_lost_speed_along_a_corridor_map_within_half_a_metre(
     scenario: str, fmt: str, seed: int, tmp_path: Path
 ) -> None:
     # development seeds (0-14) that missed 0.5 m before the forward probe: corridor seed 11 at
-    # 0.76 m, building seed 3 at 0.58 m (the velocity random-walked down along a corridor)
+    # 0.76 m, building seed 3 at 0.58 m (the velocity random-walked down along a corridor);
+    # corridor seed 53 (a spent held-out seed) at 1.98 m before the start velocity was weighed
+    # by the probe's response (its first pass parked: start speed 0.002 m a scan of 0.080)
     assert _mapped_ate(fmt, seed, tmp_path, scenario) <= 0.5
 
 
@@ -88,6 +91,44 @@ def test_start_velocity_is_the_robots_speed(scenario: str) -> None:
     step = start_velocity(replace(ds, odometry=None))
     assert step is not None
     assert abs(step[0] - speed) < 0.1 * speed and abs(step[1]) < 0.1 * speed
+
+
+def test_the_start_velocity_is_taken_where_the_fit_observes_forward_motion() -> None:
+    # corridor seed 53 (spent held-out): the unfiltered first pass parked at "not moved" over
+    # scans 90-270, so the plain median of its second half was 0.002 m a scan (truth 0.080)
+    ds = replace(simulate("corridor", seed=53).dataset, odometry=None)
+    truth = truth_poses(ds)
+    assert truth is not None
+    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    step = start_velocity(ds)
+    assert step is not None
+    assert abs(step[0] - speed) < 0.05 * speed
+
+
+def test_the_forward_velocity_holds_where_the_fit_observes_it_in_part() -> None:
+    # corridor seed 48 (spent held-out), from the start velocity: with the forward gain
+    # proportional to the response (not its square) the velocity sagged to 0.87 of the speed
+    # over the partly observed stretches (response 0.05-0.2) and 1.93 m were lost in 700 scans
+    ds = replace(simulate("corridor", seed=48).dataset, odometry=None)
+    truth = truth_poses(ds)
+    assert truth is not None
+    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    matcher = MotionMatcher(ds.laser, step=start_velocity(ds))
+    poses, velocity = [], []
+    for k in range(700):
+        poses.append(matcher.push_predicted(ds.ranges[k], float(ds.t[k])))
+        velocity.append(matcher._step[0])
+    walked = np.hypot(*np.diff(np.array(poses)[:, :2], axis=0).T).sum()
+    truth_walked = np.hypot(*np.diff(truth[:700, :2], axis=0).T).sum()
+    assert min(velocity) > 0.93 * speed
+    assert truth_walked - walked < 1.0
+
+
+def test_weighted_median() -> None:
+    values = np.array([3.0, 0.0, 2.0, 1.0])
+    assert weighted_median(values, np.array([0.0, 0.0, 1.0, 0.0])) == 2.0
+    assert weighted_median(values, np.ones(4)) == 1.0  # the lower middle one
+    assert weighted_median(values, np.array([1.0, 0.1, 0.1, 0.1])) == 3.0
 
 
 def _standing_first(ds: toolkit.Dataset, scans: int) -> toolkit.Dataset:
