@@ -38,7 +38,6 @@ from toolkit.slam.loops import (
     Loop,
     LoopCloser,
     LoopConfig,
-    candidates,
     is_false_loop,
     loop_truth_error,
     path_length,
@@ -75,21 +74,6 @@ class SlamConfig:
     wide_window: float = 12.0
     wide_growth: float = 0.05
     wide_skip_corridors: bool = True  # the wide round leaves out corridor loops' queries
-    # a last refinement (0: off): every `refine_every` m of path, each keyframe matched against
-    # the local map of the nearest earlier keyframe (more than `refine_gap` m of path back)
-    # within `refine_radius` m on the optimised trajectory, by the loop closer's search over
-    # +-`refine_window` m, +-`refine_turn` rad around the optimised relative pose; what passes
-    # the loop tests joins the loops (consistency, residual) and the graph is solved again,
-    # `refine_rounds` times: cross-time edges along the whole revisit, not one every 2 m where
-    # no loop closed yet
-    refine_radius: float = 0.0
-    refine_every: float = 1.0
-    refine_gap: float = 10.0
-    refine_window: float = 0.5
-    refine_turn: float = 0.1
-    refine_rounds: int = 1
-    refine_inliers: float = 0.65  # the fitness test's `min_inliers` there ...
-    refine_points: int = 60  # ... and its `min_points`
     incremental: bool = False  # re-optimise as soon as a loop moves its scan (round 1)
     # each optimisation starts from the last optimum (the loops a round adds or drops move it
     # little) instead of from the sequential estimate: fewer Levenberg-Marquardt iterations
@@ -395,31 +379,6 @@ def close_loops(
             found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
-    if config.refine_radius > 0:
-        near = replace(
-            loop_cfg,
-            every=config.refine_every,
-            gap=config.refine_gap,
-            radius=config.refine_radius,
-            growth=0.0,
-            window=config.refine_radius,
-        )
-        narrow = replace(
-            loop_cfg,
-            turn=config.refine_turn,
-            min_inliers=config.refine_inliers,
-            min_points=config.refine_points,
-        )
-        for _ in range(config.refine_rounds):
-            t0 = time.perf_counter()
-            for a, b, _r in candidates(keys, poses, along, near):
-                if (a, b) in found:
-                    continue
-                lp = closer.verify(a, b, config.refine_window, poses, along, keys, narrow)
-                if lp is not None:
-                    found[(a, b)] = lp
-            timings["loops"] += time.perf_counter() - t0
-            poses = solve()
     accepted = [lp for lp in found.values() if lp.accepted]
     edges = edges + [
         pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True) for lp in accepted
