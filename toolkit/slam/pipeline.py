@@ -58,7 +58,11 @@ class SlamConfig:
     # > 0: a sequential edge's covariance is the front end's own (each scan's (H/sigma^2 +
     # prior)^-1, summed over the edge's steps in its first scan's frame) times this squared,
     # plus `matcher_floor` (m, rad) squared, instead of `sigma_floor` + `sigma_per_metre`
-    # (needs the steps' covariances: `close_loops(step_cov=...)`, the scan-to-map front end)
+    # (needs the steps' covariances: `close_loops(step_cov=...)`, the scan-to-map front end).
+    # An expert setting, off: 3 was measured (development seeds, docs/journal/maps.md session
+    # 20) better on freiburg-campus (mean ATE 0.336 -> 0.310 m over 30 runs), belgioioso and
+    # orebro, the same elsewhere, but worse on infinite-corridor (0.392 -> 0.441 m: a chain
+    # stiffer in heading places its one-pass stretches worse)
     matcher_cov: float = 0.0
     matcher_floor: tuple[float, float] = (0.01, 0.0025)
     robust: float = 1.0  # Cauchy kernel width, in sigmas
