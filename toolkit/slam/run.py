@@ -125,7 +125,10 @@ def slam_trajectory(
         slam = replace(slam, front_end="keyframe")
     matching = time.perf_counter() - t0 - result.timings.get("compile", 0.0)
     before = result.poses
-    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam)
+    step_cov = None
+    if slam.front_end == "map" and result.matches is not None:
+        step_cov = result.matches.covariance  # scan-to-map: world frame, per scan step
+    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam, step_cov)
     out = replace(result, stream=PoseStream(result.stream.t, poses))
     run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)
     return out, run

@@ -1,0 +1,83 @@
+"""The sequential edges' covariances: the floor model by default, and with
+`SlamConfig.matcher_cov` the front end's own per-step covariances, turned into each step's
+first scan frame, summed over the edge, scaled and floored."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import toolkit
+from toolkit.metrics import evaluate
+from toolkit.poses import truth_poses, with_drift
+from toolkit.slam.pipeline import SlamConfig, sequential_edges
+from toolkit.slam.run import slam_trajectory
+from toolkit.slam.scanmap import scan_to_map
+
+
+def _steps(n: int, rng: np.random.Generator) -> np.ndarray:
+    """n random symmetric positive definite 3 x 3 step covariances (world frame)."""
+    a = rng.normal(size=(n, 3, 3)) * np.array([0.01, 0.01, 0.002])[:, None]
+    return np.asarray(a @ a.transpose(0, 2, 1) + np.eye(3) * 1e-6)
+
+
+def test_default_is_the_floor_model_whatever_the_step_covariances() -> None:
+    rng = np.random.default_rng(0)
+    poses = np.c_[np.arange(6) * 0.5, np.zeros(6), np.linspace(0, 1, 6)]
+    keys = np.array([0, 2, 3, 5])
+    config = SlamConfig()
+    plain = sequential_edges(keys, poses, config)
+    given = sequential_edges(keys, poses, config, _steps(5, rng))
+    for a, b in zip(plain, given, strict=True):
+        assert np.array_equal(a.covariance, b.covariance)
+    length = np.hypot(plain[0].pose[0], plain[0].pose[1]) + 0.3 * abs(plain[0].pose[2])
+    assert np.isclose(plain[0].covariance[0, 0], (0.02 + 0.02 * length) ** 2)
+
+
+def test_matcher_covariances_turned_into_the_scan_frame_and_summed_over_the_edge() -> None:
+    rng = np.random.default_rng(1)
+    poses = np.c_[np.arange(6) * 0.5, np.ones(6), np.array([0.3, 1.2, -2.0, 0.4, 2.5, 0.0])]
+    keys = np.array([0, 1, 3, 5])  # one step, then two, then two
+    steps = _steps(5, rng)
+    config = SlamConfig(matcher_cov=3.0, matcher_floor=(0.01, 0.0025))
+    edges = sequential_edges(keys, poses, config, steps)
+
+    def turned(k: int) -> np.ndarray:
+        c, s = np.cos(poses[k, 2]), np.sin(poses[k, 2])
+        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        return np.asarray(rot @ steps[k] @ rot.T)
+
+    floor = np.diag([0.01**2, 0.01**2, 0.0025**2])
+    assert np.allclose(edges[0].covariance, 9.0 * turned(0) + floor)
+    assert np.allclose(edges[1].covariance, 9.0 * (turned(1) + turned(2)) + floor)
+    assert np.allclose(edges[2].covariance, 9.0 * (turned(3) + turned(4)) + floor)
+    # not the world-frame covariance: the heading of scan 1 (1.2 rad) turns it
+    assert not np.allclose(edges[1].covariance, 9.0 * (steps[1] + steps[2]) + floor)
+    # the relative poses are the floor model's
+    plain = sequential_edges(keys, poses, SlamConfig())
+    for a, b in zip(plain, edges, strict=True):
+        assert np.array_equal(a.pose, b.pose) and (a.a, a.b) == (b.a, b.b)
+
+
+def test_the_mapper_passes_the_front_ends_covariances_when_asked(building: toolkit.Dataset) -> None:
+    """`slam_trajectory` hands the scan-to-map front end's step covariances to the graph: with
+    `matcher_cov` the sequential edges are no longer the floor model's, the map stays right."""
+    truth = truth_poses(building)
+    assert truth is not None
+    ds = with_drift(building, seed=0)
+    result, run = slam_trajectory(ds, slam=SlamConfig(matcher_cov=3.0))
+    _, plain = slam_trajectory(ds)
+    seq = [e for e in run.edges if not e.loop]
+    seq_plain = [e for e in plain.edges if not e.loop]
+    assert len(seq) == len(seq_plain) > 100
+    floor = sequential_edges(run.keys, run.before, SlamConfig())
+    changed = [not np.allclose(e.covariance, f.covariance) for e, f in zip(seq, floor, strict=True)]
+    assert np.mean(changed) > 0.9
+    # ... they are the front end's own, as `sequential_edges` builds them from its matches
+    front = scan_to_map(ds)
+    assert front.matches is not None
+    own = sequential_edges(
+        run.keys, run.before, SlamConfig(matcher_cov=3.0), front.matches.covariance
+    )
+    for e, o in zip(seq, own, strict=True):
+        assert np.allclose(e.covariance, o.covariance)
+    assert evaluate(result.poses, truth)["ate"]["rmse"] < 0.1
