@@ -22,7 +22,13 @@ from toolkit.features.descriptors import (
 )
 from toolkit.features.evaluate import MOZOS, protocol_scores, worlds
 from toolkit.features.metrics import balanced_accuracy
-from toolkit.features.places import Forest
+from toolkit.features.places import (
+    SUPPORT_NEIGHBOURS,
+    Forest,
+    PlaceClassifier,
+    resemblance,
+    support_rows,
+)
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import simulate
 
@@ -275,3 +281,57 @@ def test_self_training_on_the_stays_cores_calls_fewer_scans_doors(seed: int) -> 
     assert now["precision"]["door"] < 0.8 and cores["precision"]["door"] > 0.95
     assert cores["recall"]["door"] > 0.9
     assert cores["ba"] > now["ba"] - 0.01
+
+
+def test_forest_leaves_and_proximity_equal_scikit_learn(world) -> None:  # type: ignore[no-untyped-def]
+    """`Forest.leaves` is scikit-learn's `apply` (offset by each tree's first node), and the
+    proximity of a scan to a place is the share of trees putting it in one leaf with a
+    support scan of the place, the mean over its `SUPPORT_NEIGHBOURS` closest (numpy)."""
+    from sklearn.ensemble import ExtraTreesClassifier
+
+    ds = world.dataset
+    x = describe(ds.ranges, ds.laser)
+    y = np.asarray(world.labels).astype(str)
+    trees = ExtraTreesClassifier(20, min_samples_leaf=2, random_state=0).fit(x[::3], y[::3])
+    forest = Forest.from_sklearn(trees)
+    cols = np.arange(x.shape[1])
+    mean, scale = np.zeros(x.shape[1]), np.ones(x.shape[1])
+    leaves = forest.leaves(x, cols, mean, scale)
+    assert np.array_equal(leaves, trees.apply(x) + forest.roots)
+    classes = list(dict.fromkeys(y))
+    rows, where = support_rows(y[::3], classes)
+    model = PlaceClassifier(
+        classes, cols, mean, scale, np.zeros((len(classes), 0)), np.zeros(len(classes)),
+        np.zeros((len(classes), 1)), np.eye(1), 0.0, forest=forest,
+        support_leaves=leaves[::3][rows], support_place=where,
+    )  # fmt: skip
+    model = PlaceClassifier.from_dict(model.to_dict())  # the support is saved with the model
+    got = model.proximity(x[:300])
+    shared = (leaves[:300, None, :] == leaves[::3][rows][None, :, :]).mean(axis=2)
+    want = np.stack(
+        [np.sort(shared[:, where == j], axis=1)[:, -SUPPORT_NEIGHBOURS:].mean(axis=1)
+         for j in range(len(classes))], axis=1,
+    )  # fmt: skip
+    assert np.allclose(got, want)
+    own = np.array([classes.index(k) for k in y[:300]])
+    assert np.mean(got.argmax(axis=1) == own) > 0.9  # a scan is closest to its own place
+
+
+def test_resemblance_moves_only_the_calls_unlike_the_logs_own() -> None:
+    """Only a checked place called in enough scans is penalised, and only its scans whose
+    proximity is under `RESEMBLE_MARGIN` times the median of its calls: by the log of the
+    shortfall times the slope."""
+    k = 3
+    logp = np.log(np.full((10, k + 1), 0.1))
+    logp[:8, 1] = 0.0  # eight calls of place 1, two of place 0
+    logp[8:, 0] = 0.0
+    proximity = np.full((10, k), 0.5)
+    proximity[:6, 1] = 0.8  # the median of place 1's calls is 0.8
+    proximity[6, 1] = 0.7 * 0.8  # at the margin: kept
+    proximity[7, 1] = 0.1
+    out = resemblance(logp, proximity, np.array([0, 1]), 2.0)
+    assert out.shape == (10, k) and (out <= 0).all()
+    assert (out[:, [0, 2]] == 0).all()  # place 0: too few calls; place 2: not checked
+    assert np.allclose(out[:7, 1], 0.0)
+    assert out[7, 1] == pytest.approx(-2.0 * np.log(0.7 * 0.8 / 0.1))
+    assert out[8, 1] == pytest.approx(-2.0 * np.log(0.7 * 0.8 / 0.5))  # a scan not called 1
