@@ -255,8 +255,14 @@ def class_scores(
         ranges, factor = canonical(ranges, model.laser, cfg.canonical_width, cfg.canonical_how)
     check = None  # the places whose calls must resemble their support (places.resemblance)
     proximity = np.zeros((0, 0))
-    if cfg.descriptors and cfg.resemble > 0 and model.places is not None:
-        names = model.places.classes
+    places = model.places
+    if (
+        cfg.descriptors
+        and cfg.resemble > 0
+        and places is not None
+        and places.support_leaves is not None
+    ):
+        names = places.classes
         check = np.array([j for j, k in enumerate(names) if k in cfg.resemble_places], int)
         proximity = np.zeros((len(ranges), len(names)))
     for i in range(0, len(ranges), SCANS_PER_STEP):
@@ -281,7 +287,7 @@ def class_scores(
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if check is not None:
-                proximity[rows] = model.places.proximity(x)
+                proximity[rows] = model.places.proximity(x, check)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
                 scores = scores + cfg.beam_term * np.log(softmax(beams))

@@ -137,12 +137,12 @@ class Forest:
         )
         return out
 
-    def leaves(
-        self, x: np.ndarray, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
-    ) -> np.ndarray:
-        """(S, T) the node (index into the concatenated arrays) of the leaf each row of raw
-        descriptors `x` falls in, per tree (the trees fitted on (x[:, columns] - mean) /
-        scale, as in `predict_proba`)."""
+    def walk(
+        self, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The trees as the compiled walks take them, on raw descriptors (the trees fitted
+        on (x[:, columns] - mean) / scale, as in `predict_proba`): roots, depths, children
+        side by side (leaves step to themselves), the column and the threshold per node."""
         leaf = self.left < 0
         f = np.where(leaf, 0, self.feature)
         feature = np.where(leaf, 0, np.asarray(columns)[f]).astype(np.int32)
@@ -151,15 +151,17 @@ class Forest:
         children = np.empty((len(leaf), 2), dtype=np.int32)
         children[:, 0] = np.where(leaf, nodes, self.left)
         children[:, 1] = np.where(leaf, nodes, self.right)
+        depths = _depths(self.roots, self.left, self.right)
+        return self.roots, depths, children.ravel(), feature, threshold
+
+    def leaves(
+        self, x: np.ndarray, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
+    ) -> np.ndarray:
+        """(S, T) the node (index into the concatenated arrays) of the leaf each row of raw
+        descriptors `x` falls in, per tree."""
         out = np.empty((len(x), len(self.roots)), dtype=np.int64)
         _forest_leaves(
-            np.ascontiguousarray(x, dtype=np.float64),
-            self.roots,
-            _depths(self.roots, self.left, self.right),
-            children.ravel(),
-            feature,
-            threshold,
-            out,
+            np.ascontiguousarray(x, dtype=np.float64), *self.walk(columns, mean, scale), out
         )
         return out
 
@@ -266,7 +268,12 @@ def _forest_leaves(  # pragma: no cover - numba
 
 @numba.njit(parallel=True, cache=True)
 def _proximity(  # pragma: no cover - numba
-    leaves: np.ndarray,
+    x: np.ndarray,
+    roots: np.ndarray,
+    depths: np.ndarray,
+    children: np.ndarray,
+    feature: np.ndarray,
+    threshold: np.ndarray,
     start: np.ndarray,
     rows: np.ndarray,
     place: np.ndarray,
@@ -276,25 +283,53 @@ def _proximity(  # pragma: no cover - numba
 ) -> None:
     """Per scan: how many trees put it in one leaf with each support scan (the support
     scans in leaf n: rows[start[n]:start[n + 1]]), then per place the mean of its `near`
-    largest counts over the trees."""
-    n, trees, r = leaves.shape[0], leaves.shape[1], len(place)
-    for i in numba.prange(n):
-        count = np.zeros(r, dtype=np.int64)
+    largest counts over the trees. A tile of `TILE` scans walks each tree together (as in
+    `_forest_proba`); only the support scans met are visited, each once."""
+    n, trees, r, d = x.shape[0], len(roots), len(place), x.shape[1]
+    for tile in numba.prange((n + TILE - 1) // TILE):
+        a = tile * TILE
+        m = min(TILE, n - a)
+        xt = np.empty((d, TILE))
+        for i in range(m):
+            for j in range(d):
+                xt[j, i] = x[a + i, j]
+        count = np.zeros((TILE, r), dtype=np.int64)
+        met = np.empty((TILE, r), dtype=np.int64)
+        n_met = np.zeros(TILE, dtype=np.int64)
+        node = np.empty(TILE, dtype=np.int64)
         for t in range(trees):
-            nd = leaves[i, t]
-            for j in range(start[nd], start[nd + 1]):
-                count[rows[j]] += 1
-        top = np.zeros((k, near), dtype=np.int64)
-        for j in range(r):
-            c, p = count[j], place[j]
-            if c > top[p, near - 1]:  # keep the place's `near` largest, descending
-                m = near - 1
-                while m > 0 and top[p, m - 1] < c:
-                    top[p, m] = top[p, m - 1]
-                    m -= 1
-                top[p, m] = c
-        for p in range(k):
-            out[i, p] = top[p].sum() / (near * trees)
+            for i in range(m):
+                node[i] = roots[t]
+            for _ in range(depths[t]):
+                moved = 0
+                for i in range(m):
+                    nd = node[i]
+                    step = children[2 * nd + np.int64(not xt[feature[nd], i] <= threshold[nd])]
+                    moved += step != nd
+                    node[i] = step
+                if moved == 0:
+                    break
+            for i in range(m):
+                nd = node[i]
+                for j in range(start[nd], start[nd + 1]):
+                    row = rows[j]
+                    if count[i, row] == 0:
+                        met[i, n_met[i]] = row
+                        n_met[i] += 1
+                    count[i, row] += 1
+        for i in range(m):
+            top = np.zeros((k, near), dtype=np.int64)
+            for q in range(n_met[i]):
+                row = met[i, q]
+                c, p = count[i, row], place[row]
+                if c > top[p, near - 1]:  # keep the place's `near` largest, descending
+                    w = near - 1
+                    while w > 0 and top[p, w - 1] < c:
+                        top[p, w] = top[p, w - 1]
+                        w -= 1
+                    top[p, w] = c
+            for p in range(k):
+                out[a + i, p] = top[p].sum() / (near * trees)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -362,23 +397,28 @@ class PlaceClassifier:
     # (the scans the trees were last fitted on, at most SUPPORT_SCANS a place; None: not kept)
     support_place: np.ndarray | None = None  # (R,) their place (index into `classes`)
 
-    def proximity(self, x: np.ndarray) -> np.ndarray:
-        """(S, K) per scan of raw descriptors and taught place, how much the scan resembles
-        the place's support in the trees' own terms: the share of trees that put it in one
-        leaf with a support scan, the mean over its `SUPPORT_NEIGHBOURS` closest (1: a
-        scan the trees cannot tell from one they learnt the place from). Zeros without a
-        support."""
+    def proximity(self, x: np.ndarray, places: np.ndarray | None = None) -> np.ndarray:
+        """(S, K) per scan of raw descriptors and taught place (only `places`, indices, if
+        given; the others 0), how much the scan resembles the place's support in the trees'
+        own terms: the share of trees that put it in one leaf with a support scan, the mean
+        over its `SUPPORT_NEIGHBOURS` closest (1: a scan the trees cannot tell from one
+        they learnt the place from). Zeros without a support."""
         k = len(self.classes)
         if self.forest is None or self.support_leaves is None or self.support_place is None:
             return np.zeros((len(x), k))
-        flat = self.support_leaves.ravel()
+        mine = np.ones(len(self.support_place), dtype=bool)
+        if places is not None:
+            mine = np.isin(self.support_place, places)
+        support, place = self.support_leaves[mine], self.support_place[mine]
+        flat = support.ravel()
         order = np.argsort(flat, kind="stable")
         start = np.searchsorted(flat[order], np.arange(len(self.forest.left) + 1))
-        rows = (order // self.support_leaves.shape[1]).astype(np.int64)
+        rows = (order // support.shape[1]).astype(np.int64)
         out = np.empty((len(x), k))
         _proximity(
-            self.forest.leaves(x, self.columns, self.mean, self.scale), start.astype(np.int64),
-            rows, self.support_place.astype(np.int64), k, SUPPORT_NEIGHBOURS, out,
+            np.ascontiguousarray(x, dtype=np.float64), *self.forest.walk(self.columns,
+            self.mean, self.scale), start.astype(np.int64), rows, place.astype(np.int64), k,
+            SUPPORT_NEIGHBOURS, out,
         )  # fmt: skip
         return out
 
