@@ -277,6 +277,10 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     # before session 17, no canonical width at all: the descriptors as measured
     before = {k: v for k, v in now.items() if not k.startswith("canonical_")}
     assert Config.from_dict(before).canonical_width == 0.0
+    # before session 20, no resemblance check (a model saved then has no support either)
+    unchecked = {k: v for k, v in now.items() if not k.startswith("resemble")}
+    assert Config.from_dict(unchecked).resemble == 0.0 and Config().resemble > 0
+    assert Config.from_dict(now).resemble_places == ("door", "window")  # JSON: a list
 
 
 def test_background_density_integrates_to_one() -> None:

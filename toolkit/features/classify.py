@@ -26,6 +26,7 @@ from toolkit.features.augment import canonical
 from toolkit.features.descriptors import chosen_columns, features, path_length
 from toolkit.features.likelihood import CHUNK, loglik, per_class, softmax
 from toolkit.features.model import Config, FeatureModel
+from toolkit.features.places import resemblance
 
 
 @dataclass
@@ -252,6 +253,18 @@ def class_scores(
     factor = 1.0  # the log's widths rescaled to the canonical one, or the log stretched
     if cfg.descriptors and model.places is not None:
         ranges, factor = canonical(ranges, model.laser, cfg.canonical_width, cfg.canonical_how)
+    check = None  # the places whose calls must resemble their support (places.resemblance)
+    proximity = np.zeros((0, 0))
+    places = model.places
+    if (
+        cfg.descriptors
+        and cfg.resemble > 0
+        and places is not None
+        and places.support_leaves is not None
+    ):
+        names = places.classes
+        check = np.array([j for j, k in enumerate(names) if k in cfg.resemble_places], int)
+        proximity = np.zeros((len(ranges), len(names)))
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
         block = ranges[rows]
@@ -273,12 +286,17 @@ def class_scores(
                 factor,
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
+            if check is not None:
+                proximity[rows] = model.places.proximity(x, check)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
                 scores = scores + cfg.beam_term * np.log(softmax(beams))
         out[i : i + len(block)] = scores
         if progress is not None:
             progress(len(block))
+    if check is not None and len(check):  # the log's own calls are the reference: 2nd pass
+        k = proximity.shape[1]
+        out[:, :k] += resemblance(out, proximity, check, cfg.resemble)
     return out
 
 

@@ -51,6 +51,16 @@ PROBA_FLOOR = 1e-4  # a forest's probability is at least this (log of 0 is no ev
 #: 0.035 / 0.028 / 0.089 -> 0.031 / 0.025 / 0.087, seeds 20-29: 0.047 / 0.042 / 0.068 ->
 #: 0.041 / 0.038 / 0.064, balanced accuracy within 0.002; 0.2 cost 0.002-0.004 of (b), (c))
 LEAF_MIX = 0.1
+#: the resemblance check (`PlaceClassifier.proximity`, `resemblance`): per place, at most
+#: this many of the scans the trees were last fitted on under its name are its support (250
+#: development worlds: 200 gave the same figures within 0.002, its kernel 2.5x the time)
+SUPPORT_SCANS = 50
+SUPPORT_NEIGHBOURS = 3  # a scan's proximity to a place: the mean over its closest support scans
+#: a scan resembles a place when its proximity is at least this share of the median proximity
+#: of the log's scans the trees call that place (development seeds 0-9: 0.5-0.8 alike)
+RESEMBLE_MARGIN = 0.7
+RESEMBLE_MIN_CALLS = 5  # a place the trees call in fewer of the log's scans is not checked
+PROXIMITY_FLOOR = 1e-3  # a scan sharing no leaf with a place's support: this proximity
 
 
 @dataclass
@@ -125,6 +135,34 @@ class Forest:
             np.where(leaf, np.inf, threshold),
             self.value / len(self.roots),
             out,
+        )
+        return out
+
+    def walk(
+        self, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The trees as the compiled walks take them, on raw descriptors (the trees fitted
+        on (x[:, columns] - mean) / scale, as in `predict_proba`): roots, depths, children
+        side by side (leaves step to themselves), the column and the threshold per node."""
+        leaf = self.left < 0
+        f = np.where(leaf, 0, self.feature)
+        feature = np.where(leaf, 0, np.asarray(columns)[f]).astype(np.int32)
+        threshold = np.where(leaf, np.inf, self.threshold * scale[f] + mean[f])
+        nodes = np.arange(len(leaf))
+        children = np.empty((len(leaf), 2), dtype=np.int32)
+        children[:, 0] = np.where(leaf, nodes, self.left)
+        children[:, 1] = np.where(leaf, nodes, self.right)
+        depths = _depths(self.roots, self.left, self.right)
+        return self.roots, depths, children.ravel(), feature, threshold
+
+    def leaves(
+        self, x: np.ndarray, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
+    ) -> np.ndarray:
+        """(S, T) the node (index into the concatenated arrays) of the leaf each row of raw
+        descriptors `x` falls in, per tree."""
+        out = np.empty((len(x), len(self.roots)), dtype=np.int64)
+        _forest_leaves(
+            np.ascontiguousarray(x, dtype=np.float64), *self.walk(columns, mean, scale), out
         )
         return out
 
@@ -210,6 +248,92 @@ def _forest_proba(  # pragma: no cover - numba
 
 
 @numba.njit(parallel=True, cache=True)
+def _forest_leaves(  # pragma: no cover - numba
+    x: np.ndarray,
+    roots: np.ndarray,
+    depths: np.ndarray,
+    children: np.ndarray,
+    feature: np.ndarray,
+    threshold: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Per scan and tree, the leaf it falls in (the walk of `_forest_proba`, one scan at a
+    time: leaves step to themselves)."""
+    for i in numba.prange(x.shape[0]):
+        for t in range(len(roots)):
+            nd = roots[t]
+            for _ in range(depths[t]):
+                nd = children[2 * nd + np.int64(not x[i, feature[nd]] <= threshold[nd])]
+            out[i, t] = nd
+
+
+@numba.njit(parallel=True, cache=True)
+def _proximity(  # pragma: no cover - numba
+    x: np.ndarray,
+    roots: np.ndarray,
+    depths: np.ndarray,
+    children: np.ndarray,
+    feature: np.ndarray,
+    threshold: np.ndarray,
+    start: np.ndarray,
+    rows: np.ndarray,
+    place: np.ndarray,
+    k: int,
+    near: int,
+    out: np.ndarray,
+) -> None:
+    """Per scan: how many trees put it in one leaf with each support scan (the support
+    scans in leaf n: rows[start[n]:start[n + 1]]), then per place the mean of its `near`
+    largest counts over the trees. A tile of `TILE` scans walks each tree together (as in
+    `_forest_proba`); only the support scans met are visited, each once."""
+    n, trees, r, d = x.shape[0], len(roots), len(place), x.shape[1]
+    for tile in numba.prange((n + TILE - 1) // TILE):
+        a = tile * TILE
+        m = min(TILE, n - a)
+        xt = np.empty((d, TILE))
+        for i in range(m):
+            for j in range(d):
+                xt[j, i] = x[a + i, j]
+        count = np.zeros((TILE, r), dtype=np.int64)
+        met = np.empty((TILE, r), dtype=np.int64)
+        n_met = np.zeros(TILE, dtype=np.int64)
+        node = np.empty(TILE, dtype=np.int64)
+        for t in range(trees):
+            for i in range(m):
+                node[i] = roots[t]
+            for _ in range(depths[t]):
+                moved = 0
+                for i in range(m):
+                    nd = node[i]
+                    step = children[2 * nd + np.int64(not xt[feature[nd], i] <= threshold[nd])]
+                    moved += step != nd
+                    node[i] = step
+                if moved == 0:
+                    break
+            for i in range(m):
+                nd = node[i]
+                for j in range(start[nd], start[nd + 1]):
+                    row = rows[j]
+                    if count[i, row] == 0:
+                        met[i, n_met[i]] = row
+                        n_met[i] += 1
+                    count[i, row] += 1
+        for i in range(m):
+            top = np.zeros((k, near), dtype=np.int64)
+            for q in range(n_met[i]):
+                row = met[i, q]
+                c, p = count[i, row], place[row]
+                if c > top[p, near - 1]:  # keep the place's `near` largest, descending
+                    w = near - 1
+                    while w > 0 and top[p, w - 1] < c:
+                        top[p, w] = top[p, w - 1]
+                        w -= 1
+                    top[p, w] = c
+            for p in range(k):
+                out[a + i, p] = top[p].sum() / (near * trees)
+
+
+@numba.njit(parallel=True, cache=True)
 def _log_distance(  # pragma: no cover - numba
     x: np.ndarray,
     columns: np.ndarray,
@@ -270,6 +394,34 @@ class PlaceClassifier:
     forest: Forest | None = None  # the forest, instead of the regression's coef / intercept
     report: dict[str, Any] = field(default_factory=dict)  # how it was learnt (not saved here:
     # the model's fit_report holds it)
+    support_leaves: np.ndarray | None = None  # (R, T) the leaf of each support scan per tree
+    # (the scans the trees were last fitted on, at most SUPPORT_SCANS a place; None: not kept)
+    support_place: np.ndarray | None = None  # (R,) their place (index into `classes`)
+
+    def proximity(self, x: np.ndarray, places: np.ndarray | None = None) -> np.ndarray:
+        """(S, K) per scan of raw descriptors and taught place (only `places`, indices, if
+        given; the others 0), how much the scan resembles the place's support in the trees'
+        own terms: the share of trees that put it in one leaf with a support scan, the mean
+        over its `SUPPORT_NEIGHBOURS` closest (1: a scan the trees cannot tell from one
+        they learnt the place from). Zeros without a support."""
+        k = len(self.classes)
+        if self.forest is None or self.support_leaves is None or self.support_place is None:
+            return np.zeros((len(x), k))
+        mine = np.ones(len(self.support_place), dtype=bool)
+        if places is not None:
+            mine = np.isin(self.support_place, places)
+        support, place = self.support_leaves[mine], self.support_place[mine]
+        flat = support.ravel()
+        order = np.argsort(flat, kind="stable")
+        start = np.searchsorted(flat[order], np.arange(len(self.forest.left) + 1))
+        rows = (order // support.shape[1]).astype(np.int64)
+        out = np.empty((len(x), k))
+        _proximity(
+            np.ascontiguousarray(x, dtype=np.float64), *self.forest.walk(self.columns,
+            self.mean, self.scale), start.astype(np.int64), rows, place.astype(np.int64), k,
+            SUPPORT_NEIGHBOURS, out,
+        )  # fmt: skip
+        return out
 
     def logits(self, x: np.ndarray) -> np.ndarray:
         """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities)."""
@@ -327,6 +479,14 @@ class PlaceClassifier:
             "reach": self.reach,
             "temperature": self.temperature,
             **({"forest": self.forest.to_dict()} if self.forest is not None else {}),
+            **(
+                {
+                    "support_leaves": self.support_leaves.tolist(),
+                    "support_place": self.support_place.tolist(),
+                }
+                if self.support_leaves is not None and self.support_place is not None
+                else {}
+            ),
         }
 
     @classmethod
@@ -343,6 +503,12 @@ class PlaceClassifier:
             reach=float(d["reach"]),
             temperature=float(d["temperature"]),
             forest=Forest.from_dict(d["forest"]) if "forest" in d else None,
+            support_leaves=np.asarray(d["support_leaves"], dtype=np.int64)
+            if "support_leaves" in d
+            else None,
+            support_place=np.asarray(d["support_place"], dtype=np.int64)
+            if "support_leaves" in d
+            else None,
         )
 
 
@@ -443,6 +609,7 @@ def fit_places(
     if open_set == "auto" and claimed_share >= BACKGROUND_SHARE:
         claimed[:] = True  # the taught places are most of the log: no background to learn
     learn_none = open_set != "never" and not claimed.all()
+    learnt_z, learnt_y = np.vstack([z, za]), np.r_[y, ya]  # what the last fit learnt from
     if len(zu):
         for _ in range(max(rounds, int(learn_none))):  # "none" is learnt even without rounds
             prob = est.predict_proba(zu)
@@ -462,9 +629,8 @@ def fit_places(
                 zs.append(zu[rest])  # weighing as much as a taught place
                 ys.append(np.full(len(rest), NONE))
                 ws.append(np.full(len(rest), len(y) / len(classes) / len(rest)))
-            est = learner().fit(
-                np.concatenate(zs), np.concatenate(ys), sample_weight=np.concatenate(ws)
-            )
+            learnt_z, learnt_y = np.concatenate(zs), np.concatenate(ys)
+            est = learner().fit(learnt_z, learnt_y, sample_weight=np.concatenate(ws))
     order = [list(est.classes_).index(k) for k in classes]
     trees = None
     if forest:
@@ -492,6 +658,10 @@ def fit_places(
         forest=trees,
     )  # fmt: skip
     model.reach = _reach(model, zg, y, classes)
+    if forest and trees is not None:
+        rows, where = support_rows(learnt_y, classes)
+        model.support_leaves = est.apply(learnt_z[rows]).astype(np.int64) + trees.roots
+        model.support_place = where
     if forest and open_set != "never" and len(zu):
         model.report["open_set"] = (
             f"{open_set}: the places claim {claimed_share:.3f} of the rest of the log; "
@@ -500,6 +670,43 @@ def fit_places(
     if not forest:  # the forest's shares are not over-confident (measured: docs/places.md)
         model.temperature = calibrate(model, x, y, groups, c)
     return model
+
+
+def support_rows(y: np.ndarray, classes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Per taught place, at most `SUPPORT_SCANS` of the rows `y` names it (evenly over
+    them): the rows and their place (index into `classes`)."""
+    keep, place = [], []
+    for j, k in enumerate(classes):
+        idx = np.flatnonzero(y == k)
+        if len(idx) > SUPPORT_SCANS:
+            idx = idx[np.linspace(0, len(idx) - 1, SUPPORT_SCANS).round().astype(np.int64)]
+        keep.append(idx)
+        place.append(np.full(len(idx), j, dtype=np.int64))
+    return np.concatenate(keep), np.concatenate(place)
+
+
+def resemblance(
+    logp: np.ndarray, proximity: np.ndarray, checked: np.ndarray, slope: float
+) -> np.ndarray:
+    """Per scan of a whole log and taught place, a log-likelihood factor (S, K), <= 0: for
+    each place in `checked` (indices) the trees call in `RESEMBLE_MIN_CALLS` scans or more
+    (argmax of `logp`'s first K columns), `slope` times the log of how far the scan's
+    `proximity` falls under `RESEMBLE_MARGIN` times the median proximity of those calls.
+    The reference is the log's own (another world's doors are further from the taught
+    ones than the taught world's, all of them): a scan the trees call a door but do not
+    put beside any door they learnt, as much as the log's doors are, gives its share to
+    the places it does resemble."""
+    k = proximity.shape[1]
+    out = np.zeros_like(proximity)
+    called = logp[:, :k].argmax(axis=1)
+    for j in checked:
+        mine = called == j
+        if mine.sum() < RESEMBLE_MIN_CALLS:
+            continue
+        ref = RESEMBLE_MARGIN * float(np.median(proximity[mine, j]))
+        short = np.log(ref / np.maximum(proximity[:, j], PROXIMITY_FLOOR))
+        out[:, j] = -slope * np.maximum(short, 0.0)
+    return out
 
 
 def stay_cores(label: np.ndarray, along: np.ndarray | None, edge: float) -> np.ndarray:
