@@ -189,6 +189,12 @@ def test_trajectory_option_and_errors(
     assert code == 0, err
     saved = json.loads((tmp_path / "e" / "model.json").read_text())["config"]
     assert saved["evidence_length"] is None and saved["smoothing"] == "forward-backward"
+    assert saved["resemble_places"] == ["door", "window"]  # the default check
+    for given, kept in (("none", []), ("doorway, window", ["doorway", "window"])):
+        out = tmp_path / f"c-{len(kept)}"
+        code, _, err = cli("label", data, *regions, "--out", out, "--check-places", given)
+        assert code == 0, err
+        assert json.loads((out / "model.json").read_text())["config"]["resemble_places"] == kept
 
     model = json.loads((tmp_path / "run" / "model.json").read_text())
     model["laser"]["beams"] = 361
@@ -208,3 +214,8 @@ def test_trajectory_option_and_errors(
         "--context", 0,
     )  # fmt: skip
     assert code == 1 and "--context is a learning setting" in err
+    code, _, err = cli(
+        "label", data, "--model", tmp_path / "run" / "model.json", "--out", tmp_path / "z",
+        "--check-places", "door",
+    )  # fmt: skip
+    assert code == 1 and "--check-places is a learning setting" in err

@@ -122,6 +122,17 @@ def label_command(
             "an untaught background), always or never; docs/places.md; when learning",
         ),
     ] = None,
+    check_places: Annotated[
+        str | None,
+        typer.Option(
+            "--check-places",
+            metavar="NAMES",
+            help="expert: comma-separated places whose calls must resemble the scans the "
+            "trees learnt them from (default door,window: the spots in a corridor, whose "
+            "false calls sit at hall ends, corner exits and a window's flanks); name yours if "
+            "you call them otherwise; none: no check; docs/places.md; when learning",
+        ),
+    ] = None,
     paper: Annotated[
         bool,
         typer.Option(
@@ -172,6 +183,9 @@ def label_command(
         base = replace(base, classifier=classifier)  # type: ignore[arg-type]  # Config checks
     if open_set is not None:
         base = replace(base, open_set=open_set)  # type: ignore[arg-type]  # Config checks
+    if check_places is not None:
+        names = tuple(n.strip() for n in check_places.split(",") if n.strip())
+        base = replace(base, resemble_places=() if names == ("none",) else names)
     config: Config | None = base
     if smoothing is not None:
         if smoothing not in SMOOTHINGS:
@@ -194,6 +208,7 @@ def label_command(
         (context, "--context"),
         (classifier, "--classifier"),
         (open_set, "--open-set"),
+        (check_places, "--check-places"),
     ):
         if model is not None and given is not None:
             raise ToolkitError(f"{flag} is a learning setting; a --model keeps its own")
