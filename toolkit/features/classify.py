@@ -26,7 +26,7 @@ from toolkit.features.augment import canonical
 from toolkit.features.descriptors import chosen_columns, features, path_length
 from toolkit.features.likelihood import CHUNK, loglik, per_class, softmax
 from toolkit.features.model import Config, FeatureModel
-from toolkit.features.places import resemblance
+from toolkit.features.places import RESEMBLE_SKIP, resemblance
 
 
 @dataclass
@@ -264,7 +264,7 @@ def class_scores(
     ):
         names = places.classes
         check = np.array([j for j, k in enumerate(names) if k in cfg.resemble_places], int)
-        proximity = np.zeros((len(ranges), len(names)))
+        proximity = np.full((len(ranges), len(names)), np.inf)  # inf: not measured
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
         block = ranges[rows]
@@ -286,8 +286,14 @@ def class_scores(
                 factor,
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
-            if check is not None:
-                proximity[rows] = model.places.proximity(x, check)
+            if check is not None and len(check):
+                k = len(model.places.classes)
+                measured = (scores[:, check].max(axis=1) >= np.log(RESEMBLE_SKIP)) | np.isin(
+                    scores[:, :k].argmax(axis=1), check
+                )
+                block_proximity = proximity[rows]
+                block_proximity[measured] = model.places.proximity(x[measured], check)
+                proximity[rows] = block_proximity
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
                 scores = scores + cfg.beam_term * np.log(softmax(beams))

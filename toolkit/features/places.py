@@ -61,6 +61,9 @@ SUPPORT_NEIGHBOURS = 3  # a scan's proximity to a place: the mean over its close
 RESEMBLE_MARGIN = 0.7
 RESEMBLE_MIN_CALLS = 5  # a place the trees call in fewer of the log's scans is not checked
 PROXIMITY_FLOOR = 1e-3  # a scan sharing no leaf with a place's support: this proximity
+#: a scan whose checked places all have a probability under this, none of them its call, is
+#: not measured: its factor would only lower what is already negligible (no factor instead)
+RESEMBLE_SKIP = 1e-3
 
 
 @dataclass
@@ -704,7 +707,7 @@ def resemblance(
         if mine.sum() < RESEMBLE_MIN_CALLS:
             continue
         ref = RESEMBLE_MARGIN * float(np.median(proximity[mine, j]))
-        short = np.log(ref / np.maximum(proximity[:, j], PROXIMITY_FLOOR))
+        short = np.log(ref / np.maximum(proximity[:, j], PROXIMITY_FLOOR))  # inf: not measured
         out[:, j] = -slope * np.maximum(short, 0.0)
     return out
 
