@@ -204,6 +204,43 @@ def _depths(
     return out
 
 
+@numba.njit(cache=True)
+def _tile_columns(z: np.ndarray, a: int, m: int) -> np.ndarray:  # pragma: no cover - numba
+    """Rows a .. a + m of `z` copied column by column into a (D, TILE) block."""
+    zt = np.empty((z.shape[1], TILE))
+    for i in range(m):
+        for j in range(z.shape[1]):
+            zt[j, i] = z[a + i, j]
+    return zt
+
+
+@numba.njit(cache=True)
+def _walk_tile(  # pragma: no cover - numba
+    zt: np.ndarray,
+    m: int,
+    root: int,
+    depth: int,
+    children: np.ndarray,
+    feature: np.ndarray,
+    threshold: np.ndarray,
+    node: np.ndarray,
+) -> None:
+    """The tile's `m` scans through one tree step by step together, each step to the child
+    at 2 node + (not z <= threshold) (NaN goes right, as in scikit-learn): `node` ends at
+    their leaves."""
+    for i in range(m):
+        node[i] = root
+    for _ in range(depth):
+        moved = 0
+        for i in range(m):
+            nd = node[i]
+            step = children[2 * nd + np.int64(not zt[feature[nd], i] <= threshold[nd])]
+            moved += step != nd  # only a leaf is its own child
+            node[i] = step
+        if moved == 0:  # the whole tile in leaves before the tree's depth
+            break
+
+
 @numba.njit(parallel=True, cache=True)
 def _forest_proba(  # pragma: no cover - numba
     z: np.ndarray,
@@ -219,28 +256,15 @@ def _forest_proba(  # pragma: no cover - numba
     themselves; a tile of `TILE` scans (its descriptors copied column by column) goes
     through a tree step by step together, each step to the child at 2 node + (not z <=
     threshold) (NaN goes right, as in scikit-learn); `out` is written once."""
-    n, k, d = z.shape[0], share.shape[1], z.shape[1]
+    n, k = z.shape[0], share.shape[1]
     for tile in numba.prange((n + TILE - 1) // TILE):
         a = tile * TILE
         m = min(TILE, n - a)
-        zt = np.empty((d, TILE))
-        for i in range(m):
-            for j in range(d):
-                zt[j, i] = z[a + i, j]
+        zt = _tile_columns(z, a, m)
         node = np.empty(TILE, dtype=np.int64)
         acc = np.zeros((TILE, k))
         for t in range(len(roots)):
-            for i in range(m):
-                node[i] = roots[t]
-            for _ in range(depths[t]):
-                moved = 0
-                for i in range(m):
-                    nd = node[i]
-                    step = children[2 * nd + np.int64(not zt[feature[nd], i] <= threshold[nd])]
-                    moved += step != nd  # only a leaf is its own child
-                    node[i] = step
-                if moved == 0:  # the whole tile in leaves before the tree's depth
-                    break
+            _walk_tile(zt, m, roots[t], depths[t], children, feature, threshold, node)
             for i in range(m):
                 nd = node[i]
                 for c in range(k):
@@ -289,30 +313,17 @@ def _proximity(  # pragma: no cover - numba
     scans in leaf n: rows[start[n]:start[n + 1]]), then per place the mean of its `near`
     largest counts over the trees. A tile of `TILE` scans walks each tree together (as in
     `_forest_proba`); only the support scans met are visited, each once."""
-    n, trees, r, d = x.shape[0], len(roots), len(place), x.shape[1]
+    n, trees, r = x.shape[0], len(roots), len(place)
     for tile in numba.prange((n + TILE - 1) // TILE):
         a = tile * TILE
         m = min(TILE, n - a)
-        xt = np.empty((d, TILE))
-        for i in range(m):
-            for j in range(d):
-                xt[j, i] = x[a + i, j]
+        xt = _tile_columns(x, a, m)
         count = np.zeros((TILE, r), dtype=np.int64)
         met = np.empty((TILE, r), dtype=np.int64)
         n_met = np.zeros(TILE, dtype=np.int64)
         node = np.empty(TILE, dtype=np.int64)
         for t in range(trees):
-            for i in range(m):
-                node[i] = roots[t]
-            for _ in range(depths[t]):
-                moved = 0
-                for i in range(m):
-                    nd = node[i]
-                    step = children[2 * nd + np.int64(not xt[feature[nd], i] <= threshold[nd])]
-                    moved += step != nd
-                    node[i] = step
-                if moved == 0:
-                    break
+            _walk_tile(xt, m, roots[t], depths[t], children, feature, threshold, node)
             for i in range(m):
                 nd = node[i]
                 for j in range(start[nd], start[nd + 1]):
