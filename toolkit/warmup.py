@@ -1,13 +1,15 @@
-"""Compile the numba kernels of `toolkit map` into numba's on-disk cache ahead of use.
+"""Compile the numba kernels of `toolkit map` and `toolkit label` into numba's on-disk cache
+ahead of use.
 
 `python -m toolkit.warmup` (run by `make install`): maps a small simulated building (loops,
 corridors, revisits) with the default mapper, with `--no-loops` (the paper's pair matcher)
-and by odometry, in a temporary directory, through the same code as `toolkit map` (the
+and by odometry, and labels its places from its regions with the default model, in a
+temporary directory, through the same code as `toolkit map` and `toolkit label` (the
 dataset saved and read back, so the kernels see the arrays' types a user's run gives them).
 Each kernel is compiled on its first call and cached (`cache=True`: next to the sources, in
 `__pycache__`), so a user's first `toolkit map` after installing loads the kernels instead
 of compiling them (about 11 s of an idle machine's 23 s on a 5,000-scan log;
-docs/benchmarks.md). A kernel whose source file changes is compiled again on its next use,
+docs/benchmarks.md; `make demo`'s first `toolkit label` 14 s against 1.3 s for its second). A kernel whose source file changes is compiled again on its next use,
 whether or not this ran.
 """
 
@@ -21,15 +23,18 @@ from pathlib import Path
 
 
 def warm_up(scans: int = 1200) -> dict[str, float]:
-    """Run the map commands' code on a simulated building of `scans` scans; seconds per run."""
+    """Run the map and label commands' code on a simulated building of `scans` scans; seconds
+    per run."""
     import toolkit  # noqa: PLC0415  (on use, as every command)
+    from toolkit.features.run import label_run  # noqa: PLC0415
     from toolkit.mapping import map_run  # noqa: PLC0415
     from toolkit.sim import simulate  # noqa: PLC0415
 
     seconds: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="toolkit-warmup-") as tmp:
         data = Path(tmp) / "building"
-        toolkit.save(simulate("building", seed=0, scans=scans).dataset, data)
+        sim = simulate("building", seed=0, scans=scans)
+        toolkit.save(sim.dataset, data)
         for name, method, loops in (
             ("map (scan-to-map, loops)", "gaussian", True),
             ("map --no-loops", "gaussian", False),
@@ -38,6 +43,9 @@ def warm_up(scans: int = 1200) -> dict[str, float]:
             t0 = time.perf_counter()
             map_run(data, Path(tmp) / f"run-{len(seconds)}", method, loops=loops)
             seconds[name] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        label_run(data, Path(tmp) / "labels", sim.regions)
+        seconds["label"] = time.perf_counter() - t0
     return seconds
 
 
