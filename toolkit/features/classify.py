@@ -287,13 +287,10 @@ def class_scores(
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if check is not None and len(check):
-                k = len(model.places.classes)
                 measured = (scores[:, check].max(axis=1) >= np.log(RESEMBLE_SKIP)) | np.isin(
-                    scores[:, :k].argmax(axis=1), check
+                    scores[:, : proximity.shape[1]].argmax(axis=1), check
                 )
-                block_proximity = proximity[rows]
-                block_proximity[measured] = model.places.proximity(x[measured], check)
-                proximity[rows] = block_proximity
+                proximity[rows][measured] = model.places.proximity(x[measured], check)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
                 scores = scores + cfg.beam_term * np.log(softmax(beams))

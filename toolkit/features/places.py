@@ -114,43 +114,35 @@ class Forest:
         `columns`, `mean` and `scale`, `z` holds raw descriptors and the trees (fitted on
         (x[:, columns] - mean) / scale) test x[:, columns[f]] <= threshold * scale + mean:
         the same leaves, without a standardised copy of a million scans' descriptors."""
-        feature, threshold = self.feature, self.threshold
-        if columns is not None and mean is not None and scale is not None:
-            leaf = self.left < 0
-            f = np.where(leaf, 0, feature)
-            feature = np.where(leaf, 0, np.asarray(columns)[f])
-            threshold = np.where(leaf, 0.0, threshold * scale[f] + mean[f])
         # leaves step to themselves (threshold +inf), so every tree is walked for its depth's
         # steps without a branch: a node's children side by side, the test picks one; the
         # leaves' shares are divided by the tree count once
-        leaf = self.left < 0
-        nodes = np.arange(len(leaf))
-        children = np.empty((len(leaf), 2), dtype=np.int32)
-        children[:, 0] = np.where(leaf, nodes, self.left)
-        children[:, 1] = np.where(leaf, nodes, self.right)
         out = np.empty((len(z), self.value.shape[1]))
         _forest_proba(
             np.ascontiguousarray(z, dtype=np.float64),
-            self.roots,
-            _depths(self.roots, self.left, self.right),
-            children.ravel(),
-            np.where(leaf, 0, feature).astype(np.int32),
-            np.where(leaf, np.inf, threshold),
+            *self.walk(columns, mean, scale),
             self.value / len(self.roots),
             out,
         )
         return out
 
     def walk(
-        self, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
+        self,
+        columns: np.ndarray | None = None,
+        mean: np.ndarray | None = None,
+        scale: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The trees as the compiled walks take them, on raw descriptors (the trees fitted
-        on (x[:, columns] - mean) / scale, as in `predict_proba`): roots, depths, children
-        side by side (leaves step to themselves), the column and the threshold per node."""
+        """The trees as the compiled walks take them: roots, depths, children side by side
+        (leaves step to themselves), the column and the threshold per node; with `columns`,
+        `mean` and `scale`, on raw descriptors (the trees fitted on (x[:, columns] - mean) /
+        scale, as in `predict_proba`)."""
         leaf = self.left < 0
         f = np.where(leaf, 0, self.feature)
-        feature = np.where(leaf, 0, np.asarray(columns)[f]).astype(np.int32)
-        threshold = np.where(leaf, np.inf, self.threshold * scale[f] + mean[f])
+        feature, threshold = f, self.threshold
+        if columns is not None and mean is not None and scale is not None:
+            feature, threshold = np.asarray(columns)[f], self.threshold * scale[f] + mean[f]
+        feature = np.where(leaf, 0, feature).astype(np.int32)
+        threshold = np.where(leaf, np.inf, threshold)
         nodes = np.arange(len(leaf))
         children = np.empty((len(leaf), 2), dtype=np.int32)
         children[:, 0] = np.where(leaf, nodes, self.left)

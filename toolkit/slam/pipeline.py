@@ -190,10 +190,9 @@ def _chain_cov(
     """Per keyframe edge: the steps' covariances (world frame) turned into the frame of each
     step's first scan and summed over the edge (the lever arm of a multi-step edge left out:
     on these logs a keyframe is one or two scans), times `matcher_cov` squared, plus the floor."""
-    th = poses[:-1, 2]
-    c, s = np.cos(th), np.sin(th)
-    rot = np.zeros((len(th), 3, 3))
-    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = c, s, -s, c, 1.0
+    turn = np.zeros((len(poses) - 1, 3))
+    turn[:, 2] = -poses[:-1, 2]  # world axes to each step's first scan's: a rotation only
+    rot = consistency.adjoint(turn)
     local = rot @ step_cov @ rot.transpose(0, 2, 1)
     summed = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(local, axis=0)])
     per_edge = summed[keys[1:]] - summed[keys[:-1]]

@@ -150,6 +150,15 @@ def keyframe_descriptors(
     return desc, ok
 
 
+def within_drift(
+    apart: np.ndarray, path: np.ndarray, config: RecognitionConfig, reach: tuple[float, float]
+) -> np.ndarray:
+    """The drift gate: whether two poses `apart` m from each other with `path` m of path
+    between them lie within `drift` x (`reach[0]` + `reach[1]` per metre of path)."""
+    out: np.ndarray = apart <= config.drift * (reach[0] + reach[1] * path)
+    return out
+
+
 def any_within_drift(
     keys: np.ndarray,
     poses: np.ndarray,
@@ -173,8 +182,7 @@ def any_within_drift(
         b = slice(start, start + rows)
         path = ka[b, None] - ka[None, :]
         apart = np.hypot(xy[b, None, 0] - xy[None, :, 0], xy[b, None, 1] - xy[None, :, 1])
-        bound = config.drift * (reach[0] + reach[1] * path)
-        if ((path > config.gap) & (apart <= bound)).any():
+        if ((path > config.gap) & within_drift(apart, path, config, reach)).any():
             return True
     return False
 
@@ -228,8 +236,7 @@ def candidates(
         if kp is not None and len(order):
             # the drift gate (`RecognitionConfig.drift`), over the query's few at once
             apart = np.hypot(*(kp[near[order]] - kp[q]).T)
-            bound = config.drift * (reach[0] + reach[1] * (ka[q] - ka[near[order]]))
-            order = order[apart <= bound]
+            order = order[within_drift(apart, ka[q] - ka[near[order]], config, reach)]
         for m in order:
             heading = float(wrap(-best[m] * step))
             out.append((int(keys[near[m]]), int(keys[q]), float(dist[m]), heading))
@@ -291,4 +298,5 @@ __all__ = [
     "keyframe_descriptors",
     "ring_key",
     "shift_distances",
+    "within_drift",
 ]
