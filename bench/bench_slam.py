@@ -17,6 +17,11 @@ with the odometry's x, y moved by N(0, 1e-9 m) (seeded by d); the row is the med
 lower middle one for an even N), with the ATE's range over the draws and the false loops of all
 of them.
 
+The drift's direction is the same on every seed (REAL_LOG_DRIFT: +2% scale, wheels 0.5% apart,
+0.87 deg/m; a seed draws only the wheel noise and the slips), so every default was measured
+under it. `BENCH_SLAM_DRIFT` overrides its parameters, a JSON object of `with_drift`'s, e.g.
+'{"wheel_diff": -0.005, "scale_error": -0.02}' for the mirror-image drift (docs/maps.md).
+
     python -m bench --only bench_slam            # every log, seeds 0-2
     BENCH_SLAM_SEEDS=3,4,5 BENCH_SLAM_DRAWS=3 python -m bench --only bench_slam   # held out
     BENCH_SLAM_LOGS=intel,fhw BENCH_SLAM_SEEDS=0 python -m bench --only bench_slam
@@ -26,6 +31,7 @@ of them.
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -216,9 +222,10 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
                 {k: row[k] for k in ("log", "seed", "method", "ate_m", "scans_per_s")}, flush=True
             )
 
+    drift = {k: float(v) for k, v in json.loads(os.environ.get("BENCH_SLAM_DRIFT", "{}")).items()}
     for name, ds in real_logs():
         for seed in seeds:
-            measure(name, seed, with_drift(ds, seed))
+            measure(name, seed, with_drift(ds, seed, **drift))
     for seed in seeds:
         for name, ds in sim_logs(seed):
             measure(name, seed, ds)
