@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 
 import toolkit
+from toolkit import se2
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses, with_drift
-from toolkit.slam.pipeline import SlamConfig, sequential_edges
+from toolkit.slam.pipeline import SlamConfig, local_map_edges, sequential_edges
 from toolkit.slam.run import slam_trajectory
 from toolkit.slam.scanmap import scan_to_map
 
@@ -80,4 +81,28 @@ def test_the_mapper_passes_the_front_ends_covariances_when_asked(building: toolk
     )
     for e, o in zip(seq, own, strict=True):
         assert np.allclose(e.covariance, o.covariance)
+    assert evaluate(result.poses, truth)["ate"]["rmse"] < 0.1
+
+
+def test_lag_edges_join_the_scan_to_map_front_end_only_when_asked(
+    building: toolkit.Dataset,
+) -> None:
+    """`SlamConfig.lag_edges`: the scan-to-map front end's graph gets no local-map edges by
+    default; with the setting each keyframe is tied to the 2nd .. 4th keyframe before it, by
+    edges that measure the truth's relative poses, and the mapper puts them in its graph."""
+    truth = truth_poses(building)
+    assert truth is not None
+    ds = with_drift(building, seed=0)
+    _, plain = slam_trajectory(ds)
+    keys, before = plain.keys, plain.before
+    assert local_map_edges(ds, keys, before, SlamConfig()) == []
+    lagged = local_map_edges(ds, keys, before, SlamConfig(lag_edges=True))
+    lags = np.searchsorted(keys, [e.b for e in lagged]) - np.searchsorted(
+        keys, [e.a for e in lagged]
+    )
+    assert set(lags.tolist()) == {2, 3, 4} and len(lagged) > 2 * len(keys)
+    off = [np.hypot(*(e.pose[:2] - se2.between(truth[e.a], truth[e.b])[:2])) for e in lagged]
+    assert np.median(off) < 0.03 and np.max(off) < 0.2
+    result, run = slam_trajectory(ds, slam=SlamConfig(lag_edges=True))
+    assert len(run.edges) >= len(plain.edges) + len(lagged) // 2
     assert evaluate(result.poses, truth)["ate"]["rmse"] < 0.1

@@ -85,6 +85,12 @@ class SlamConfig:
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
     # earlier ones (0: none); the scan-to-map front end has its own local map
     min_agreement: float = 0.5  # a local-map match with fewer agreeing returns is left out
+    # True: the scan-to-map front end gets the local-map edges too (each keyframe matched to
+    # the 2nd .. `local_map`-th before it). An expert setting, off: over the ten real logs x
+    # drift seeds 0-9 the same on the whole (mean ATE 0.1706 -> 0.1702 m), a little better on
+    # acapulco, belgioioso, fhw, intel, worse on seattle, edmonton and infinite-corridor
+    # (docs/journal/maps.md, session 21)
+    lag_edges: bool = False
     loop: LoopConfig = field(default_factory=LoopConfig)
     front_end: str = "map"  # sequential matching: "map" (scan-to-map) or "keyframe" (the paper's)
     scan_map: MapConfig = field(default_factory=MapConfig)
@@ -211,8 +217,11 @@ def local_map_edges(
     """Each keyframe matched against the 2nd .. `local_map`-th keyframe before it (the local
     map: the recent keyframes' returns in beam order), by the Gaussian scan matcher seeded with
     the sequential estimate; all pairs of one lag at once. Matches that fell back on the seed
-    or that few returns agree with are left out."""
-    if config.local_map < 2 or config.front_end != "keyframe" or len(keys) < 3:
+    or that few returns agree with are left out. The keyframe front end's; the scan-to-map
+    front end's only with `lag_edges`."""
+    if config.local_map < 2 or len(keys) < 3:
+        return []
+    if config.front_end != "keyframe" and not config.lag_edges:
         return []
     ranges = np.ascontiguousarray(ds.ranges[keys])
     kp = poses[keys]
