@@ -250,6 +250,7 @@ def _fit_places(
         open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
         extra=tuple(np.concatenate(v) for v in zip(*extra, strict=True)) if extra else None,
         claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,
+        leaf_weight=config.leaf_weight,
     )  # fmt: skip
 
 

@@ -137,6 +137,13 @@ class Config:
     # 0.5 raised the door's precision (a) by 0.06 on eleven development sets, cost (b) and
     # (c) 0.01 and the corridor scenario 0.961 -> 0.941: an expert setting (docs/journal/
     # places.md, session 19)
+    leaf_weight: float = 0.0  # in the trees fitted on the self-trained log, a leaf holds at
+    # least this weight in taught scans (a self-trained corridor scan weighs about 0.02): the
+    # light self-trained scans of one place form no leaf of their own where an untaught door
+    # lies among them, and the rounds' coarser trees self-train fewer of them (places.
+    # fit_places; 0: `LEAF` scans alone). 0.5 over 270 development worlds: balanced accuracy
+    # +0.010 / +0.010 / +0.019, but the door's precision -0.04 / -0.05 / -0.02 and the hall's,
+    # window's and corner's -0.01: an expert setting (docs/journal/places.md, session 21)
     resemble: float = 1.0  # nats per unit of log-ratio: a scan's log-probability of each
     # place of `resemble_places` falls by this times the log of how far its proximity to
     # the place's support (the share of trees putting it in one leaf with a scan the trees

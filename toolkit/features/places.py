@@ -536,6 +536,7 @@ def fit_places(
     claim_quantile: float | None = None,
     along: np.ndarray | None = None,
     stay_edge: float = 0.0,
+    leaf_weight: float = 0.0,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -568,7 +569,11 @@ def fit_places(
     a self-trained scan must lie more than `stay_edge` of path inside its stay (the run of
     scans the trees give its place), so the ends of a stay, where the place's edge is the
     trees' guess, and stays shorter than twice that teach nothing (`stay_cores`; the rest
-    of the log in log order, so a taught span between two scans does not end a stay)."""
+    of the log in log order, so a taught span between two scans does not end a stay).
+    `leaf_weight`: in the fits on the self-trained log, a leaf holds at least this weight,
+    in taught scans (a self-trained scan weighs its place's taught count over its picks: a
+    corridor's 600 weigh 0.02 each), so four light self-trained scans of one place are no
+    leaf of their own that votes as much as four taught scans (0: `LEAF` scans alone)."""
     columns = np.arange(x.shape[1]) if columns is None else np.asarray(columns)
     x = x[:, columns]
     # scikit-learn is loaded only when learning: applying a saved model needs numpy alone
@@ -585,9 +590,13 @@ def fit_places(
     scale = np.where(scaler.scale_ > 1e-9, scaler.scale_, 1.0)
     z = (x - scaler.mean_) / scale
 
-    def learner() -> ExtraTreesClassifier | LogisticRegression:
+    def learner(weight: float = 0.0) -> ExtraTreesClassifier | LogisticRegression:
+        """The classifier; `weight`: the training rows' total weight (for `leaf_weight`)."""
         if forest:
-            return ExtraTreesClassifier(TREES, min_samples_leaf=LEAF, random_state=0)
+            share = min(0.5, leaf_weight / weight) if leaf_weight > 0 and weight > 0 else 0.0
+            return ExtraTreesClassifier(
+                TREES, min_samples_leaf=LEAF, min_weight_fraction_leaf=share, random_state=0
+            )
         return LogisticRegression(C=c, max_iter=2000)
 
     za, ya, wa = np.zeros((0, z.shape[1])), np.zeros(0, dtype=str), np.zeros(0)
@@ -635,8 +644,8 @@ def fit_places(
                 zs.append(zu[rest])  # weighing as much as a taught place
                 ys.append(np.full(len(rest), NONE))
                 ws.append(np.full(len(rest), len(y) / len(classes) / len(rest)))
-            learnt_z, learnt_y = np.concatenate(zs), np.concatenate(ys)
-            est = learner().fit(learnt_z, learnt_y, sample_weight=np.concatenate(ws))
+            learnt_z, learnt_y, w = np.concatenate(zs), np.concatenate(ys), np.concatenate(ws)
+            est = learner(float(w.sum())).fit(learnt_z, learnt_y, sample_weight=w)
     order = [list(est.classes_).index(k) for k in classes]
     trees = None
     if forest:
