@@ -118,6 +118,17 @@ class LoopConfig:
     # refuses both) no false loop fewer on seeds 0-29, infinite-corridor moved both ways by
     # 0.002-0.08 m: off (docs/journal/maps.md, session 19)
     consistency_along: float = 0.0
+    # a corridor loop's across offset and heading are those of the stretch of corridor where
+    # the match put scan b, its along position the trajectory's then: when the optimised
+    # trajectory puts b more than this many metres further along its axis, the match compared
+    # b with another stretch of the corridor, and a corridor 1-2 deg from straight over 12 m
+    # leaves it 0.5 m across (infinite-corridor seed 33 draw 1's 42 -> 768, 12.7 m along,
+    # 1.6 deg; docs/journal/maps.md, session 21): withdrawn after optimising, as a residual is.
+    # 0: off
+    corridor_slide: float = 0.0
+    # ... and then scan b matched again (once) against the earlier keyframe nearest where the
+    # optimum puts it, from the optimum's pose: the stretch of corridor b saw
+    corridor_rematch: bool = False
     # loop candidates by appearance too (`toolkit.slam.recognition`: a Scan Context of each
     # keyframe's local map), not only by nearness on the trajectory: a round of its own after
     # the first (`toolkit.slam.pipeline`), for revisits the drift put beyond every window. On
