@@ -126,3 +126,19 @@ def test_real_infinite_corridor_revisits_close_as_corridor_loops(real: Path) -> 
     assert sum(lp.axis is not None for lp in accepted) >= 50
     assert not any(is_false_loop(lp, truth) for lp in accepted)
     assert evaluate(result.poses, truth)["ate"]["rmse"] < 1.0
+
+
+def test_corridor_slides_measures_b_along_the_axis_only() -> None:
+    """`corridor_slides`: how far the poses put a corridor loop's scan b from the loop's pose
+    along its axis (in a's frame), whatever the offset across; 0 for a full loop."""
+    from toolkit.slam.loops import Loop
+    from toolkit.slam.pipeline import corridor_slides
+
+    keys = np.array([0, 5, 9])
+    poses = np.array([[1.0, 2.0, np.pi / 2], [1.0, 9.0, np.pi / 2], [0.0, 0.0, 0.0]])
+    # in scan 0's frame scan 5 lies 7 m ahead (x); the loop says 0.5 m ahead, 0.3 m left
+    corr = Loop(0, 5, np.array([0.5, 0.3, 0.0]), 1.0, 1.0, 0.9, True, axis=np.array([1.0, 0.0]))
+    full = Loop(0, 5, np.array([0.5, 0.3, 0.0]), 1.0, 1.0, 0.5, True)
+    across = Loop(0, 5, np.array([7.0, 2.0, 0.0]), 1.0, 1.0, 0.9, True, axis=np.array([1.0, 0.0]))
+    out = corridor_slides([corr, full, across], keys, poses)
+    assert out == pytest.approx([6.5, 0.0, 0.0])

@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -253,6 +254,24 @@ def hang(keys: np.ndarray, before: np.ndarray, optimised: np.ndarray) -> np.ndar
     return se2.compose(optimised[index], offset)
 
 
+#: reasons of loops withdrawn after optimising, which no later round brings back
+WITHDRAWN = ("residual", "slid")
+
+
+def corridor_slides(loops: Sequence[Loop], keys: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """How far (m) the keyframe poses `poses` (of `keys`) put each loop's scan b from the
+    loop's pose along its corridor axis (0 for a full loop): a corridor loop takes its along
+    position from the trajectory it was matched on, and the optimum, pinned along by full
+    loops, may move b metres further (`LoopConfig.corridor_slide`)."""
+    out = np.zeros(len(loops))
+    for m, lp in enumerate(loops):
+        if lp.axis is not None:
+            ia, ib = np.searchsorted(keys, [lp.a, lp.b])
+            rel = se2.between(poses[ia], poses[ib])
+            out[m] = abs(float((rel[:2] - lp.pose[:2]) @ lp.axis))
+    return out
+
+
 def close_loops(
     ds: Dataset,
     before: np.ndarray,
@@ -283,12 +302,15 @@ def close_loops(
     along = path_length(before)
     start = before[keys]  # where the next optimisation starts (`warm_start`: the last optimum)
 
+    rematch: list[Loop] = []  # corridor loops that slid, to match again (`corridor_rematch`)
+    rematched: set[tuple[int, int]] = set()
+
     def solve() -> np.ndarray:
         """Optimise with the loops that passed the fitness test and agree with the loops
         nearby (`consistency.check`); drop those the optimum still contradicts."""
         nonlocal start
         t0 = time.perf_counter()
-        fit = [lp for lp in found.values() if lp.fit and not lp.reason.startswith("residual")]
+        fit = [lp for lp in found.values() if lp.fit and not lp.reason.startswith(WITHDRAWN)]
         for lp in fit:
             lp.accepted, lp.reason = True, ""
         drops = consistency.check(
@@ -321,14 +343,42 @@ def close_loops(
                 break
             chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
             bad = chi2 > config.reject_chi2
-            if not bad.any():
+            slid = corridor_slides(accepted, keys, current)
+            gone = (slid > config.loop.corridor_slide) & (config.loop.corridor_slide > 0)
+            if not (bad | gone).any():
                 break
-            for lp, drop, c in zip(accepted, bad, chi2, strict=True):
+            for lp, drop, c, off, moved in zip(accepted, bad, chi2, gone, slid, strict=True):
                 if drop:
                     lp.accepted = False
                     lp.reason = f"residual: chi2 {c:.1f} > {config.reject_chi2:g} after optimising"
+                elif off:
+                    lp.accepted = False
+                    lp.reason = (
+                        f"slid: the optimum puts scan {lp.b} {moved:.1f} m along the corridor"
+                        f" from the match (> {config.loop.corridor_slide:g})"
+                    )
+                    if config.loop.corridor_rematch and (lp.a, lp.b) not in rematched:
+                        rematch.append(lp)
             accepted = [lp for lp in accepted if lp.accepted]
         timings["optimisation"] += time.perf_counter() - t0
+        if rematch:  # matched again where the optimum puts b: the stretch it really saw
+            placed = hang(keys, before, current)
+            for lp in rematch:
+                rematched.add((lp.a, lp.b))
+                # the earlier keyframe nearest b where the optimum puts it: the stretch b saw
+                early = keys[along[lp.b] - along[keys] > config.loop.gap]
+                if len(early) == 0:
+                    continue
+                a = int(early[np.argmin(np.hypot(*(placed[early, :2] - placed[lp.b, :2]).T))])
+                if (a, lp.b) in found:
+                    continue
+                again = closer.verify(a, lp.b, config.loop.radius, placed, along, keys)
+                if again is not None:
+                    again.recognised = lp.recognised
+                    found[(a, lp.b)] = again
+                    rematched.add((a, lp.b))
+            rematch.clear()
+            return solve()
         return hang(keys, before, current)
 
     # round 1: queries in path order; `incremental`: a loop that moves its scan noticeably is
