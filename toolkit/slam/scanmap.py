@@ -80,6 +80,9 @@ class MapConfig:
     heading_drift: float = 0.0  # > 0: the odometry's heading drift per metre (a wheel's
     # diameter off) is learned from the fits over about this much path (m) and taken out of
     # its steps before they predict (`MapMatcher._learn`); 0: off
+    odometry_scale: float = 0.0  # > 0: the odometry's scale error (a wheel's diameter off
+    # on both sides) is learned from the fits that fix the translation (not a corridor's)
+    # over about this much path (m) and taken out of its steps (`MapMatcher._learn_scale`)
     prior_velocity: tuple[float, float] = (0.3, 0.3)  # constant velocity's, per second of
     # the scan interval (m/s, rad/s: a change of velocity), when the log has no odometry
     scan_odometry: bool = True  # no odometry: the scan-to-keyframe matcher (constant
@@ -526,6 +529,9 @@ class MapMatcher:
         self.narrowed = 0  # low-overlap fits replaced by their narrow refit (`_narrow`)
         self.drift = 0.0  # the odometry's learned heading drift (rad per m)
         self._drift_sums = (0.0, 0.0)  # the fits' heading minus the odometry's, its path
+        self.scale = 1.0  # the odometry's learned scale (the fits' path per odometry's)
+        self._scale_sums = (0.0, 0.0)  # the fits' path along the odometry's steps, theirs
+        self._scale_searched = 0  # searches seen by the scale's learner
         self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
         # pose and path: where a slip that its fit could not see happened
         self._motion = MotionMatcher(laser, gain=1.0, probe=0.0)  # as measured (docs/maps.md)
@@ -538,6 +544,8 @@ class MapMatcher:
             step = _between(self._odo, odometry)
             if self.config.heading_drift > 0:
                 step[2] += self.drift * math.hypot(step[0], step[1])
+            if self.config.odometry_scale > 0:
+                step[:2] *= self.scale
             return _compose(self._last, step), True
         step = self._step
         if t is not None and self._t is not None and self._dt > 0:
@@ -579,6 +587,8 @@ class MapMatcher:
         pose = self._match(pts, predicted, info, by_odometry, logged)
         if logged and odo is not None and by_odometry and cfg.heading_drift > 0:
             self._learn(predicted, pose, odo, sig[1])
+        if logged and odo is not None and by_odometry and cfg.odometry_scale > 0:
+            self._learn_scale(pose, odo)
         self._finish(pose, odo, t)
         assert self._key_pose is not None
         since = _between(self._key_pose, pose)
@@ -861,6 +871,31 @@ class MapMatcher:
         self._drift_sums = (total, path)
         # shrunk towards none over the first metres: one fit's error is not the odometry's
         self.drift = total / (path + 0.1 * cfg.heading_drift)
+
+    def _learn_scale(self, pose: np.ndarray, odo: np.ndarray) -> None:
+        """Update the odometry's scale from this scan's fit: the fit's step projected on the
+        odometry's step, over the odometry's step length, summed over the path and forgotten
+        over `odometry_scale` m, shrunk towards 1 over its first tenth. Only fits that fix the
+        translation (not degenerate, no search, enough inliers) teach it: in a corridor the
+        fit keeps the prediction along the corridor, which is where a scale error adds up."""
+        cfg = self.config
+        assert self._odo is not None
+        searched, self._scale_searched = self.searches != self._scale_searched, self.searches
+        if searched or self.stats[4] < cfg.min_inliers or self.stats[6] > 0:
+            return
+        raw = _between(self._odo, odo)
+        moved = math.hypot(raw[0], raw[1])
+        if moved < 0.02:
+            return
+        fitted = _between(self._last, pose)
+        along = (fitted[0] * raw[0] + fitted[1] * raw[1]) / moved
+        keep = math.exp(-moved / cfg.odometry_scale)
+        total, path = self._scale_sums
+        total = total * keep + along
+        path = path * keep + moved
+        self._scale_sums = (total, path)
+        prior = 0.1 * cfg.odometry_scale
+        self.scale = (total + prior) / (path + prior)
 
     def _finish(self, pose: np.ndarray, odo: np.ndarray | None, t: float | None) -> None:
         step = _between(self._last, pose)
