@@ -17,8 +17,9 @@ row of the ablation adds one part to the one before; the default row is `Config(
 
 The default seeds, 100-119, were the first held-out set. Each session since has held out a
 fresh set, run only to measure and then spent for development (300-319, 400-419, 500-519,
-600-619, 700-719, 800-819, 900-919, 2000-2019, 2020-2039; docs/places.md): a new held-out
-figure needs seeds never run before, their transfer worlds (seed + 1000) included (2040 and up)."""
+600-619, 700-719, 800-819, 900-919, 2000-2019, 2020-2039, 2040-2059; docs/places.md): a new
+held-out figure needs seeds never run before, their transfer worlds (seed + 1000) included
+(2060 and up)."""
 
 from __future__ import annotations
 
@@ -89,6 +90,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: self-training only on the scans more than 0.5 m of path inside their stay (stay_edge 0.5: session 19)", dataclasses.replace(FULL, stay_edge=0.5)),
     ("alternative: stay_edge 0.5 and the opening beside the robot (session 19)", dataclasses.replace(FULL, stay_edge=0.5, opening=True)),
     ("alternative: without the resemblance check (resemble 0: the default until session 20; a door or window call unlike the trees' own door or window scans keeps its share)", dataclasses.replace(FULL, resemble=0.0)),
+    ("alternative: session 20's default (leaf_weight 0: self-trained scans alone may form a leaf; resemble 1)", dataclasses.replace(FULL, leaf_weight=0.0, resemble=1.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -137,21 +137,23 @@ class Config:
     # 0.5 raised the door's precision (a) by 0.06 on eleven development sets, cost (b) and
     # (c) 0.01 and the corridor scenario 0.961 -> 0.941: an expert setting (docs/journal/
     # places.md, session 19)
-    leaf_weight: float = 0.0  # in the trees fitted on the self-trained log, a leaf holds at
+    leaf_weight: float = 0.5  # in the trees fitted on the self-trained log, a leaf holds at
     # least this weight in taught scans (a self-trained corridor scan weighs about 0.02): the
     # light self-trained scans of one place form no leaf of their own where an untaught door
     # lies among them, and the rounds' coarser trees self-train fewer of them (places.
-    # fit_places; 0: `LEAF` scans alone). 0.5 over 270 development worlds: balanced accuracy
-    # +0.010 / +0.010 / +0.019, but the door's precision -0.04 / -0.05 / -0.02 and the hall's,
-    # window's and corner's -0.01: an expert setting (docs/journal/places.md, session 21)
-    resemble: float = 1.0  # nats per unit of log-ratio: a scan's log-probability of each
+    # fit_places; 0: `LEAF` scans alone, until session 21). With `resemble` 2, over 270
+    # development worlds: balanced accuracy +0.008 / +0.010 / +0.017, the door's recall +0.03
+    # to +0.07 and its precision -0.003 / -0.013 / +0.011, the hall's and corner's precision
+    # -0.01 to -0.02 (docs/journal/places.md, session 21)
+    resemble: float = 2.0  # nats per unit of log-ratio: a scan's log-probability of each
     # place of `resemble_places` falls by this times the log of how far its proximity to
     # the place's support (the share of trees putting it in one leaf with a scan the trees
     # learnt the place from) falls under RESEMBLE_MARGIN times the median of the log's scans
     # the trees call it (places.resemblance; 0: off, until session 20). Applied when
     # labelling, before the HMM: over 250 development worlds the door's precision rose
     # 0.705 / 0.740 / 0.627 -> 0.787 / 0.816 / 0.689, the window's by 0.04-0.05 (docs/
-    # journal/places.md, session 20)
+    # journal/places.md, session 20); 2 since session 21, with `leaf_weight` (whose extra
+    # door calls it checks: alone, 2 is the door's precision +0.025 for -0.002 of accuracy)
     resemble_places: tuple[str, ...] = ("door", "window")  # the places checked: the spots
     # in a corridor whose false calls are at a hall's end, a corner's exit and a window's
     # flanks (checking the corridor too gave its scans beside a door to the door)
@@ -234,7 +236,12 @@ class Config:
 #: fields whose value, before they were added, was not their default: a model saved before
 #: session 17 measured widths in metres, and session 17's canonical width was a stretch; one
 #: saved before session 20 had no resemblance check
-LEGACY: dict[str, Any] = {"canonical_width": 0.0, "canonical_how": "stretch", "resemble": 0.0}
+LEGACY: dict[str, Any] = {
+    "canonical_width": 0.0,
+    "canonical_how": "stretch",
+    "resemble": 0.0,
+    "leaf_weight": 0.0,
+}
 
 
 PAPER = Config(
