@@ -101,6 +101,10 @@ class MapConfig:
     lost: float = 0.3  # when the search finds no clear winner and fewer returns than this
     # share fit, the odometry's heading may have slipped beyond search_turn: the heading is
     # searched over the full circle, its winner taken if it is clear ...
+    unturned: float = 0.0  # > 0 (expert, off): still lost after the searches, the fit starts
+    # again from the prediction with the odometry's step turn taken out (a slip of the whole
+    # turn, beyond search_turn or aliased by it) and is taken if this share of its returns
+    # fit (`_unturned`; orebro / infinite-corridor drift seed 37, docs/journal/maps.md s. 21)
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
     # most this share of its own (the loop closer's test)
     search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
@@ -527,6 +531,7 @@ class MapMatcher:
         self.searches = 0
         self._searched = 0
         self.narrowed = 0  # low-overlap fits replaced by their narrow refit (`_narrow`)
+        self.unturned = 0  # lost fits replaced by the fit with the step turn out (`_unturned`)
         self.drift = 0.0  # the odometry's learned heading drift (rad per m)
         self._drift_sums = (0.0, 0.0)  # the fits' heading minus the odometry's, its path
         self.scale = 1.0  # the odometry's learned scale (the fits' path per odometry's)
@@ -668,11 +673,37 @@ class MapMatcher:
                 )
                 if clear and out3[4] > out[4] + 0.1:
                     out, cov = out3, cov3
+            if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
+                self._unturned(fit, predicted, info, out, cov)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(pts, predicted, info, out, cov)
         self.stats = out
         self.covariance = cov
         return out[:3].copy()
+
+    def _unturned(
+        self,
+        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
+        predicted: np.ndarray,
+        info: np.ndarray,
+        out: np.ndarray,
+        cov: np.ndarray,
+    ) -> None:
+        """A fit still lost after the searches, fitted again from the prediction with the
+        odometry's step turn taken out (the previous heading, the heading free, the translation
+        held by the prior); `out` and `cov` take it if `unturned` of its returns fit. A slip
+        of the whole step's turn (orebro drift seed 37, scan 30: 93 degrees) puts the right
+        heading beyond search_turn, and the full-circle search's winner is not clear there
+        (a corridor's reverse heading), or an alias 90 degrees off (infinite-corridor, scan 82)."""
+        start = predicted.copy()
+        start[2] = self._last[2]
+        res = np.zeros(_OUT)
+        c = np.zeros((3, 3))
+        fit(start, info * _HEADING_FREE, res, c)
+        if res[4] >= self.config.unturned and res[4] > out[4]:
+            self.unturned += 1
+            out[:] = res
+            cov[:, :] = c
 
     def _slip_free(
         self,
