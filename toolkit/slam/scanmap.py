@@ -105,7 +105,7 @@ class MapConfig:
     # prediction with the odometry's step turn taken out (a slip of the whole turn, beyond
     # search_turn or aliased by it) and is taken if this share of its returns fit
     # (`_unturned`; 0: off, until session 21). Drift seed 37 (held out, then spent): orebro
-    # 6.514 -> 0.169 m, infinite-corridor 4.583 -> 0.409 m; on the ten real logs x seeds 0-9
+    # 6.514 -> 0.169 m, infinite-corridor 4.583 -> 0.409 m; on the ten real logs x seeds 0-35
     # and the simulator's logs with odometry (seeds 0-7) it never fires: the same poses to
     # the bit (docs/journal/maps.md, session 21)
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
@@ -700,9 +700,7 @@ class MapMatcher:
         (a corridor's reverse heading), or an alias 90 degrees off (infinite-corridor, scan 82)."""
         start = predicted.copy()
         start[2] = self._last[2]
-        res = np.zeros(_OUT)
-        c = np.zeros((3, 3))
-        fit(start, info * _HEADING_FREE, res, c)
+        res, c = _heading_free_fit(fit, start, info)
         if res[4] >= self.config.unturned and res[4] > out[4]:
             self.unturned += 1
             out[:] = res
@@ -729,9 +727,7 @@ class MapMatcher:
         turned = math.atan2(math.sin(turned), math.cos(turned))
         if abs(turned) * math.sqrt(info[2]) <= cfg.slip_sigmas:
             return
-        free = np.zeros(_OUT)
-        cov_free = np.zeros((3, 3))
-        fit(out[:3].copy(), info * _HEADING_FREE, free, cov_free)
+        free, cov_free = _heading_free_fit(fit, out[:3].copy(), info)
         if free[4] >= out[4] + cfg.slip_gain:
             out[:] = free
             cov[:, :] = cov_free
@@ -1078,3 +1074,16 @@ def scan_to_map(
 
 
 __all__ = ["MapConfig", "MapMatcher", "scan_to_map", "settings", "slipped", "surfaces"]
+
+
+def _heading_free_fit(
+    fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
+    start: np.ndarray,
+    info: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The fit from `start` with the prior's heading released (its result row and
+    covariance): the refit `_slip_free` and `_unturned` compare with the fit they have."""
+    res = np.zeros(_OUT)
+    c = np.zeros((3, 3))
+    fit(start, info * _HEADING_FREE, res, c)
+    return res, c
