@@ -18,7 +18,16 @@ from toolkit.features.augment import (
     usual_width,
     width_factor,
 )
-from toolkit.features.descriptors import WIDTH_LIKE, describe, names, place_columns, rescaled
+from toolkit.features.descriptors import (
+    ABSOLUTE,
+    WIDTH_LIKE,
+    describe,
+    metres_columns,
+    names,
+    place_columns,
+    rescaled,
+    with_metres,
+)
 
 
 def _scans() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,3 +105,21 @@ def test_rescaled_widths_are_the_stretched_scans_without_resampling() -> None:
     assert np.abs(s[:, ~width] - x[:, ~width]).max() > 0.1
     assert np.array_equal(rescaled(x.copy(), columns, 1.0), x)  # factor 1: the scan's
     assert 0.95 < width_factor(r[corridor], LASER, 2.0) < 1.05  # the 2 m corridor
+
+
+def test_reach_in_metres_follows_the_rescaled_descriptors_as_measured() -> None:
+    """`Config.reach_metres`: the reach beside the laser once more, not rescaled (a door's
+    room keeps its depth in metres whatever the corridor's width)."""
+    r, _, _ = _scans()
+    columns = place_columns()
+    x = describe(r, LASER)[:, columns]
+    k, m = len(columns), metres_columns(columns)
+    assert [names()[c] for c in columns[m]] == list(ABSOLUTE)
+    y = with_metres(x.copy(), columns, 2.0, True)
+    assert y.shape == (len(r), k + len(ABSOLUTE))
+    assert np.array_equal(y[:, :k], rescaled(x.copy(), columns, 2.0))  # as without
+    assert np.array_equal(y[:, k:], x[:, m])  # as measured
+    seen = np.isfinite(y[:, k:]).all(axis=1)
+    assert seen.mean() > 0.9
+    assert np.allclose(y[seen][:, m] - y[seen][:, k:], np.log(2.0))  # the rescaled: log 2 more
+    assert np.array_equal(with_metres(x.copy(), columns, 2.0, False), y[:, :k])  # off: as before

@@ -284,6 +284,7 @@ def class_scores(
                 cfg.ahead(model.laser),
                 cfg.opening,
                 factor,
+                cfg.reach_metres,
             )
             scores = model.places.log_proba(x, none=cfg.none_class)
             if check is not None and len(check):

@@ -535,6 +535,21 @@ def rescaled(x: np.ndarray, columns: np.ndarray, factor: float) -> np.ndarray:
     return x
 
 
+def metres_columns(columns: np.ndarray) -> np.ndarray:
+    """Positions in `columns` of the reach beside the laser in metres (`ABSOLUTE`)."""
+    return np.flatnonzero(np.isin(np.asarray(names())[columns], ABSOLUTE))
+
+
+def with_metres(x: np.ndarray, columns: np.ndarray, factor: float, metres: bool) -> np.ndarray:
+    """`rescaled` descriptors, and with `metres` the reach beside the laser once more as
+    measured (`Config.reach_metres`). Why: a room behind a door, a hall's depth do not
+    scale with the corridor, so in another building the rescaled reach misplaces them
+    (docs/journal/places.md, session 22)."""
+    keep = x[:, metres_columns(columns)] if metres else None  # a copy, before the shift
+    x = rescaled(x, columns, factor)
+    return x if keep is None else np.hstack([x, keep])
+
+
 def features(
     ranges: np.ndarray,
     laser: LaserGeometry,
@@ -548,6 +563,7 @@ def features(
     ahead: float | None = None,
     gap: bool = False,
     factor: float = 1.0,
+    metres: bool = False,
 ) -> np.ndarray:
     """The classifier's input for scans `rows` (default all) of a log: their descriptors
     `columns` and, with `context` > 0, the descriptors' mean and spread over the scans within
@@ -556,16 +572,17 @@ def features(
     described. `strip`: see `describe`. With `local` > 0, the descriptors of the local map of
     the scans within `local` metres of path (`local_map`, drawn by `poses`) follow; with
     `gap`, the opening beside the robot (`opening`). `factor`: the descriptors of the scans
-    stretched across the path by this (`rescaled`)."""
+    stretched across the path by this (`rescaled`); with `metres`, the reach beside the laser
+    (`ABSOLUTE`) follows them once more as measured (`with_metres`)."""
     rows = rows or slice(0, len(ranges))
     if context <= 0:
-        x = rescaled(describe(ranges[rows], laser, strip)[:, columns], columns, factor)
+        x = with_metres(describe(ranges[rows], laser, strip)[:, columns], columns, factor, metres)
     else:
         lo, hi = context_windows(along, context, rows, ahead)
         first, last = int(lo.min()), int(hi.max())
         own = np.arange(len(lo)) + (rows.start or 0) - first
-        x = rescaled(describe(ranges[first:last], laser, strip)[:, columns], columns, factor)
-        x = with_context(x, lo - first, hi - first, own)
+        d = describe(ranges[first:last], laser, strip)[:, columns]
+        x = with_context(with_metres(d, columns, factor, metres), lo - first, hi - first, own)
     if local > 0:
         x = np.hstack([x, local_map(ranges, laser, poses, along, local, rows)])
     if gap:

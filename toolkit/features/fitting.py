@@ -21,6 +21,7 @@ from toolkit.features.descriptors import (
     context_windows,
     describe,
     features,
+    metres_columns,
     mozos_columns,
     path_length,
     rescaled,
@@ -216,8 +217,9 @@ def _fit_places(
     ahead = config.ahead(laser)
     x = features(
         ranges, laser, columns, along, config.context, None, config.beside, poses,
-        config.local_map, ahead, config.opening, factor,
+        config.local_map, ahead, config.opening, factor, config.reach_metres,
     )  # fmt: skip
+    own_width = len(columns) + (len(metres_columns(columns)) if config.reach_metres else 0)
     rest = np.ones(len(ranges), dtype=bool)
     rest[idx] = False
     open_set = config.open_set if config.none_class else "never"
@@ -240,13 +242,13 @@ def _fit_places(
             copied = copy(ranges, laser)
             xa = features(
                 copied, laser, columns, along, config.context, None, config.beside, poses,
-                config.local_map, ahead, config.opening, factor,
+                config.local_map, ahead, config.opening, factor, config.reach_metres,
             )  # fmt: skip
             new = changed(ranges[idx], copied[idx], laser)  # not the scan again
             extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
-        config.priors, forest=config.classifier == "trees", gate=len(columns),
+        config.priors, forest=config.classifier == "trees", gate=own_width,
         open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
         extra=tuple(np.concatenate(v) for v in zip(*extra, strict=True)) if extra else None,
         claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,

@@ -194,6 +194,9 @@ class Config:
     # (descriptors.WIDTH_LIKE: the taught world's runs as they were, session 18); "stretch":
     # the whole log stretched and resampled first (augment.to_width: costs the taught
     # world's runs, session 17)
+    reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
+    # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
+    # depth in metres whatever the corridor's width (docs/journal/places.md, session 22)
 
     def __post_init__(self) -> None:
         """The choices are checked once, here: a Config that exists is a valid one."""
