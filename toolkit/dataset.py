@@ -916,3 +916,40 @@ def load(path: str | Path) -> Dataset:
         poses=poses,
         path=path,
     )
+
+
+class ReadAhead:
+    """`load(path)` started now in a thread, its dataset taken later (`result`): a command
+    reads its dataset while it imports what it runs with (`toolkit map`: the matcher's and the
+    loop closer's libraries). Parquet's decoding releases the GIL, so the read overlaps the
+    imports; errors are raised by `result`, as `load` raises them."""
+
+    def __init__(self, path: str | Path) -> None:
+        import threading  # noqa: PLC0415  (on use: this module is imported by every command)
+
+        self.path = Path(path)
+        self._dataset: Dataset | None = None
+        self._error: BaseException | None = None
+        self.seconds = 0.0  # the read's own time, in its thread
+        # a daemon: a command that ends before taking the dataset (a usage error) exits at once
+        self._thread = threading.Thread(target=self._read, name="read-ahead", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        import time  # noqa: PLC0415
+
+        t0 = time.perf_counter()
+        try:
+            self._dataset = load(self.path)
+        except BaseException as e:  # raised in the caller's thread by `result`
+            self._error = e
+        self.seconds = time.perf_counter() - t0
+
+    def result(self) -> Dataset:
+        """The dataset, once read (waits for the thread); `load`'s error if it failed."""
+        self._thread.join()
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+        assert self._dataset is not None
+        return self._dataset
