@@ -13,8 +13,8 @@ import pytest
 
 import toolkit
 from toolkit.atomic import atomic_dir, atomic_path
-from toolkit.dataset import Dataset, LaserGeometry, ReadAhead, ScansWriter, read_scans
-from toolkit.errors import OutputExistsError, ToolkitError
+from toolkit.dataset import Dataset, LaserGeometry, ScansWriter, read_scans
+from toolkit.errors import OutputExistsError
 
 
 def _dataset(scans: int = 50, beams: int = 181) -> Dataset:
@@ -37,24 +37,6 @@ def test_round_trip_keeps_every_value(tmp_path: Path) -> None:
     assert back.groundtruth is None
     assert back.laser == ds.laser
     np.testing.assert_allclose(back.angles[[0, 90, 180]], np.deg2rad([-90, 0, 90]))
-
-
-def test_read_ahead_gives_what_load_gives_and_raises_its_error(tmp_path: Path) -> None:
-    """`ReadAhead` (`toolkit map` reads while it imports): the same dataset as `load`, its
-    own time, and `load`'s error raised by `result`, in the caller's thread."""
-    toolkit.save(_dataset(), tmp_path / "d")
-    ahead = ReadAhead(tmp_path / "d")
-    back, direct = ahead.result(), toolkit.load(tmp_path / "d")
-    np.testing.assert_array_equal(back.ranges, direct.ranges)
-    np.testing.assert_array_equal(back.t, direct.t)
-    pd.testing.assert_frame_equal(back.odometry, direct.odometry)
-    assert back.laser == direct.laser and back.path == direct.path
-    assert ahead.seconds > 0
-    with pytest.raises(ToolkitError) as expected:
-        toolkit.load(tmp_path / "missing")
-    with pytest.raises(ToolkitError) as raised:
-        ReadAhead(tmp_path / "missing").result()
-    assert str(raised.value) == str(expected.value)
 
 
 def test_scans_schema_is_the_contract(tmp_path: Path) -> None:

@@ -40,7 +40,7 @@ import numpy as np
 
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output, writer_threads
-from toolkit.dataset import META, Dataset, ReadAhead, load, sha256, write_described
+from toolkit.dataset import META, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
@@ -292,7 +292,7 @@ class MapRun:
 
 
 def map_run(
-    dataset: Dataset | ReadAhead | str | Path,
+    dataset: Dataset | str | Path,
     out: str | Path,
     method: Method | str = Method.GAUSSIAN,
     voxel: float = 0.0,
@@ -303,7 +303,7 @@ def map_run(
     outputs: Collection[str] = OUTPUTS,
 ) -> MapRun:
     """`toolkit map`: align `dataset` (loaded if a path) by `method` and write the run
-    directory `out` atomically (`dataset` may be a `ReadAhead`, a read already under way): `outputs` of OUTPUTS ("cloud.ply" brings cloud.pcd, "map.png"
+    directory `out` atomically: `outputs` of OUTPUTS ("cloud.ply" brings cloud.pcd, "map.png"
     the occupancy grid map.pgm + map.yaml). With `loops`, the mapper's loop closure and pose
     graph (`toolkit.slam.run`: graph.g2o, loops.csv). `matcher`: see `toolkit.poses.build`.
     metrics.json's `seconds` holds the time of every stage: read, the trajectory's (prepare,
@@ -314,16 +314,9 @@ def map_run(
     unknown = set(outputs) - set(OUTPUTS)
     if unknown:
         raise ToolkitError(f"unknown run outputs {sorted(unknown)}; known: {', '.join(OUTPUTS)}")
-    timed: dict[str, float] = {}
-    if isinstance(dataset, ReadAhead):  # read in its thread meanwhile: its own time
-        ds = dataset.result()
-        timed["read"] = dataset.seconds
-    elif isinstance(dataset, Dataset):
-        ds = dataset
-    else:
-        t0 = time.perf_counter()
-        ds = load(dataset)
-        timed["read"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ds = dataset if isinstance(dataset, Dataset) else load(dataset)
+    timed = {"read": time.perf_counter() - t0} if not isinstance(dataset, Dataset) else {}
     config = config or sc.MatchConfig()
     method = Method.parse(method)
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0

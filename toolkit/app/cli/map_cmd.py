@@ -86,12 +86,6 @@ def map_command(
     from toolkit.app.startup import imports_kept
 
     with imports_kept():
-        from toolkit.dataset import ReadAhead  # pyarrow, which the read needs first
-
-        # one dataset, mapped here: read while the matcher's and the loop closer's
-        # libraries import (0.3-0.6 s; the read 0.02-0.1 s, Parquet's decoding without the GIL)
-        many = each or _many(datasets)
-        ahead = ReadAhead(datasets[0]) if not many and scheduler == "none" else None
         from toolkit.mapping import map_run
         from toolkit.poses import Method
 
@@ -100,14 +94,14 @@ def map_command(
             importlib.import_module("toolkit.slam.run")
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
-    if many:
+    if each or _many(datasets):
         _map_each(datasets, out, method, voxel, force, scheduler, quiet, loops)
         return
     dataset = datasets[0]
     if scheduler != "none" and method != Method.GAUSSIAN:
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     if scheduler == "none":
-        run = map_run(ahead or dataset, out, method, voxel, force=force, loops=loops)
+        run = map_run(dataset, out, method, voxel, force=force, loops=loops)
     else:
         from toolkit.app.fleet import client_for  # Dask, on use
         from toolkit.app.fleet_map import matcher_for, on_shared_storage
