@@ -1,5 +1,5 @@
 """What a command does about its start: `imports_kept` around its imports (`toolkit.app.entry`
-for typer's, `toolkit.app.cli.map_cmd` for the mapper's)."""
+for typer's, `toolkit.app.cli.map_cmd` for the mapper's), and in the mapper's `numba_tables`."""
 
 from __future__ import annotations
 
