@@ -112,3 +112,25 @@ def test_the_command_ends_with_its_output_and_exit_code_after_freezing_the_gc(
     )  # fmt: skip
     assert bad.returncode == 1 and bad.stderr.startswith("error: ")
     assert len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_numbas_tables_are_built_with_the_imports_and_frozen() -> None:
+    """`toolkit map` builds numba's typing and lowering tables inside its imports' block
+    (`numba_tables`): what numba's first kernel load would otherwise make in the run (about
+    48,000 objects, a collection) is frozen, and the load's own refresh makes nothing new."""
+    code = (
+        "import gc\n"
+        "from toolkit.app.startup import imports_kept, numba_tables\n"
+        "with imports_kept():\n    numba_tables()\n"
+        "from numba.core.registry import cpu_target\n"
+        "before = len(gc.get_objects())\n"
+        "cpu_target.target_context.refresh()\n"
+        "print(len(gc.get_objects()) - before)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.strip()) < 1_000
+    unbuilt = code.replace("    numba_tables()\n", "    import numba\n")
+    out = subprocess.run([sys.executable, "-c", unbuilt], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.strip()) > 20_000  # what the test above would catch

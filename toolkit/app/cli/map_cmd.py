@@ -83,7 +83,7 @@ def map_command(
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
-    from toolkit.app.startup import imports_kept
+    from toolkit.app.startup import imports_kept, numba_tables
 
     with imports_kept():
         from toolkit.mapping import map_run
@@ -92,6 +92,7 @@ def map_command(
         method = Method.parse(method)
         if loops and method != Method.ODOMETRY:
             importlib.import_module("toolkit.slam.run")
+        numba_tables()  # every map run loads kernels (the writers' at least)
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
     if each or _many(datasets):
