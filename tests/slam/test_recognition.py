@@ -121,3 +121,51 @@ def test_drift_gate_keeps_revisits_the_drift_explains_and_drops_the_rest() -> No
     far[n:, 1] = 1.2 * cfg.drift * (reach[0] + reach[1] * along[-1])
     assert not rc.any_within_drift(keys, far, along, cfg, reach, max_pairs=4 * n * n)
     assert rc.candidates(desc, ok, keys, along, cfg, None, far, reach) == []
+
+
+def test_held_spectra_and_blocked_gate_give_the_plain_answers() -> None:
+    """The speed-ups of session 22 give, to the bit, what they replace: the refs' spectra
+    computed once for the log against per query (`spectra_bytes` 0), the same distances
+    and the same candidates; the drift gate walked in blocks of rows over the earlier keys
+    only against the whole square at once, the same answer, revisit or none."""
+    cfg = replace(rc.RecognitionConfig(), drift=np.inf)
+    rng = np.random.default_rng(5)
+    n = 60
+    places = (rng.random((n, cfg.rings, cfg.sectors)) < 0.3) * rng.integers(1, 30, (n, 1, 1))
+    places = places.astype(np.uint8)
+    held = rc.spectra(places)
+    for q in (0, 17, 59):
+        near = np.sort(rng.choice(n, 25, replace=False))
+        plain = rc.shift_distances(places[q], places[near])
+        assert plain.min() < 1.0  # not all empty: the test compares numbers
+        assert np.array_equal(
+            plain, rc.shift_distances(places[q], None, (held[0][near], held[1][near]))
+        )
+    keys = np.arange(2 * n)
+    along = 2.0 * keys
+    place = np.concatenate([np.arange(n), np.arange(n)[::-1]])
+    desc = places[place]
+    ok = np.ones(2 * n, dtype=bool)
+    poses = np.column_stack([2.0 * place, np.zeros(2 * n), np.zeros(2 * n)])
+    once = rc.candidates(desc, ok, keys, along, cfg, None, poses)
+    each = rc.candidates(desc, ok, keys, along, replace(cfg, spectra_bytes=0), None, poses)
+    assert len(once) > 10 and once == each
+    gated = replace(cfg, drift=4.0)
+    reach = (1.0, 0.03)
+    for off in (0.0, 15.0, 60.0, 200.0):
+        shifted = poses.copy()
+        shifted[n:, 1] = off
+        answers = {
+            rc.any_within_drift(keys, shifted, along, gated, reach, rows=rows)
+            for rows in (1, 7, 64, 4 * n)
+        }
+        # the whole square at once, as before
+        ka, xy = along[keys], shifted[keys, :2]
+        path = ka[:, None] - ka[None, :]
+        apart = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+        whole = bool(((path > gated.gap) & rc.within_drift(apart, path, gated, reach)).any())
+        assert answers == {whole}
+    assert rc.any_within_drift(keys, poses, along, gated, reach)
+    far = poses.copy()
+    far[n:, 1] = 1e4
+    assert not rc.any_within_drift(keys, far, along, gated, reach, rows=5)
