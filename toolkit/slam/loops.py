@@ -386,6 +386,27 @@ class LoopCloser:
         near: np.ndarray = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
         return near
 
+    def pair_points(
+        self,
+        a: int,
+        b: int,
+        poses: np.ndarray,
+        along: np.ndarray,
+        keys: np.ndarray,
+        config: LoopConfig | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """What `verify` matches for the pair (a, b): the query (scan `b`'s local scans'
+        returns, voxelled and capped, b's frame), the keyframes of `a`'s local map and their
+        returns (a's frame); None when the query has too few points."""
+        cfg = config or self.config
+        near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
+        near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
+        query = _capped(voxel_subsample(self.local_points(b, near_b, poses), cfg.query_voxel), cfg)
+        if query is None:
+            return None
+        near_a = self.reference_keys(a, along, keys, cfg)
+        return query, near_a, self.local_points(a, near_a, poses)
+
     def verify(
         self,
         a: int,
@@ -396,22 +417,22 @@ class LoopCloser:
         keys: np.ndarray,
         config: LoopConfig | None = None,
         prediction: np.ndarray | None = None,
+        points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> Loop | None:
         """Match scan `b`'s local scans against scan `a`'s local map over the window
         (`config`: a round's own, default the closer's) around `prediction` (b's pose in a's
-        frame; default the trajectory's)."""
+        frame; default the trajectory's). `points`: the pair's `pair_points` (the same
+        `poses`, `along`, `keys` and `config`), when the pair is verified more than once."""
         cfg = config or self.config
-        near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
-        near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
-        query = _capped(voxel_subsample(self.local_points(b, near_b, poses), cfg.query_voxel), cfg)
-        if query is None:
-            return None
-        near_a = self.reference_keys(a, along, keys, cfg)
+        if points is None:
+            got = self.pair_points(a, b, poses, along, keys, cfg)
+            if got is None:
+                return None
+            points = got
+        query, near_a, ref = points
         if prediction is None:
             prediction = between(poses[a], poses[b])
-        searched = _search(
-            self.local_points(a, near_a, poses), query, prediction, radius, cfg.turn, cfg
-        )
+        searched = _search(ref, query, prediction, radius, cfg.turn, cfg)
         if searched is None:
             return None
         found, coarse, fine = searched

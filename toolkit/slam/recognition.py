@@ -314,13 +314,19 @@ def find(
         if (a, b) in known:
             continue
         prediction = np.array([0.0, 0.0, heading])
-        loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+        # the pair's points once for both headings
+        points = closer.pair_points(a, b, poses, along, keys, verify_cfg)
+        if points is None:
+            continue
+        loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points)
         if loop is not None and cfg.turn < np.pi / 2:
             # a narrow heading window: the opposite heading searched too (a corridor or a
             # symmetric room looks alike turned round); the better wins, and the other
             # scoring within `max_ambiguity` of it is an ambiguity
             prediction[2] = wrap(heading + np.pi)
-            flip = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+            flip = closer.verify(
+                a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points
+            )
             if flip is not None and flip.score > loop.score:
                 loop, flip = flip, loop
             if flip is not None and flip.score > loop_config.max_ambiguity * loop.score:
