@@ -9,13 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+import toolkit
 from tests.slam.conftest import drifted_carmen
 from toolkit.metrics import evaluate
-from toolkit.poses import truth_poses
+from toolkit.poses import odometry_poses, truth_poses
 from toolkit.se2 import wrap
 from toolkit.slam import recognition as rc
-from toolkit.slam.loops import is_false_loop
-from toolkit.slam.pipeline import SlamConfig, close_loops
+from toolkit.slam.grid import voxel_subsample
+from toolkit.slam.loops import LoopCloser, is_false_loop, path_length
+from toolkit.slam.pipeline import SlamConfig, close_loops, keyframes_of
 
 
 def _rotated(points: np.ndarray, angle: float) -> np.ndarray:
@@ -169,3 +171,32 @@ def test_held_spectra_and_blocked_gate_give_the_plain_answers() -> None:
     far = poses.copy()
     far[n:, 1] = 1e4
     assert not rc.any_within_drift(keys, far, along, gated, reach, rows=5)
+
+
+def test_descriptors_in_chunks_equal_one_keyframe_at_a_time(building: toolkit.Dataset) -> None:
+    """`keyframe_descriptors` (the keyframes' maps placed and voxelled in one numba call per
+    chunk, described together) gives every keyframe the descriptor `describe` gives its
+    `voxel_subsample(local_points(...))`, to the count, whatever the chunk."""
+    poses = odometry_poses(building)
+    assert poses is not None
+    keys = keyframes_of(poses, 0.5, 0.3)
+    along = path_length(poses)
+    closer = LoopCloser(building.ranges, building.laser)
+    cfg = rc.RecognitionConfig()
+    lo = np.searchsorted(along[keys], along[keys] - cfg.path, side="left")
+    hi = np.searchsorted(along[keys], along[keys] + cfg.path, side="right")
+    plain = np.zeros((len(keys), cfg.rings, cfg.sectors), dtype=np.uint8)
+    for q in range(len(keys)):
+        near = keys[lo[q] : hi[q]]
+        near = near[np.linspace(0, len(near) - 1, min(len(near), cfg.scans)).astype(np.int64)]
+        pts = voxel_subsample(closer.local_points(int(keys[q]), near, poses), cfg.voxel)
+        assert len(pts) >= cfg.min_points
+        plain[q] = rc.describe(pts, cfg)
+    assert len(keys) > 50 and plain.sum() > 0
+    for chunk in (1, 13, 128):
+        desc, ok = rc.keyframe_descriptors(closer, keys, poses, along, cfg, chunk=chunk)
+        assert ok.all() and np.array_equal(desc, plain)
+    # a keyframe whose map is too small is left undescribed
+    sparse = replace(cfg, min_points=int(plain[0].sum()) + 1)
+    desc, ok = rc.keyframe_descriptors(closer, keys, poses, along, sparse)
+    assert not ok.all() and not desc[~ok].any() and np.array_equal(desc[ok], plain[ok])

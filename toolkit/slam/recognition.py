@@ -33,7 +33,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from toolkit.se2 import wrap
-from toolkit.slam.grid import voxel_subsample
 from toolkit.slam.loops import Loop, LoopCloser, LoopConfig
 
 
@@ -147,20 +146,48 @@ def keyframe_descriptors(
     poses: np.ndarray,
     along: np.ndarray,
     config: RecognitionConfig,
+    chunk: int = 128,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every keyframe's descriptor (K x rings x sectors) of its local map (`path`, `scans`),
-    and whether it has one (K,: at least `min_points` points)."""
+    and whether it has one (K,: at least `min_points` points). `chunk` keyframes at a time:
+    their maps' points in one numba call (`LoopCloser.voxelled_maps`) and described
+    together (`describe_many`), the same counts as one by one."""
     desc = np.zeros((len(keys), config.rings, config.sectors), dtype=np.uint8)
     ok = np.zeros(len(keys), dtype=bool)
     lo = np.searchsorted(along[keys], along[keys] - config.path, side="left")
     hi = np.searchsorted(along[keys], along[keys] + config.path, side="right")
-    for q in range(len(keys)):
-        near = keys[lo[q] : hi[q]]
-        near = near[np.linspace(0, len(near) - 1, min(len(near), config.scans)).astype(np.int64)]
-        pts = voxel_subsample(closer.local_points(int(keys[q]), near, poses), config.voxel)
-        if len(pts) >= config.min_points:
-            desc[q], ok[q] = describe(pts, config), True
+    for start in range(0, len(keys), chunk):
+        qs = np.arange(start, min(start + chunk, len(keys)))
+        groups = []
+        for q in qs:
+            near = keys[lo[q] : hi[q]]
+            groups.append(
+                near[np.linspace(0, len(near) - 1, min(len(near), config.scans)).astype(np.int64)]
+            )
+        pts, counts = closer.voxelled_maps(keys[qs], groups, poses, config.voxel)
+        enough = counts >= config.min_points
+        desc[qs[enough]] = describe_many(pts, counts, config)[enough]
+        ok[qs] = enough
     return desc, ok
+
+
+def describe_many(points: np.ndarray, counts: np.ndarray, config: RecognitionConfig) -> np.ndarray:
+    """`describe` of many point sets at once: `points` (N x 2) holds them one after the
+    other, `counts` how many each has (G,); G x rings x sectors, the same counts as one by
+    one (the same arithmetic, point by point)."""
+    group = np.repeat(np.arange(len(counts)), counts)
+    r = np.hypot(points[:, 0], points[:, 1])
+    keep = r < config.range
+    ring = (r[keep] * (config.rings / config.range)).astype(np.int64)
+    bearing = np.arctan2(points[keep, 1], points[keep, 0]) % (2 * np.pi)
+    sector = np.minimum(
+        (bearing * (config.sectors / (2 * np.pi))).astype(np.int64), config.sectors - 1
+    )
+    cells = config.rings * config.sectors
+    code = group[keep] * cells + ring * config.sectors + sector
+    tally = np.bincount(code, minlength=len(counts) * cells)
+    out: np.ndarray = np.minimum(tally, 255).astype(np.uint8)
+    return out.reshape(len(counts), config.rings, config.sectors)
 
 
 def _stacked_spectra(desc: np.ndarray, chunk: int = 1024) -> tuple[np.ndarray, np.ndarray]:
@@ -347,6 +374,7 @@ __all__ = [
     "any_within_drift",
     "candidates",
     "describe",
+    "describe_many",
     "find",
     "keyframe_descriptors",
     "ring_key",
