@@ -9,13 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+import toolkit
 from tests.slam.conftest import drifted_carmen
 from toolkit.metrics import evaluate
-from toolkit.poses import truth_poses
+from toolkit.poses import odometry_poses, truth_poses
 from toolkit.se2 import wrap
 from toolkit.slam import recognition as rc
-from toolkit.slam.loops import is_false_loop
-from toolkit.slam.pipeline import SlamConfig, close_loops
+from toolkit.slam.grid import voxel_subsample
+from toolkit.slam.loops import LoopCloser, is_false_loop, path_length
+from toolkit.slam.pipeline import SlamConfig, close_loops, keyframes_of
 
 
 def _rotated(points: np.ndarray, angle: float) -> np.ndarray:
@@ -121,3 +123,80 @@ def test_drift_gate_keeps_revisits_the_drift_explains_and_drops_the_rest() -> No
     far[n:, 1] = 1.2 * cfg.drift * (reach[0] + reach[1] * along[-1])
     assert not rc.any_within_drift(keys, far, along, cfg, reach, max_pairs=4 * n * n)
     assert rc.candidates(desc, ok, keys, along, cfg, None, far, reach) == []
+
+
+def test_held_spectra_and_blocked_gate_give_the_plain_answers() -> None:
+    """The speed-ups of session 22 give, to the bit, what they replace: the refs' spectra
+    computed once for the log against per query (`spectra_bytes` 0), the same distances
+    and the same candidates; the drift gate walked in blocks of rows over the earlier keys
+    only against the whole square at once, the same answer, revisit or none."""
+    cfg = replace(rc.RecognitionConfig(), drift=np.inf)
+    rng = np.random.default_rng(5)
+    n = 60
+    places = (rng.random((n, cfg.rings, cfg.sectors)) < 0.3) * rng.integers(1, 30, (n, 1, 1))
+    places = places.astype(np.uint8)
+    held = rc.spectra(places)
+    for q in (0, 17, 59):
+        near = np.sort(rng.choice(n, 25, replace=False))
+        plain = rc.shift_distances(places[q], places[near])
+        assert plain.min() < 1.0  # not all empty: the test compares numbers
+        assert np.array_equal(
+            plain, rc.shift_distances(places[q], None, (held[0][near], held[1][near]))
+        )
+    keys = np.arange(2 * n)
+    along = 2.0 * keys
+    place = np.concatenate([np.arange(n), np.arange(n)[::-1]])
+    desc = places[place]
+    ok = np.ones(2 * n, dtype=bool)
+    poses = np.column_stack([2.0 * place, np.zeros(2 * n), np.zeros(2 * n)])
+    once = rc.candidates(desc, ok, keys, along, cfg, None, poses)
+    each = rc.candidates(desc, ok, keys, along, replace(cfg, spectra_bytes=0), None, poses)
+    assert len(once) > 10 and once == each
+    gated = replace(cfg, drift=4.0)
+    reach = (1.0, 0.03)
+    for off in (0.0, 15.0, 60.0, 200.0):
+        shifted = poses.copy()
+        shifted[n:, 1] = off
+        answers = {
+            rc.any_within_drift(keys, shifted, along, gated, reach, rows=rows)
+            for rows in (1, 7, 64, 4 * n)
+        }
+        # the whole square at once, as before
+        ka, xy = along[keys], shifted[keys, :2]
+        path = ka[:, None] - ka[None, :]
+        apart = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+        whole = bool(((path > gated.gap) & rc.within_drift(apart, path, gated, reach)).any())
+        assert answers == {whole}
+    assert rc.any_within_drift(keys, poses, along, gated, reach)
+    far = poses.copy()
+    far[n:, 1] = 1e4
+    assert not rc.any_within_drift(keys, far, along, gated, reach, rows=5)
+
+
+def test_descriptors_in_chunks_equal_one_keyframe_at_a_time(building: toolkit.Dataset) -> None:
+    """`keyframe_descriptors` (the keyframes' maps placed and voxelled in one numba call per
+    chunk, described together) gives every keyframe the descriptor `describe` gives its
+    `voxel_subsample(local_points(...))`, to the count, whatever the chunk."""
+    poses = odometry_poses(building)
+    assert poses is not None
+    keys = keyframes_of(poses, 0.5, 0.3)
+    along = path_length(poses)
+    closer = LoopCloser(building.ranges, building.laser)
+    cfg = rc.RecognitionConfig()
+    lo = np.searchsorted(along[keys], along[keys] - cfg.path, side="left")
+    hi = np.searchsorted(along[keys], along[keys] + cfg.path, side="right")
+    plain = np.zeros((len(keys), cfg.rings, cfg.sectors), dtype=np.uint8)
+    for q in range(len(keys)):
+        near = keys[lo[q] : hi[q]]
+        near = near[np.linspace(0, len(near) - 1, min(len(near), cfg.scans)).astype(np.int64)]
+        pts = voxel_subsample(closer.local_points(int(keys[q]), near, poses), cfg.voxel)
+        assert len(pts) >= cfg.min_points
+        plain[q] = rc.describe(pts, cfg)
+    assert len(keys) > 50 and plain.sum() > 0
+    for chunk in (1, 13, 128):
+        desc, ok = rc.keyframe_descriptors(closer, keys, poses, along, cfg, chunk=chunk)
+        assert ok.all() and np.array_equal(desc, plain)
+    # a keyframe whose map is too small is left undescribed
+    sparse = replace(cfg, min_points=int(plain[0].sum()) + 1)
+    desc, ok = rc.keyframe_descriptors(closer, keys, poses, along, sparse)
+    assert not ok.all() and not desc[~ok].any() and np.array_equal(desc[ok], plain[ok])

@@ -31,17 +31,38 @@ def _pose(p: np.ndarray) -> gtsam.Pose2:
 
 
 def factor_graph(
-    nodes: np.ndarray, poses: np.ndarray, edges: list[Edge], robust: float = 1.0
+    nodes: np.ndarray,
+    poses: np.ndarray,
+    edges: list[Edge],
+    robust: float = 1.0,
+    base: gtsam.NonlinearFactorGraph | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """GTSAM graph and initial values: a prior on the first node, one BetweenFactorPose2 per
     edge (loop edges wrapped in a Cauchy kernel of width `robust` sigmas; 0: none, as g2o's
-    file format has no kernels)."""
+    file format has no kernels). `base` (`edge_factors`' graph) goes in after the prior and
+    before `edges`: the factors of edges that many optimisations share, built once (the
+    same graph, factor for factor, as those edges given first in `edges`)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for node, pose in zip(nodes, poses, strict=True):
         values.insert(int(node), _pose(pose))
     prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
     graph.add(gtsam.PriorFactorPose2(int(nodes[0]), _pose(poses[0]), prior))
+    if base is not None:
+        graph.push_back(base)
+    _add_edges(graph, edges, robust)
+    return graph, values
+
+
+def edge_factors(edges: list[Edge], robust: float = 1.0) -> gtsam.NonlinearFactorGraph:
+    """A graph of `edges`' factors alone (`factor_graph`'s), to pass as its `base`."""
+    graph = gtsam.NonlinearFactorGraph()
+    _add_edges(graph, edges, robust)
+    return graph
+
+
+def _add_edges(graph: gtsam.NonlinearFactorGraph, edges: list[Edge], robust: float) -> None:
+    """One BetweenFactorPose2 per edge into `graph` (loop edges with the Cauchy kernel)."""
     for e in edges:
         # GTSAM's Pose2 tangent order is (x, y, theta), as ours
         noise: Any = gtsam.noiseModel.Gaussian.Covariance(np.asarray(e.covariance, np.float64))
@@ -50,7 +71,6 @@ def factor_graph(
                 gtsam.noiseModel.mEstimator.Cauchy.Create(robust), noise
             )
         graph.add(gtsam.BetweenFactorPose2(int(e.a), int(e.b), _pose(e.pose), noise))
-    return graph, values
 
 
 def optimise(
@@ -70,15 +90,22 @@ def optimise(
 
 def residuals(poses: np.ndarray, nodes: np.ndarray, edges: list[Edge]) -> np.ndarray:
     """Per edge: the measurement's error against `poses` (K x 3, in `nodes` order) as
-    (translation m, |rotation| rad, Mahalanobis distance squared)."""
+    (translation m, |rotation| rad, Mahalanobis distance squared). The errors of all edges
+    in one call of `between` (row by row the same numbers), the distances edge by edge."""
+    out = np.zeros((len(edges), 3))
+    if not edges:
+        return out
     index = {int(n): k for k, n in enumerate(nodes)}
     p = np.asarray(poses)
-    out = np.zeros((len(edges), 3))
+    ia = np.array([index[e.a] for e in edges])
+    ib = np.array([index[e.b] for e in edges])
+    rel = between(p[ia], p[ib])
+    err = between(np.array([e.pose for e in edges], dtype=np.float64), rel)
+    err[:, 2] = (err[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    out[:, 0] = np.hypot(err[:, 0], err[:, 1])
+    out[:, 1] = np.abs(err[:, 2])
     for m, e in enumerate(edges):
-        rel = between(p[index[e.a]], p[index[e.b]])
-        err = between(e.pose, rel)
-        err[2] = (err[2] + np.pi) % (2 * np.pi) - np.pi
-        out[m] = np.hypot(err[0], err[1]), abs(err[2]), err @ np.linalg.solve(e.covariance, err)
+        out[m, 2] = err[m] @ np.linalg.solve(e.covariance, err[m])
     return out
 
 

@@ -40,8 +40,10 @@ import numpy as np
 from toolkit.dataset import LaserGeometry
 from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
+    _VOXEL_TABLE,
     LikelihoodGrid,
     SearchResult,
+    _first_in_cell,
     bounds,
     coarse_ambiguity,
     coarse_scores,
@@ -348,6 +350,61 @@ def _placed_returns(
     return m
 
 
+@nb.njit(cache=True, nogil=True)
+def _placed_voxelled(
+    ranges: np.ndarray,
+    sizes: np.ndarray,
+    cos_b: np.ndarray,
+    sin_b: np.ndarray,
+    mount: np.ndarray,
+    max_range: float,
+    rel: np.ndarray,
+    cos_r: np.ndarray,
+    sin_r: np.ndarray,
+    voxel: float,
+    most: int,
+    out: np.ndarray,
+    counts: np.ndarray,
+) -> int:
+    """Many `local_points` then `voxel_subsample` in one call: the scans (rows of `ranges`,
+    `rel`, `cos_r`, `sin_r`) come in groups of `sizes`, each group's returns placed as
+    `_placed_returns` places them, then the first point of each `voxel` cell kept
+    (`_first_in_cell`); the groups' points one after the other into `out`, how many into
+    `counts` (-1 where the cells were too many for the table: the caller does that group
+    the plain way). Returns the points written."""
+    m = 0
+    row = 0
+    for g in range(sizes.shape[0]):
+        n = _placed_returns(
+            ranges[row : row + sizes[g]],
+            cos_b,
+            sin_b,
+            mount,
+            max_range,
+            rel[row : row + sizes[g]],
+            cos_r[row : row + sizes[g]],
+            sin_r[row : row + sizes[g]],
+            out[m:],
+        )
+        row += sizes[g]
+        if n == 0:
+            counts[g] = 0
+            continue
+        keep = _first_in_cell(out[m : m + n], voxel, most)
+        if keep is None:
+            counts[g] = -1
+            continue
+        k = 0
+        for i in range(n):
+            if keep[i]:
+                out[m + k, 0] = out[m + i, 0]
+                out[m + k, 1] = out[m + i, 1]
+                k += 1
+        counts[g] = k
+        m += k
+    return m
+
+
 class LoopCloser:
     """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
     scans a test needs are computed when it needs them, so memory does not grow with S)."""
@@ -377,6 +434,39 @@ class LoopCloser:
         )
         return out[:n]
 
+    def voxelled_maps(
+        self, centres: np.ndarray, groups: list[np.ndarray], poses: np.ndarray, voxel: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per centre scan, `voxel_subsample(local_points(centre, group, poses), voxel)` (the
+        same points): all groups' points one after the other, and how many each has. One
+        numba call for them all instead of two per group (a recognition round describes
+        every keyframe's local map)."""
+        rels = [
+            between(np.broadcast_to(poses[c], (len(g), 3)), poses[g])
+            for c, g in zip(centres, groups, strict=True)
+        ]
+        # each group's cos and sin as `local_points` computes them
+        cos_r = np.concatenate([np.cos(r[:, 2:3]).ravel() for r in rels] + [np.zeros(0)])
+        sin_r = np.concatenate([np.sin(r[:, 2:3]).ravel() for r in rels] + [np.zeros(0)])
+        sizes = np.array([len(g) for g in groups], dtype=np.int64)
+        scans = np.concatenate([*groups, np.zeros(0, dtype=np.int64)]).astype(np.int64)
+        r = np.ascontiguousarray(self.ranges[scans])
+        out = np.empty((r.size, 2))
+        counts = np.zeros(len(groups), dtype=np.int64)
+        rel = np.concatenate([*rels, np.zeros((0, 3))])
+        m = _placed_voxelled(
+            r, sizes, self._cos, self._sin, self._mount, self.config.max_range, rel, cos_r,
+            sin_r, voxel, _VOXEL_TABLE, out, counts,
+        )  # fmt: skip
+        points = out[:m]
+        if (counts < 0).any():  # a group the table could not hold: the plain way
+            parts = np.split(points, np.cumsum(np.maximum(counts, 0))[:-1])
+            for k in np.nonzero(counts < 0)[0]:
+                parts[k] = voxel_subsample(self.local_points(centres[k], groups[k], poses), voxel)
+                counts[k] = len(parts[k])
+            points = np.concatenate(parts)
+        return points, counts
+
     def reference_keys(
         self, a: int, along: np.ndarray, keys: np.ndarray, config: LoopConfig | None = None
     ) -> np.ndarray:
@@ -385,6 +475,27 @@ class LoopCloser:
         cfg = config or self.config
         near: np.ndarray = keys[np.abs(along[keys] - along[a]) <= cfg.reference_path]
         return near
+
+    def pair_points(
+        self,
+        a: int,
+        b: int,
+        poses: np.ndarray,
+        along: np.ndarray,
+        keys: np.ndarray,
+        config: LoopConfig | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """What `verify` matches for the pair (a, b): the query (scan `b`'s local scans'
+        returns, voxelled and capped, b's frame), the keyframes of `a`'s local map and their
+        returns (a's frame); None when the query has too few points."""
+        cfg = config or self.config
+        near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
+        near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
+        query = _capped(voxel_subsample(self.local_points(b, near_b, poses), cfg.query_voxel), cfg)
+        if query is None:
+            return None
+        near_a = self.reference_keys(a, along, keys, cfg)
+        return query, near_a, self.local_points(a, near_a, poses)
 
     def verify(
         self,
@@ -396,22 +507,22 @@ class LoopCloser:
         keys: np.ndarray,
         config: LoopConfig | None = None,
         prediction: np.ndarray | None = None,
+        points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> Loop | None:
         """Match scan `b`'s local scans against scan `a`'s local map over the window
         (`config`: a round's own, default the closer's) around `prediction` (b's pose in a's
-        frame; default the trajectory's)."""
+        frame; default the trajectory's). `points`: the pair's `pair_points` (the same
+        `poses`, `along`, `keys` and `config`), when the pair is verified more than once."""
         cfg = config or self.config
-        near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
-        near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
-        query = _capped(voxel_subsample(self.local_points(b, near_b, poses), cfg.query_voxel), cfg)
-        if query is None:
-            return None
-        near_a = self.reference_keys(a, along, keys, cfg)
+        if points is None:
+            got = self.pair_points(a, b, poses, along, keys, cfg)
+            if got is None:
+                return None
+            points = got
+        query, near_a, ref = points
         if prediction is None:
             prediction = between(poses[a], poses[b])
-        searched = _search(
-            self.local_points(a, near_a, poses), query, prediction, radius, cfg.turn, cfg
-        )
+        searched = _search(ref, query, prediction, radius, cfg.turn, cfg)
         if searched is None:
             return None
         found, coarse, fine = searched

@@ -33,7 +33,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from toolkit.se2 import wrap
-from toolkit.slam.grid import voxel_subsample
 from toolkit.slam.loops import Loop, LoopCloser, LoopConfig
 
 
@@ -65,6 +64,9 @@ class RecognitionConfig:
     # the same place given the drift (a corridor without revisit looks alike everywhere).
     # inf: no gate. (docs/journal/maps.md, session 19: the gate)
     drift: float = 4.0
+    # the descriptors' spectra (`spectra`, 10 KB a keyframe) are computed once for the log
+    # when they fit in this many bytes (6,000 keyframes), else per query: the same distances
+    spectra_bytes: int = 64_000_000
 
 
 def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
@@ -97,32 +99,42 @@ def ring_key(desc: np.ndarray, chunk: int = 1024) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros((0, desc.shape[-2]))
 
 
-def shift_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
+def _unit(d: np.ndarray) -> np.ndarray:
+    """Each column (sector) of descriptors `d` (..., rings, sectors) scaled to unit length
+    over its rings (0 where empty)."""
+    n = np.linalg.norm(d, axis=-2, keepdims=True)
+    out: np.ndarray = np.where(n > 0, d / np.where(n > 0, n, 1.0), 0.0)
+    return out
+
+
+def spectra(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What `shift_distances` needs of descriptors `desc` (..., rings, sectors counts): the
+    spectrum along the sectors of each ring of the unit columns (of the counts' square
+    roots), and of which columns hold points."""
+    root = _ROOT[desc]
+    return np.fft.rfft(_unit(root), axis=-1), np.fft.rfft(
+        (root.sum(axis=-2) > 0).astype(np.float64), axis=-1
+    )
+
+
+def shift_distances(
+    query: np.ndarray,
+    refs: np.ndarray | None,
+    ref_spectra: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Scan Context distance of `query` (R x S counts) to each of `refs` (M x R x S) at every
     circular shift s of the sectors (M x S): 1 - the mean cosine similarity (of the counts'
     square roots) of the columns
     both hold points in, with ref's column j - s against query's column j (1 where none
     is shared); the query's heading in the ref's frame at shift s is -s sectors. One FFT
-    per ring for all shifts."""
-
-    def unit(d: np.ndarray) -> np.ndarray:
-        n = np.linalg.norm(d, axis=-2, keepdims=True)
-        return np.where(n > 0, d / np.where(n > 0, n, 1.0), 0.0)
-
-    query, refs = _ROOT[query], _ROOT[refs]
-    q, c = unit(query), unit(refs)
+    per ring for all shifts. `ref_spectra`: the refs' `spectra`, computed once for many
+    queries (the same numbers: each ring's transform is its own), instead of `refs`."""
+    q, qa = spectra(query)
+    c, ca = ref_spectra if ref_spectra is not None else spectra(np.asarray(refs))
     sectors = query.shape[-1]
     # corr[m, s] = sum_j sum_r q[r, j] c[m, r, j - s]
-    corr = np.fft.irfft(
-        (np.fft.rfft(q, axis=-1)[None] * np.conj(np.fft.rfft(c, axis=-1))).sum(axis=-2),
-        n=sectors,
-        axis=-1,
-    )
-    qa = (query.sum(axis=-2) > 0).astype(np.float64)
-    ca = (refs.sum(axis=-2) > 0).astype(np.float64)
-    shared = np.fft.irfft(
-        np.fft.rfft(qa)[None] * np.conj(np.fft.rfft(ca, axis=-1)), n=sectors, axis=-1
-    )
+    corr = np.fft.irfft((q[None] * np.conj(c)).sum(axis=-2), n=sectors, axis=-1)
+    shared = np.fft.irfft(qa[None] * np.conj(ca), n=sectors, axis=-1)
     shared = np.rint(shared)
     out: np.ndarray = np.where(shared > 0, 1.0 - corr / np.maximum(shared, 1.0), 1.0)
     return out
@@ -134,20 +146,55 @@ def keyframe_descriptors(
     poses: np.ndarray,
     along: np.ndarray,
     config: RecognitionConfig,
+    chunk: int = 128,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every keyframe's descriptor (K x rings x sectors) of its local map (`path`, `scans`),
-    and whether it has one (K,: at least `min_points` points)."""
+    and whether it has one (K,: at least `min_points` points). `chunk` keyframes at a time:
+    their maps' points in one numba call (`LoopCloser.voxelled_maps`) and described
+    together (`describe_many`), the same counts as one by one."""
     desc = np.zeros((len(keys), config.rings, config.sectors), dtype=np.uint8)
     ok = np.zeros(len(keys), dtype=bool)
     lo = np.searchsorted(along[keys], along[keys] - config.path, side="left")
     hi = np.searchsorted(along[keys], along[keys] + config.path, side="right")
-    for q in range(len(keys)):
-        near = keys[lo[q] : hi[q]]
-        near = near[np.linspace(0, len(near) - 1, min(len(near), config.scans)).astype(np.int64)]
-        pts = voxel_subsample(closer.local_points(int(keys[q]), near, poses), config.voxel)
-        if len(pts) >= config.min_points:
-            desc[q], ok[q] = describe(pts, config), True
+    for start in range(0, len(keys), chunk):
+        qs = np.arange(start, min(start + chunk, len(keys)))
+        groups = []
+        for q in qs:
+            near = keys[lo[q] : hi[q]]
+            groups.append(
+                near[np.linspace(0, len(near) - 1, min(len(near), config.scans)).astype(np.int64)]
+            )
+        pts, counts = closer.voxelled_maps(keys[qs], groups, poses, config.voxel)
+        enough = counts >= config.min_points
+        desc[qs[enough]] = describe_many(pts, counts, config)[enough]
+        ok[qs] = enough
     return desc, ok
+
+
+def describe_many(points: np.ndarray, counts: np.ndarray, config: RecognitionConfig) -> np.ndarray:
+    """`describe` of many point sets at once: `points` (N x 2) holds them one after the
+    other, `counts` how many each has (G,); G x rings x sectors, the same counts as one by
+    one (the same arithmetic, point by point)."""
+    group = np.repeat(np.arange(len(counts)), counts)
+    r = np.hypot(points[:, 0], points[:, 1])
+    keep = r < config.range
+    ring = (r[keep] * (config.rings / config.range)).astype(np.int64)
+    bearing = np.arctan2(points[keep, 1], points[keep, 0]) % (2 * np.pi)
+    sector = np.minimum(
+        (bearing * (config.sectors / (2 * np.pi))).astype(np.int64), config.sectors - 1
+    )
+    cells = config.rings * config.sectors
+    code = group[keep] * cells + ring * config.sectors + sector
+    tally = np.bincount(code, minlength=len(counts) * cells)
+    out: np.ndarray = np.minimum(tally, 255).astype(np.uint8)
+    return out.reshape(len(counts), config.rings, config.sectors)
+
+
+def _stacked_spectra(desc: np.ndarray, chunk: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """`spectra` of a stack of descriptors, `chunk` at a time (the float64 square roots of
+    all at once would double the peak)."""
+    parts = [spectra(desc[i : i + chunk]) for i in range(0, len(desc), chunk)]
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def within_drift(
@@ -166,22 +213,30 @@ def any_within_drift(
     config: RecognitionConfig,
     reach: tuple[float, float],
     max_pairs: int = 20_000_000,
+    rows: int = 256,
 ) -> bool:
     """Whether any two keyframes more than `gap` apart along the path lie within the drift
     gate's bound of each other: if none does, no candidate by appearance can be verified and
     the descriptors need not be computed (a corridor without revisit). True, without
-    looking, when there are more than `max_pairs` pairs (a long log: the descriptors pay)."""
+    looking, when there are more than `max_pairs` pairs (a long log: the descriptors pay).
+    `rows` keyframes at a time against only the earlier ones more than `gap` back (the keys
+    are in path order): the first block holding a pair ends the walk (the whole square at
+    once was a quarter of a second on a 2,000-keyframe log that has a revisit early)."""
     if not np.isfinite(config.drift) or len(keys) < 2:
         return len(keys) >= 2
     if len(keys) ** 2 > max_pairs:
         return True
     ka = along[keys]
     xy = poses[keys, :2]
-    rows = max(1, max_pairs // (4 * len(keys)))
     for start in range(0, len(keys), rows):
         b = slice(start, start + rows)
-        path = ka[b, None] - ka[None, :]
-        apart = np.hypot(xy[b, None, 0] - xy[None, :, 0], xy[b, None, 1] - xy[None, :, 1])
+        # the earlier keys more than `gap` back of the block's last one (1 m to spare, so
+        # that rounding cannot leave one out): beyond them no pair of the block is `gap` apart
+        cols = int(np.searchsorted(ka, ka[b][-1] - config.gap + 1.0, side="right"))
+        if cols == 0:
+            continue
+        path = ka[b, None] - ka[None, :cols]
+        apart = np.hypot(xy[b, None, 0] - xy[None, :cols, 0], xy[b, None, 1] - xy[None, :cols, 1])
         if ((path > config.gap) & within_drift(apart, path, config, reach)).any():
             return True
     return False
@@ -210,11 +265,20 @@ def candidates(
         return []
     rings = ring_key(desc[idx])
     tree = cKDTree(rings)
+    # every described keyframe's spectra once (each ref is compared with many queries), when
+    # they fit `spectra_bytes`; else per query, as the refs come
+    per_key = 16 * (config.rings + 1) * (config.sectors // 2 + 1)
+    held = None
+    if len(idx) * per_key <= config.spectra_bytes:
+        held = _stacked_spectra(desc[idx])
     closed = np.sort(along[skip]) if skip is not None and len(skip) else np.zeros(0)
     step = 2 * np.pi / config.sectors
     out: list[tuple[int, int, float, float]] = []
+    # the queries (which do not depend on what is found), then their ring-key neighbours in
+    # one call of the tree
+    queries: list[int] = []
     next_at = 0.0
-    for q, ring in zip(idx, rings, strict=True):
+    for m, q in enumerate(idx):
         if ka[q] < next_at or ka[q] < config.gap:
             continue
         next_at = ka[q] + config.every
@@ -222,13 +286,23 @@ def candidates(
             at = np.searchsorted(closed, ka[q])
             if (np.abs(closed[max(at - 1, 0) : at + 1] - ka[q]) < config.every).any():
                 continue
-        k = min(config.neighbours, len(idx))
-        _, nn = tree.query(ring, k=k)
-        near = idx[np.atleast_1d(nn)]
+        queries.append(m)
+    if not queries:
+        return []
+    k = min(config.neighbours, len(idx))
+    _, neighbours = tree.query(rings[queries], k=k)
+    neighbours = np.asarray(neighbours).reshape(len(queries), -1)
+    for m, nn in zip(queries, neighbours, strict=True):
+        q = idx[m]
+        near = idx[nn]
         near = near[ka[q] - ka[near] > config.gap][: config.compared]
         if len(near) == 0:
             continue
-        d = shift_distances(desc[q], desc[near])
+        if held is not None:
+            at = np.searchsorted(idx, near)
+            d = shift_distances(desc[q], None, (held[0][at], held[1][at]))
+        else:
+            d = shift_distances(desc[q], desc[near])
         best = d.argmin(axis=1)
         dist = d[np.arange(len(near)), best]
         order = np.argsort(dist)[: config.verified]
@@ -267,13 +341,19 @@ def find(
         if (a, b) in known:
             continue
         prediction = np.array([0.0, 0.0, heading])
-        loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+        # the pair's points once for both headings
+        points = closer.pair_points(a, b, poses, along, keys, verify_cfg)
+        if points is None:
+            continue
+        loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points)
         if loop is not None and cfg.turn < np.pi / 2:
             # a narrow heading window: the opposite heading searched too (a corridor or a
             # symmetric room looks alike turned round); the better wins, and the other
             # scoring within `max_ambiguity` of it is an ambiguity
             prediction[2] = wrap(heading + np.pi)
-            flip = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction)
+            flip = closer.verify(
+                a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points
+            )
             if flip is not None and flip.score > loop.score:
                 loop, flip = flip, loop
             if flip is not None and flip.score > loop_config.max_ambiguity * loop.score:
@@ -294,9 +374,11 @@ __all__ = [
     "any_within_drift",
     "candidates",
     "describe",
+    "describe_many",
     "find",
     "keyframe_descriptors",
     "ring_key",
     "shift_distances",
+    "spectra",
     "within_drift",
 ]
