@@ -39,6 +39,7 @@ received: int | None = None  # the first signal caught, if any
 broken_import = False  # the stop broke an extension module's initialisation
 _raised: KeyboardInterrupt | None = None  # the exception the first signal raised
 _again = False  # that exception was swallowed: the next signal call raises it anew
+_in_hook = False  # the unraisable hook is handling our swallowed stop
 
 
 class Terminated(KeyboardInterrupt):
@@ -61,18 +62,27 @@ def _handle(signum: int, frame: FrameType | None) -> None:
 
 def _unraisable(info: sys.UnraisableHookArgs) -> None:
     """Our stop, swallowed where an exception cannot propagate: deliver it again."""
-    global _again
+    global _again, _in_hook
     if _raised is not None and info.exc_value is _raised and received is not None:
-        _again = True
-        # tripped from here, the handler would run inside this hook and be swallowed again
-        threading.Thread(target=_deliver_again, daemon=True).start()
+        _in_hook = True
+        try:
+            _again = True
+            # tripped from here, the handler would run inside this hook and be swallowed
+            # again; a bare thread, as `Thread.start` waits in this hook for it to start
+            # (a loaded machine kept the main thread there past the delivery: "ran on")
+            _thread.start_new_thread(_deliver_again, ())
+        finally:
+            _in_hook = False
         return
     sys.__unraisablehook__(info)
 
 
 def _deliver_again() -> None:
-    """From another thread: the main thread's next Python instruction takes the stop."""
+    """From another thread: the main thread's next Python instruction takes the stop, once
+    it has left the hook."""
     time.sleep(0.01)
+    while _in_hook:
+        time.sleep(0.005)
     if _again and received is not None:
         _thread.interrupt_main(signal.Signals(received))
 
