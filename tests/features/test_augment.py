@@ -10,6 +10,7 @@ from tests.features.world import LASER, cast, drive
 from toolkit.features.augment import (
     changed,
     closed,
+    ended,
     mirror_index,
     opened,
     stretched,
@@ -70,6 +71,23 @@ def test_closed_walls_the_less_open_side_at_the_usual_distance() -> None:
     corridor = np.flatnonzero((label == "corridor") & (poses[:, 0] < 11))
     assert changed(r[corridor], c[corridor], LASER).mean() < 0.1
     assert changed(r[hall], c[hall], LASER).mean() > 0.5  # (the hall walled: a new kind)
+
+
+def test_ended_copy_of_the_hall_is_the_scan_at_its_end() -> None:
+    # the 8 m hall (x 26-34) ends in the 2 m corridor: a scan at its middle closed 0.5 m
+    # ahead sees, ahead of it, what the scan 0.5 m before the hall's end sees
+    r = cast(np.array([[30.0, 0.0, 0.0], [33.5, 0.0, 0.0], [8.0, 0.0, 0.0]]), sigma=0.0)
+    copy = ended(r, LASER, ahead=True, wall=1.0)
+    deg = np.degrees(np.abs(LASER.angles))
+    front = (deg > 20) & (deg < 85)  # beside and ahead, short of the corridor's far end
+    assert np.nanmax(np.abs(r[0, front] - r[1, front])) > 2.0  # the middle is not the end
+    assert np.nanmax(np.abs(copy[0, front] - r[1, front])) < 0.02
+    behind = np.cos(LASER.angles) < 0
+    assert np.array_equal(copy[0, behind], r[0, behind], equal_nan=True)  # behind: kept
+    # a corridor scan is its own copy; the hall's middle is not
+    assert not changed(r[[2]], copy[[2]], LASER)[0] and changed(r[[0]], copy[[0]], LASER)[0]
+    back = ended(r, LASER, ahead=False, wall=1.0)  # behind: the mirror image
+    assert np.array_equal(back[0, ~behind], r[0, ~behind], equal_nan=True)
 
 
 def test_stretched_doubles_the_width_and_keeps_the_length_along_the_path() -> None:

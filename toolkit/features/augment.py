@@ -168,3 +168,34 @@ def canonical(
     if how == "stretch":
         return to_width(ranges, laser, width), 1.0
     return ranges, width_factor(ranges, laser, width)
+
+
+#: m ahead of (or behind) the laser beyond which `ended` closes what lies past the side
+#: walls: a scan at a hall's end sees half a hall (docs/journal/places.md, session 22)
+END_AHEAD = 0.5
+
+
+def ended(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    ahead: bool = True,
+    distance: float = END_AHEAD,
+    wall: float | None = None,
+) -> np.ndarray:
+    """Each scan as at a place's end: beyond `distance` m ahead of the laser (behind it,
+    `ahead` False) what lies past the side walls is closed, on both sides, by the side walls
+    at `wall` m (default `usual_wall`) and an end wall across the opening at `distance`;
+    nearer returns kept. A beam past the wall line beyond the end is stopped at the wall
+    line (r = wall / |sin|), one past it short of the end at the end wall (r = distance /
+    cos); one that leaves the other way is kept. The corridor ahead and behind stays open.
+    Why: a place taught at its middle, met at its end, looks half like it (a hall's end,
+    a corner's edge: session 22's false doors)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    wall = usual_wall(r, laser) if wall is None else wall
+    sin = np.maximum(np.abs(np.sin(laser.angles)), 1e-6)
+    cos = np.cos(laser.angles) * (1.0 if ahead else -1.0)  # along the closed direction
+    cross = wall * cos / sin  # where along the path the beam crosses the wall line
+    with np.errstate(divide="ignore"):
+        end = np.where(cos > 0, distance / np.maximum(cos, 1e-9), np.inf)
+    reach = np.where(cross > distance, wall / sin, end).astype(np.float32)
+    return np.asarray(np.minimum(r, reach[None, :]), dtype=np.float32)  # a no-return kept

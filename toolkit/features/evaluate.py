@@ -92,6 +92,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: without the resemblance check (resemble 0: the default until session 20; a door or window call unlike the trees' own door or window scans keeps its share)", dataclasses.replace(FULL, resemble=0.0)),
     ("alternative: session 20's default (leaf_weight 0: self-trained scans alone may form a leaf; resemble 1)", dataclasses.replace(FULL, leaf_weight=0.0, resemble=1.0)),
     ("alternative: + the reach beside the laser also in metres, not rescaled (reach_metres: session 22)", dataclasses.replace(FULL, reach_metres=True)),
+    ("alternative: + the taught hall's and corner's copies as at their ends, closed past 0.5 m ahead / behind (augment_ends: session 22)", dataclasses.replace(FULL, augment_ends=1.0, ends_of=("hall", "corner"))),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

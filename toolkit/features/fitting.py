@@ -7,14 +7,16 @@ surroundings' offsets and the lateral weight by leave-one-span-out.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.augment import canonical, changed, closed, opened
+from toolkit.features.augment import canonical, changed, closed, ended, opened
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -236,8 +238,18 @@ def _fit_places(
     # the taught scans' copies with the less open side of the path closed (or opened): what
     # lies across the path from a place is that spot's accident (a hall opens on one side or
     # on both); copies that are the scan again are left out (`augment.changed`)
+    copies: list[tuple[float, Callable[[np.ndarray, LaserGeometry], np.ndarray], bool]] = [
+        (config.augment_closed, closed, False),
+        (config.augment_open, opened, False),
+    ]
+    # and as at the place's end, ahead and behind (a hall's end, a corner's edge), and the
+    # closed copies' ends (a two-sided hall's end as a one-sided one's)
+    for front in (True, False):
+        copies.append((config.augment_ends, partial(ended, ahead=front), True))
+        if config.ends_one_sided:
+            copies.append((config.augment_ends, partial(_closed_end, ahead=front), True))
     extra = []
-    for weight, copy in ((config.augment_closed, closed), (config.augment_open, opened)):
+    for weight, copy, end in copies:
         if weight > 0 and config.classifier == "trees":
             copied = copy(ranges, laser)
             xa = features(
@@ -245,6 +257,8 @@ def _fit_places(
                 config.local_map, ahead, config.opening, factor, config.reach_metres,
             )  # fmt: skip
             new = changed(ranges[idx], copied[idx], laser)  # not the scan again
+            if end and config.ends_of:
+                new &= np.isin(y, config.ends_of)
             extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
@@ -254,6 +268,12 @@ def _fit_places(
         claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,
         leaf_weight=config.leaf_weight,
     )  # fmt: skip
+
+
+def _closed_end(ranges: np.ndarray, laser: LaserGeometry, ahead: bool) -> np.ndarray:
+    """The closed copy (`augment.closed`) as at the place's end (`augment.ended`): a hall open
+    on both sides, taught, met at the end of one open on one side."""
+    return ended(closed(ranges, laser), laser, ahead=ahead)
 
 
 def _statistics(

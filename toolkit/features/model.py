@@ -194,6 +194,14 @@ class Config:
     # (descriptors.WIDTH_LIKE: the taught world's runs as they were, session 18); "stretch":
     # the whole log stretched and resampled first (augment.to_width: costs the taught
     # world's runs, session 17)
+    augment_ends: float = 0.0  # weight of the taught scans' copies as at the place's end:
+    # past the side walls closed beyond 0.5 m ahead of the laser, and (another copy) behind
+    # it (augment.ended: a hall's end, a corner's edge met; 0: none; docs/journal/places.md,
+    # session 22)
+    ends_one_sided: bool = True  # with `augment_ends`, also the closed copies' ends (a
+    # two-sided hall's end as a one-sided one's)
+    ends_of: tuple[str, ...] = ()  # with `augment_ends`, only these places' scans copied
+    # (empty: every taught place's)
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
     # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
     # depth in metres whatever the corridor's width (docs/journal/places.md, session 22)
@@ -218,6 +226,7 @@ class Config:
         if not 0.0 < self.claim_quantile < 1.0:
             raise ToolkitError(f"claim_quantile {self.claim_quantile}: a share in (0, 1)")
         object.__setattr__(self, "resemble_places", tuple(self.resemble_places))  # JSON: list
+        object.__setattr__(self, "ends_of", tuple(self.ends_of))  # JSON: a list
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
