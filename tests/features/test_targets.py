@@ -125,3 +125,22 @@ def test_leaf_weight_keeps_an_untaught_door_the_trees_find() -> None:
         ba.append(balanced_accuracy(truth[rest], label[rest]))
     assert found[0] < 0.2 and found[1] >= 0.6
     assert ba[1] > ba[0] + 0.05
+
+
+def test_evaluate_refuses_a_row_it_does_not_have_in_one_line() -> None:
+    """`--rows 99` is a user's typo: a usage line naming the rows there are, no traceback."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-m", "toolkit.features.evaluate", "--seeds", "0", "--rows", "3,99"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    from toolkit.features.evaluate import ABLATION
+
+    last = res.stderr.strip().splitlines()[-1]
+    assert last.endswith(f"--rows: no ablation row 99 (rows 0-{len(ABLATION) - 1})")

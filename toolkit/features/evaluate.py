@@ -288,6 +288,9 @@ def main() -> None:
     )
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
+    wrong = [i for i in args.rows or () if not 0 <= i < len(ABLATION)]
+    if wrong:
+        parser.error(f"--rows: no ablation row {wrong[0]} (rows 0-{len(ABLATION) - 1})")
     configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
     started = time.perf_counter()
     table, places = protocol(configs, args.seeds)
