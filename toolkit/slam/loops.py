@@ -519,12 +519,42 @@ class LoopCloser:
             if got is None:
                 return None
             points = got
-        query, near_a, ref = points
         if prediction is None:
             prediction = between(poses[a], poses[b])
-        searched = _search(ref, query, prediction, radius, cfg.turn, cfg)
+        searched = self.search(radius, cfg, prediction, points)
         if searched is None:
             return None
+        return self.judge(a, b, radius, poses, along, keys, cfg, prediction, points, searched)
+
+    def search(
+        self,
+        radius: float,
+        config: LoopConfig,
+        prediction: np.ndarray,
+        points: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> tuple[SearchResult, LikelihoodGrid, LikelihoodGrid] | None:
+        """`verify`'s correlative search alone (its `_search`): a pair's score at a heading
+        without the tests, which `judge` then runs on the result."""
+        query, _, ref = points
+        return _search(ref, query, prediction, radius, config.turn, config)
+
+    def judge(
+        self,
+        a: int,
+        b: int,
+        radius: float,
+        poses: np.ndarray,
+        along: np.ndarray,
+        keys: np.ndarray,
+        config: LoopConfig,
+        prediction: np.ndarray,
+        points: tuple[np.ndarray, np.ndarray, np.ndarray],
+        searched: tuple[SearchResult, LikelihoodGrid, LikelihoodGrid],
+    ) -> Loop:
+        """`verify`'s tests (overlap, inliers, ambiguity, corridor, anchors) on the search
+        `searched` of the pair (`search` with the same arguments): the Loop `verify` gives."""
+        cfg = config
+        query, near_a, _ = points
         found, coarse, fine = searched
         ambiguity = found.ambiguity
         inliers = found.inliers

@@ -64,6 +64,13 @@ class RecognitionConfig:
     # the same place given the drift (a corridor without revisit looks alike everywhere).
     # inf: no gate. (docs/journal/maps.md, session 19: the gate)
     drift: float = 4.0
+    # True: the opposite heading is searched only when the descriptor's heading passes the
+    # loop tests: a refused pair stays refused unless its opposite would win and pass (in the
+    # mapper's rounds on five logs x drift seeds 0-2, 1,400 pairs, 268 opposites won and none
+    # passed; over a front end's trajectory it happens: seattle seed 0 loses a true loop);
+    # recognition's searches -36%, the loop stage's CPU -6% on the ten logs x seeds 0-35, poses
+    # unchanged in all 360 runs. Expert, off: docs/journal/maps.md, session 22 (verify22)
+    opposite_if_passed: bool = False
     # the descriptors' spectra (`spectra`, 10 KB a keyframe) are computed once for the log
     # when they fit in this many bytes (6,000 keyframes), else per query: the same distances
     spectra_bytes: int = 64_000_000
@@ -345,27 +352,44 @@ def find(
         points = closer.pair_points(a, b, poses, along, keys, verify_cfg)
         if points is None:
             continue
-        loop = closer.verify(a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points)
-        if loop is not None and cfg.turn < np.pi / 2:
+        searched = closer.search(cfg.window, verify_cfg, prediction, points)
+        if searched is None:
+            continue
+        other, loop = None, None
+        if cfg.turn < np.pi / 2 and cfg.opposite_if_passed:
+            # the descriptor's heading tested first: refused, the pair is refused without
+            # searching the opposite (`opposite_if_passed`)
+            loop = closer.judge(
+                a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points, searched
+            )
+            if not loop.accepted:
+                loop.recognised = True
+                out.append(loop)
+                continue
+        if cfg.turn < np.pi / 2:
             # a narrow heading window: the opposite heading searched too (a corridor or a
             # symmetric room looks alike turned round); the better wins, and the other
-            # scoring within `max_ambiguity` of it is an ambiguity
-            prediction[2] = wrap(heading + np.pi)
-            flip = closer.verify(
-                a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points
+            # scoring within `max_ambiguity` of it is an ambiguity. Only the winner is
+            # tested (`judge`): the other's score is all that is used of it
+            flipped = np.array([0.0, 0.0, wrap(heading + np.pi)])
+            other = closer.search(cfg.window, verify_cfg, flipped, points)
+            if other is not None and other[0].score > searched[0].score:
+                prediction, flipped = flipped, prediction
+                searched, other = other, searched
+                loop = None
+        if loop is None:
+            loop = closer.judge(
+                a, b, cfg.window, poses, along, keys, verify_cfg, prediction, points, searched
             )
-            if flip is not None and flip.score > loop.score:
-                loop, flip = flip, loop
-            if flip is not None and flip.score > loop_config.max_ambiguity * loop.score:
-                loop.accepted = loop.fit = False
-                loop.reason = "; ".join(
-                    r
-                    for r in (loop.reason, f"opposite heading scores {flip.score / loop.score:.2f}")
-                    if r
-                )
-        if loop is not None:
-            loop.recognised = True
-            out.append(loop)
+        if other is not None and other[0].score > loop_config.max_ambiguity * loop.score:
+            loop.accepted = loop.fit = False
+            loop.reason = "; ".join(
+                r
+                for r in (loop.reason, f"opposite heading scores {other[0].score / loop.score:.2f}")
+                if r
+            )
+        loop.recognised = True
+        out.append(loop)
     return out
 
 
