@@ -444,3 +444,28 @@ def test_real_a_whole_turn_slip_the_searches_miss_is_found_with_the_turn_taken_o
         poses = scan_to_map(ds).poses
         assert _step_heading_error_deg(ds, poses, k) < 1.0, name
         assert _ate(poses, ds) < 0.5 * _ate(before, ds), name
+
+
+@pytest.mark.real
+def test_real_a_slip_that_moved_the_odometry_beyond_the_search_window_is_searched_wider(
+    real: Path,
+) -> None:
+    """Drift seed 40 (session 22), infinite-corridor scan 1590, the odometry nudged as the
+    bench's second draw: the robot turns +33.5 degrees in a corner, the odometry -11.7 (a 45
+    degree slip that also moved its position 1.24 m from the right pose). The prediction's
+    fit slides to an alias 24 degrees the wrong way (56% of the returns); the search finds
+    the right pose on its window's edge, and its fit is refused as slid out of the window.
+    Without `edge_grow` (0, until session 22) the front end keeps 57 degrees of error there
+    and the map ends 50 m off; searched again twice as wide, the step is right."""
+    ds = drifted_carmen(real, "infinite-corridor", seed=40)
+    assert ds.odometry is not None
+    odometry = ds.odometry.copy()
+    rng = np.random.default_rng(1)  # the bench's draw 1 (`bench.bench_slam.nudged`)
+    for axis in ("x", "y"):
+        odometry[axis] = odometry[axis] + rng.normal(0.0, 1e-9, len(odometry))
+    ds = replace(ds, odometry=odometry)
+    before = scan_to_map(ds, MapConfig(edge_grow=0.0)).poses
+    assert _step_heading_error_deg(ds, before, 1590) > 40.0
+    poses = scan_to_map(ds).poses
+    assert _step_heading_error_deg(ds, poses, 1590) < 5.0
+    assert _ate(poses, ds) < 0.2 * _ate(before, ds)
