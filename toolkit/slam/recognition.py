@@ -79,15 +79,7 @@ class RecognitionConfig:
 def describe(points: np.ndarray, config: RecognitionConfig) -> np.ndarray:
     """The 2D Scan Context of `points` (N x 2, in the keyframe's frame): rings x sectors,
     the point count per polar cell (uint8, at most 255), beyond `range` left out."""
-    r = np.hypot(points[:, 0], points[:, 1])
-    keep = r < config.range
-    ring = (r[keep] * (config.rings / config.range)).astype(np.int64)
-    bearing = np.arctan2(points[keep, 1], points[keep, 0]) % (2 * np.pi)
-    sector = np.minimum(
-        (bearing * (config.sectors / (2 * np.pi))).astype(np.int64), config.sectors - 1
-    )
-    counts = np.bincount(ring * config.sectors + sector, minlength=config.rings * config.sectors)
-    out: np.ndarray = np.minimum(counts, 255).astype(np.uint8).reshape(config.rings, config.sectors)
+    out: np.ndarray = describe_many(points, np.array([len(points)]), config)[0]
     return out
 
 

@@ -48,7 +48,13 @@ from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry, PoseStream
 from toolkit.poses import Method, TrajectoryResult, odometry_poses
-from toolkit.slam.grid import LikelihoodGrid, bounds, correlative_search, stamp_segments
+from toolkit.slam.grid import (
+    LikelihoodGrid,
+    SearchResult,
+    bounds,
+    correlative_search,
+    stamp_segments,
+)
 from toolkit.slam.localmap import MotionMatcher
 
 
@@ -830,23 +836,10 @@ class MapMatcher:
         (seattle: from an alias at the edge of the +-1 rad on to 89 degrees off an odometry
         that was right; 85% of the returns fit the office's walls turned so)."""
         cfg = self.config
-        coarse, fine = self._search_grids(window)
-        found = correlative_search(
-            coarse,
-            fine,
-            pts,
-            predicted,
-            window=window,
-            turn=turn,
-            turn_step=0.02,
-            coarse_voxel=0.2,
-            fine_resolution=cfg.resolution,
-        )
-        edge = np.abs(found.pose[:2] - predicted[:2]).max() >= window - 0.1
-        if cfg.edge_grow > 1.0 and edge:
-            window *= cfg.edge_grow
+
+        def search(window: float) -> SearchResult:
             coarse, fine = self._search_grids(window)
-            found = correlative_search(
+            return correlative_search(
                 coarse,
                 fine,
                 pts,
@@ -857,6 +850,12 @@ class MapMatcher:
                 coarse_voxel=0.2,
                 fine_resolution=cfg.resolution,
             )
+
+        found = search(window)
+        edge = np.abs(found.pose[:2] - predicted[:2]).max() >= window - 0.1
+        if cfg.edge_grow > 1.0 and edge:
+            window *= cfg.edge_grow
+            found = search(window)
             self.regrown += 1
         out2 = np.zeros(_OUT)
         cov2 = np.zeros((3, 3))
