@@ -366,8 +366,7 @@ def find(
             flipped = np.array([0.0, 0.0, wrap(heading + np.pi)])
             other = closer.search(cfg.window, verify_cfg, flipped, points)
             if other is not None and other[0].score > searched[0].score:
-                prediction, flipped = flipped, prediction
-                searched, other = other, searched
+                prediction, searched, other = flipped, other, searched
                 loop = None
         if loop is None:
             loop = closer.judge(

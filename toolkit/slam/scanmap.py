@@ -546,8 +546,6 @@ class MapMatcher:
         self.searches = 0
         self._searched = 0
         self.narrowed = 0  # low-overlap fits replaced by their narrow refit (`_narrow`)
-        self.unturned = 0  # lost fits replaced by the fit with the step turn out (`_unturned`)
-        self.regrown = 0  # searches run again with a wider window (`edge_grow`)
         self.drift = 0.0  # the odometry's learned heading drift (rad per m)
         self._drift_sums = (0.0, 0.0)  # the fits' heading minus the odometry's, its path
         self.scale = 1.0  # the odometry's learned scale (the fits' path per odometry's)
@@ -715,7 +713,6 @@ class MapMatcher:
         start[2] = self._last[2]
         res, c = _heading_free_fit(fit, start, info)
         if res[4] >= self.config.unturned and res[4] > out[4]:
-            self.unturned += 1
             out[:] = res
             cov[:, :] = c
 
@@ -852,11 +849,9 @@ class MapMatcher:
             )
 
         found = search(window)
-        edge = np.abs(found.pose[:2] - predicted[:2]).max() >= window - 0.1
-        if cfg.edge_grow > 1.0 and edge:
-            window *= cfg.edge_grow
+        if cfg.edge_grow > 1.0 and np.abs(found.pose[:2] - predicted[:2]).max() >= window - 0.1:
+            window *= cfg.edge_grow  # the winner on the window's edge: searched again wider
             found = search(window)
-            self.regrown += 1
         out2 = np.zeros(_OUT)
         cov2 = np.zeros((3, 3))
         weak = info * 1e-3  # the search's start replaces the prediction
@@ -1095,9 +1090,6 @@ def scan_to_map(
     )
 
 
-__all__ = ["MapConfig", "MapMatcher", "scan_to_map", "settings", "slipped", "surfaces"]
-
-
 def _heading_free_fit(
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
     start: np.ndarray,
@@ -1109,3 +1101,6 @@ def _heading_free_fit(
     c = np.zeros((3, 3))
     fit(start, info * _HEADING_FREE, res, c)
     return res, c
+
+
+__all__ = ["MapConfig", "MapMatcher", "scan_to_map", "settings", "slipped", "surfaces"]
