@@ -2,6 +2,7 @@
 `map` reads and writes its tables without pandas (Arrow straight into numpy and back),
 `map` without loops (or by odometry) needs neither GTSAM nor scipy.ndimage nor the simulator,
 `map` with loops needs GTSAM, scipy.ndimage only when a grid needs its distance transform,
+scipy.spatial and scipy.sparse only when there are keyframes to compare or loops to check,
 nothing loads a plotting or 3D library, and rich only for a progress bar on a terminal; typer
 coerces these commands' plain values without pydantic (`toolkit.app.cli._PlainValues`)."""
 
@@ -20,7 +21,8 @@ from toolkit.sim import simulate
 
 WATCHED = (
     "pandas", "numba", "scipy.ndimage", "gtsam", "toolkit.sim", "toolkit.slam.pipeline",
-    "matplotlib", "open3d", "sklearn", "distributed", "rich", "pydantic",
+    "matplotlib", "open3d", "sklearn", "distributed", "rich", "pydantic", "scipy.spatial",
+    "scipy.sparse",
 )  # fmt: skip
 
 RUN = (
@@ -67,7 +69,9 @@ def test_map_with_loops_loads_the_pose_graph_and_nothing_to_plot(
 ) -> None:
     mods = loaded("map", dataset, "--out", tmp_path / "run", "-q")
     assert (tmp_path / "run" / "graph.g2o").is_file()
-    # this log's grids are all stamped (`_disc_field`): no distance transform, no scipy.ndimage
+    # this log's grids are all stamped (`_disc_field`): no distance transform, no scipy.ndimage;
+    # no two keyframes within the drift gate and no loop to check: no k-d tree, no sparse
+    # graph (scipy.spatial and scipy.sparse, 0.3-0.5 s to import)
     assert mods == {"numba", "gtsam", "toolkit.slam.pipeline"}
 
 

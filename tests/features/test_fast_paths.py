@@ -41,18 +41,26 @@ def learnt() -> tuple[FeatureModel, np.ndarray]:
     return model, x
 
 
-def forest_reference(forest, x, columns, mean, scale) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """Every tree walked in numpy on standardised descriptors; the leaves' class shares
-    summed over the trees in their order, each divided by the tree count."""
+def leaves_reference(forest, x, columns, mean, scale) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """Every tree walked in numpy on standardised descriptors: (S, T) each scan's leaf."""
     z = (x[:, columns] - mean) / scale
-    out = np.zeros((len(x), forest.value.shape[1]))
+    out = np.empty((len(x), len(forest.roots)), dtype=np.int64)
     rows = np.arange(len(x))
-    for root in forest.roots:
+    for t, root in enumerate(forest.roots):
         node = np.full(len(x), root)
         while (inner := forest.left[node] >= 0).any():
             at = node[inner]
             go_left = z[rows[inner], forest.feature[at]] <= forest.threshold[at]
             node[inner] = np.where(go_left, forest.left[at], forest.right[at])
+        out[:, t] = node
+    return out
+
+
+def forest_reference(forest, x, columns, mean, scale) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The leaves' class shares (`leaves_reference`) summed over the trees in their order,
+    each divided by the tree count."""
+    out = np.zeros((len(x), forest.value.shape[1]))
+    for node in leaves_reference(forest, x, columns, mean, scale).T:
         out += forest.value[node] / len(forest.roots)
     return out
 
@@ -69,6 +77,35 @@ def test_forest_kernel_equals_the_numpy_walk(learnt) -> None:  # type: ignore[no
     # a tile's last scans (a log not a multiple of the tile) and a single scan
     for n in (1, 33, 77):
         assert np.array_equal(p.forest.predict_proba(x[:n], p.columns, p.mean, p.scale), fast[:n])
+
+
+def test_the_walks_leaves_give_the_resemblance_checks_proximity(learnt) -> None:  # type: ignore[no-untyped-def]
+    """The leaves `predict_proba` writes on its walk are every tree's leaf (the numpy walk's)
+    and leave its probabilities as they are; the proximity counted from them for some rows
+    (`which`) is the share of trees putting a scan in one leaf with a support scan, the mean
+    over its closest `SUPPORT_NEIGHBOURS` per checked place (numpy), 0 for the others."""
+    from toolkit.features.places import SUPPORT_NEIGHBOURS
+
+    model, x = learnt
+    p = model.places
+    trees = len(p.forest.roots)
+    leaves = np.full((len(x), trees), -1, dtype=np.int32)
+    proba = p.forest.predict_proba(x, p.columns, p.mean, p.scale, leaves)
+    assert np.array_equal(proba, p.forest.predict_proba(x, p.columns, p.mean, p.scale))
+    ref = leaves_reference(p.forest, x, p.columns, p.mean, p.scale)
+    assert np.array_equal(leaves, ref)
+    assert np.array_equal(p.forest.leaves(x, p.columns, p.mean, p.scale), ref)
+    check = np.array([p.classes.index(k) for k in ("door", "window") if k in p.classes])
+    assert len(check) and p.support_leaves is not None and p.support_place is not None
+    which = np.arange(1, len(x), 7)
+    got = p.proximity_of_leaves(leaves, check, which)
+    shared = (ref[which][:, None, :] == p.support_leaves[None, :, :]).mean(axis=2)
+    for j in range(len(p.classes)):
+        mine = shared[:, p.support_place == j]
+        want = np.sort(mine, axis=1)[:, -SUPPORT_NEIGHBOURS:].mean(axis=1)
+        assert np.allclose(got[:, j], want if j in check else 0.0)
+    assert got[:, check].max() > 0.5  # some scans share most leaves with a checked place
+    assert np.array_equal(p.proximity(x[which], check), got)  # the walk of its own
 
 
 def log_distance_reference(places, x) -> np.ndarray:  # type: ignore[no-untyped-def]

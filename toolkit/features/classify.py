@@ -255,16 +255,19 @@ def class_scores(
         ranges, factor = canonical(ranges, model.laser, cfg.canonical_width, cfg.canonical_how)
     check = None  # the places whose calls must resemble their support (places.resemblance)
     proximity = np.zeros((0, 0))
+    trees = 0  # with a place to check: the forest's trees (the leaves kept per block)
     places = model.places
     if (
         cfg.descriptors
         and cfg.resemble > 0
         and places is not None
         and places.support_leaves is not None
+        and places.forest is not None
     ):
         names = places.classes
         check = np.array([j for j, k in enumerate(names) if k in cfg.resemble_places], int)
         proximity = np.full((len(ranges), len(names)), np.inf)  # inf: not measured
+        trees = len(places.forest.roots) if len(check) else 0
     for i in range(0, len(ranges), SCANS_PER_STEP):
         rows = slice(i, min(i + SCANS_PER_STEP, len(ranges)))
         block = ranges[rows]
@@ -286,12 +289,15 @@ def class_scores(
                 factor,
                 cfg.reach_metres,
             )
-            scores = model.places.log_proba(x, none=cfg.none_class)
-            if check is not None and len(check):
+            # each scan's leaf per tree, kept from the trees' walk for the resemblance check
+            leaves = np.empty((len(x), trees), dtype=np.int32) if trees else None
+            scores = model.places.log_proba(x, none=cfg.none_class, leaves=leaves)
+            if leaves is not None and check is not None:
                 measured = (scores[:, check].max(axis=1) >= np.log(RESEMBLE_SKIP)) | np.isin(
                     scores[:, : proximity.shape[1]].argmax(axis=1), check
                 )
-                proximity[rows][measured] = model.places.proximity(x[measured], check)
+                which = np.flatnonzero(measured)
+                proximity[rows][which] = model.places.proximity_of_leaves(leaves, check, which)
             if cfg.beam_term:
                 beams = per_class(model, loglik(model, block, chunk) * model.temperature)
                 scores = scores + cfg.beam_term * np.log(softmax(beams))

@@ -109,11 +109,14 @@ class Forest:
         columns: np.ndarray | None = None,
         mean: np.ndarray | None = None,
         scale: np.ndarray | None = None,
+        leaves: np.ndarray | None = None,
     ) -> np.ndarray:
         """The mean over the trees of the class shares of the leaf each row falls in. With
         `columns`, `mean` and `scale`, `z` holds raw descriptors and the trees (fitted on
         (x[:, columns] - mean) / scale) test x[:, columns[f]] <= threshold * scale + mean:
-        the same leaves, without a standardised copy of a million scans' descriptors."""
+        the same leaves, without a standardised copy of a million scans' descriptors. With
+        `leaves` (S, T int32), the leaf of each row per tree is written there on the way
+        (`leaves`), so the resemblance check does not walk the trees again."""
         # leaves step to themselves (threshold +inf), so every tree is walked for its depth's
         # steps without a branch: a node's children side by side, the test picks one; the
         # leaves' shares are divided by the tree count once
@@ -123,6 +126,7 @@ class Forest:
             *self.walk(columns, mean, scale),
             self.value / len(self.roots),
             out,
+            np.empty((0, len(self.roots)), dtype=np.int32) if leaves is None else leaves,
         )
         return out
 
@@ -153,12 +157,10 @@ class Forest:
     def leaves(
         self, x: np.ndarray, columns: np.ndarray, mean: np.ndarray, scale: np.ndarray
     ) -> np.ndarray:
-        """(S, T) the node (index into the concatenated arrays) of the leaf each row of raw
-        descriptors `x` falls in, per tree."""
-        out = np.empty((len(x), len(self.roots)), dtype=np.int64)
-        _forest_leaves(
-            np.ascontiguousarray(x, dtype=np.float64), *self.walk(columns, mean, scale), out
-        )
+        """(S, T int32) the node (index into the concatenated arrays) of the leaf each row of
+        raw descriptors `x` falls in, per tree."""
+        out = np.empty((len(x), len(self.roots)), dtype=np.int32)
+        self.predict_proba(x, columns, mean, scale, out)  # the walk writes the leaves
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -243,12 +245,15 @@ def _forest_proba(  # pragma: no cover - numba
     threshold: np.ndarray,
     share: np.ndarray,
     out: np.ndarray,
+    leaves: np.ndarray,
 ) -> None:
     """Per scan, the sum over the trees (in their order) of its leaf's `share`. Leaves step to
     themselves; a tile of `TILE` scans (its descriptors copied column by column) goes
     through a tree step by step together, each step to the child at 2 node + (not z <=
-    threshold) (NaN goes right, as in scikit-learn); `out` is written once."""
+    threshold) (NaN goes right, as in scikit-learn); `out` is written once. `leaves` with
+    a row per scan (not empty): each scan's leaf per tree written there."""
     n, k = z.shape[0], share.shape[1]
+    keep = leaves.shape[0] > 0
     for tile in numba.prange((n + TILE - 1) // TILE):
         a = tile * TILE
         m = min(TILE, n - a)
@@ -261,39 +266,18 @@ def _forest_proba(  # pragma: no cover - numba
                 nd = node[i]
                 for c in range(k):
                     acc[i, c] += share[nd, c]
+            if keep:
+                for i in range(m):
+                    leaves[a + i, t] = node[i]
         for i in range(m):
             for c in range(k):
                 out[a + i, c] = acc[i, c]
 
 
 @numba.njit(parallel=True, cache=True)
-def _forest_leaves(  # pragma: no cover - numba
-    x: np.ndarray,
-    roots: np.ndarray,
-    depths: np.ndarray,
-    children: np.ndarray,
-    feature: np.ndarray,
-    threshold: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """Per scan and tree, the leaf it falls in (the walk of `_forest_proba`, one scan at a
-    time: leaves step to themselves)."""
-    for i in numba.prange(x.shape[0]):
-        for t in range(len(roots)):
-            nd = roots[t]
-            for _ in range(depths[t]):
-                nd = children[2 * nd + np.int64(not x[i, feature[nd]] <= threshold[nd])]
-            out[i, t] = nd
-
-
-@numba.njit(parallel=True, cache=True)
 def _proximity(  # pragma: no cover - numba
-    x: np.ndarray,
-    roots: np.ndarray,
-    depths: np.ndarray,
-    children: np.ndarray,
-    feature: np.ndarray,
-    threshold: np.ndarray,
+    leaves: np.ndarray,
+    which: np.ndarray,
     start: np.ndarray,
     rows: np.ndarray,
     place: np.ndarray,
@@ -301,34 +285,33 @@ def _proximity(  # pragma: no cover - numba
     near: int,
     out: np.ndarray,
 ) -> None:
-    """Per scan: how many trees put it in one leaf with each support scan (the support
-    scans in leaf n: rows[start[n]:start[n + 1]]), then per place the mean of its `near`
-    largest counts over the trees. A tile of `TILE` scans walks each tree together (as in
-    `_forest_proba`); only the support scans met are visited, each once."""
-    n, trees, r = x.shape[0], len(roots), len(place)
+    """Per scan `which[i]` (its leaf per tree: a row of `leaves`): how many trees put it in
+    one leaf with each support scan (the support scans in leaf n: rows[start[n]:start[n +
+    1]]), then per place the mean of its `near` largest counts over the trees (out[i]). Only
+    the support scans met are visited, each once."""
+    n, trees, r = len(which), leaves.shape[1], len(place)
     for tile in numba.prange((n + TILE - 1) // TILE):
         a = tile * TILE
         m = min(TILE, n - a)
-        xt = _tile_columns(x, a, m)
-        count = np.zeros((TILE, r), dtype=np.int64)
-        met = np.empty((TILE, r), dtype=np.int64)
-        n_met = np.zeros(TILE, dtype=np.int64)
-        node = np.empty(TILE, dtype=np.int64)
-        for t in range(trees):
-            _walk_tile(xt, m, roots[t], depths[t], children, feature, threshold, node)
-            for i in range(m):
-                nd = node[i]
+        count = np.zeros(r, dtype=np.int64)
+        met = np.empty(r, dtype=np.int64)
+        top = np.empty((k, near), dtype=np.int64)
+        for i in range(m):
+            s = which[a + i]
+            n_met = 0
+            for t in range(trees):
+                nd = leaves[s, t]
                 for j in range(start[nd], start[nd + 1]):
                     row = rows[j]
-                    if count[i, row] == 0:
-                        met[i, n_met[i]] = row
-                        n_met[i] += 1
-                    count[i, row] += 1
-        for i in range(m):
-            top = np.zeros((k, near), dtype=np.int64)
-            for q in range(n_met[i]):
-                row = met[i, q]
-                c, p = count[i, row], place[row]
+                    if count[row] == 0:
+                        met[n_met] = row
+                        n_met += 1
+                    count[row] += 1
+            top[:] = 0
+            for q in range(n_met):
+                row = met[q]
+                c, p = count[row], place[row]
+                count[row] = 0  # ready for the next scan
                 if c > top[p, near - 1]:  # keep the place's `near` largest, descending
                     w = near - 1
                     while w > 0 and top[p, w - 1] < c:
@@ -410,9 +393,21 @@ class PlaceClassifier:
         own terms: the share of trees that put it in one leaf with a support scan, the mean
         over its `SUPPORT_NEIGHBOURS` closest (1: a scan the trees cannot tell from one
         they learnt the place from). Zeros without a support."""
+        if self.forest is None:
+            return np.zeros((len(x), len(self.classes)))
+        leaves = self.forest.leaves(x, self.columns, self.mean, self.scale)
+        return self.proximity_of_leaves(leaves, places)
+
+    def proximity_of_leaves(
+        self, leaves: np.ndarray, places: np.ndarray | None = None, which: np.ndarray | None = None
+    ) -> np.ndarray:
+        """`proximity` of the scans whose leaves per tree are `leaves` (S, T: `Forest.leaves`,
+        or those `Forest.predict_proba` wrote on its walk), of its rows `which` (indices,
+        default all): the trees are not walked again."""
         k = len(self.classes)
+        which = np.arange(len(leaves)) if which is None else np.asarray(which, dtype=np.int64)
         if self.forest is None or self.support_leaves is None or self.support_place is None:
-            return np.zeros((len(x), k))
+            return np.zeros((len(which), k))
         mine = np.ones(len(self.support_place), dtype=bool)
         if places is not None:
             mine = np.isin(self.support_place, places)
@@ -421,18 +416,18 @@ class PlaceClassifier:
         order = np.argsort(flat, kind="stable")
         start = np.searchsorted(flat[order], np.arange(len(self.forest.left) + 1))
         rows = (order // support.shape[1]).astype(np.int64)
-        out = np.empty((len(x), k))
+        out = np.empty((len(which), k))
         _proximity(
-            np.ascontiguousarray(x, dtype=np.float64), *self.forest.walk(self.columns,
-            self.mean, self.scale), start.astype(np.int64), rows, place.astype(np.int64), k,
+            leaves, which, start.astype(np.int64), rows, place.astype(np.int64), k,
             SUPPORT_NEIGHBOURS, out,
         )  # fmt: skip
         return out
 
-    def logits(self, x: np.ndarray) -> np.ndarray:
-        """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities)."""
+    def logits(self, x: np.ndarray, leaves: np.ndarray | None = None) -> np.ndarray:
+        """Tempered log-odds (S, K) of descriptors (S, D) (a forest: its log-probabilities;
+        with `leaves`, see `Forest.predict_proba`)."""
         if self.forest is not None:  # the trees test the raw descriptors: no standardised copy
-            proba = self.forest.predict_proba(x, self.columns, self.mean, self.scale)
+            proba = self.forest.predict_proba(x, self.columns, self.mean, self.scale, leaves)
             return np.asarray(np.log(np.maximum(proba, PROBA_FLOOR)))
         z = (x[:, self.columns] - self.mean) / self.scale
         return np.asarray((z @ self.coef.T + self.intercept) * self.temperature)
@@ -449,9 +444,12 @@ class PlaceClassifier:
         )  # fmt: skip
         return out
 
-    def log_proba(self, x: np.ndarray, none: bool = True) -> np.ndarray:
-        """Log-probabilities (S, K + 1 with `none`) of descriptors (S, D)."""
-        logits = self.logits(x)
+    def log_proba(
+        self, x: np.ndarray, none: bool = True, leaves: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Log-probabilities (S, K + 1 with `none`) of descriptors (S, D) (`leaves`: see
+        `Forest.predict_proba`)."""
+        logits = self.logits(x, leaves)
         k = len(self.classes)
         if not none:
             logits = logits[:, :k]

@@ -15,15 +15,17 @@ ORB-SLAM requires consecutive consistent detections.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.sparse import csc_matrix, csr_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from toolkit import se2
 from toolkit.slam.graph import Edge
 from toolkit.slam.loops import Loop
+
+if TYPE_CHECKING:  # scipy is imported when loops are checked (below): 0.3-0.5 s, and a log
+    # without a loop to check never needs it
+    from scipy.sparse import csc_matrix
 
 #: chi-square with 3 degrees of freedom, 99%: a cycle this far off is inconsistent
 CHI2_3DOF_99 = 11.34
@@ -139,6 +141,8 @@ def cycles_chi2(
 def _by_column(row: np.ndarray, col: np.ndarray, n: int) -> csc_matrix:
     """The directed pairs (row counts col's vote) as an n x n sparse matrix by column: column
     j's rows are the loops whose count j's vote is in."""
+    from scipy.sparse import csc_matrix  # noqa: PLC0415
+
     return csc_matrix((np.ones(len(row), dtype=np.int8), (row, col)), shape=(n, n))
 
 
@@ -161,6 +165,11 @@ def check(
     n = len(loops)
     if n == 0:
         return {}
+    # on use: scipy.sparse with its graphs and scipy.spatial cost 0.3-0.5 s to import
+    from scipy.sparse import csr_matrix  # noqa: PLC0415
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415
+
     covs = np.broadcast_to(np.asarray(loop_cov, np.float64), (n, 3, 3))
     prefix = chain_prefix(keys, poses, sequential)
     ends_along = np.array([[along[lp.a], along[lp.b]] for lp in loops])

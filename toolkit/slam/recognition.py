@@ -30,7 +30,6 @@ from collections.abc import Container
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from toolkit.se2 import wrap
 from toolkit.slam.loops import Loop, LoopCloser, LoopConfig
@@ -262,6 +261,10 @@ def candidates(
     idx = np.nonzero(ok)[0]
     if len(idx) < 2:
         return []
+    # on use: scipy.spatial costs 0.15-0.5 s to import, and a log whose keyframes are never
+    # candidates (none within the drift gate) does not need it
+    from scipy.spatial import cKDTree  # noqa: PLC0415
+
     rings = ring_key(desc[idx])
     tree = cKDTree(rings)
     # every described keyframe's spectra once (each ref is compared with many queries), when
