@@ -83,7 +83,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: open set always (--open-set always)", dataclasses.replace(FULL, open_set="always")),
     ("alternative: the strip beside the laser 1 m (the last session's; default 0.45 m)", dataclasses.replace(FULL, beside=1.0)),
     ("alternative: leaf shares not mixed with uniform (leaf_mix 0, the last session's; default 0.1)", dataclasses.replace(FULL, leaf_mix=0.0)),
-    ("alternative: no context, the local map over 2 m of path instead (what logs with sparse scans get)", dataclasses.replace(FULL, context=0.0, local_map=FULL.sparse_local_map)),
+    ("alternative: no context, the local map over 2 m of path instead (the descriptors logs with sparse scans get; their HMM also has two stages)", dataclasses.replace(FULL, context=0.0, local_map=FULL.sparse_local_map)),
     ("alternative: + the local map over 2 m of path beside the context", dataclasses.replace(FULL, local_map=FULL.sparse_local_map)),
     ("alternative: without the reach beside the laser in metres (two sessions ago)", dataclasses.replace(FULL, absolute_reach=False)),
     ("alternative: without the taught scans' closed copies (augment_closed 0; the opened ones stay)", dataclasses.replace(FULL, augment_closed=0.0)),
