@@ -281,6 +281,9 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     unchecked = {k: v for k, v in now.items() if not k.startswith("resemble")}
     assert Config.from_dict(unchecked).resemble == 0.0 and Config().resemble > 0
     assert Config.from_dict(now).resemble_places == ("door", "window")  # JSON: a list
+    # before session 23, a sparse log's labels kept the geometric dwell
+    geometric = {k: v for k, v in now.items() if k != "sparse_dwell_stages"}
+    assert Config.from_dict(geometric).sparse_dwell_stages == 0 < Config().sparse_dwell_stages
 
 
 def test_background_density_integrates_to_one() -> None:

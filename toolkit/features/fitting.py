@@ -151,7 +151,14 @@ def fit(
     opened_copies = config.augment_open
     if sparse:  # no context to pool: the local map instead, and no opened copies (their
         # opening's length along the path is not described without it; the fit report says so)
-        config = replace(config, context=0.0, local_map=config.sparse_local_map, augment_open=0.0)
+        # and the HMM's dwell of `sparse_dwell_stages`: a place of one scan is unlikely
+        config = replace(
+            config,
+            context=0.0,
+            local_map=config.sparse_local_map,
+            augment_open=0.0,
+            dwell_stages=config.sparse_dwell_stages or config.dwell_stages,
+        )
     if not training:
         raise ToolkitError("no features to learn")
     components = list(training.items()) if isinstance(training, dict) else list(training)
@@ -181,6 +188,7 @@ def fit(
             "median scan (scans far apart)"
             + (f"; the local map over {config.local_map:g} m instead" if config.local_map else "")
             + ("; no opened copies of the taught scans" if opened_copies else "")
+            + f"; the labels' dwell of {config.dwell_stages} stages"
         )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)

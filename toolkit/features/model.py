@@ -173,6 +173,12 @@ class Config:
     sparse_local_map: float = SPARSE_LOCAL_MAP  # the local map's m either side where the
     # scans are too far apart for the context (it is then off): the end points of the
     # neighbouring scans pool what their descriptors cannot (0: each scan alone)
+    sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
+    # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
+    # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
+    # place at each, and the labels were underconfident; two stages make a stay of one scan
+    # unlikely. On random worlds thinned to 1 m (`evaluate --spacing 1`) ECE fell by 0.01 /
+    # 0.02 / 0.02 at the same balanced accuracy (docs/journal/places.md, session 23)
     leaf_mix: float = LEAF_MIX  # share of uniform mixed into each leaf's class shares (a
     # leaf of a few training scans of one place does not rule the others out; 0: unmixed)
     augment_closed: float = 1.0  # weight of the taught scans' copies with the less open
@@ -223,6 +229,8 @@ class Config:
             raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
         if self.dwell_stages < 1:
             raise ToolkitError(f"dwell_stages {self.dwell_stages}: at least 1")
+        if self.sparse_dwell_stages < 0:
+            raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
             raise ToolkitError(f"claim_quantile {self.claim_quantile}: a share in (0, 1)")
         object.__setattr__(self, "resemble_places", tuple(self.resemble_places))  # JSON: list
@@ -247,12 +255,14 @@ class Config:
 
 #: fields whose value, before they were added, was not their default: a model saved before
 #: session 17 measured widths in metres, and session 17's canonical width was a stretch; one
-#: saved before session 20 had no resemblance check
+#: saved before session 20 had no resemblance check; one learnt on a sparse log before
+#: session 23 kept the geometric dwell
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
     "resemble": 0.0,
     "leaf_weight": 0.0,
+    "sparse_dwell_stages": 0,
 }
 
 
