@@ -202,11 +202,11 @@ class Config:
     # two-sided hall's end as a one-sided one's)
     ends_of: tuple[str, ...] = ()  # with `augment_ends`, only these places' scans copied
     # (empty: every taught place's)
-    augment_starts: float = 0.0  # weight of the taught scans' copies as from the corridor
+    augment_starts: float = 1.0  # weight of the taught scans' copies as from the corridor
     # just outside their place, labelled corridor: past the side walls closed short of 0.5
     # m ahead of the laser (the place starting there), and (another copy) behind it, the
     # closed copies' too (augment.started: the corridor by a hall fell to the door; 0:
-    # none; docs/journal/places.md, session 23)
+    # none, session 22's default; docs/journal/places.md, session 23)
     starts_of: tuple[str, ...] = ("hall",)  # with `augment_starts`, these places' scans
     # copied
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
@@ -255,12 +255,14 @@ class Config:
 
 #: fields whose value, before they were added, was not their default: a model saved before
 #: session 17 measured widths in metres, and session 17's canonical width was a stretch; one
-#: saved before session 20 had no resemblance check
+#: saved before session 20 had no resemblance check (the learning-only fields too, so that a
+#: loaded model's config says how it was learnt)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
     "resemble": 0.0,
     "leaf_weight": 0.0,
+    "augment_starts": 0.0,
 }
 
 
