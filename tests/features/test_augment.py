@@ -13,6 +13,7 @@ from toolkit.features.augment import (
     ended,
     mirror_index,
     opened,
+    started,
     stretched,
     to_width,
     usual_wall,
@@ -88,6 +89,25 @@ def test_ended_copy_of_the_hall_is_the_scan_at_its_end() -> None:
     assert not changed(r[[2]], copy[[2]], LASER)[0] and changed(r[[0]], copy[[0]], LASER)[0]
     back = ended(r, LASER, ahead=False, wall=1.0)  # behind: the mirror image
     assert np.array_equal(back[0, ~behind], r[0, ~behind], equal_nan=True)
+
+
+def test_started_copy_of_the_hall_is_the_scan_just_before_it() -> None:
+    # the 8 m hall (x 26-34, 4 m either side) is entered from the lobby (2.5 m either
+    # side): a scan at the hall's middle with the lobby's walls up to 0.5 m ahead sees, beside
+    # and ahead of it, what the scan 0.5 m before the hall sees
+    r = cast(np.array([[30.0, 0.0, 0.0], [25.5, 0.0, 0.0], [8.0, 0.0, 0.0]]), sigma=0.0)
+    copy = started(r, LASER, ahead=True, wall=2.5)
+    deg = np.degrees(np.abs(LASER.angles))
+    side = (deg >= 50) & (deg <= 90)  # short of the hall's far end from the middle
+    assert np.nanmax(np.abs(r[0, side] - r[1, side])) > 1.0  # the middle is not the start
+    assert np.nanmax(np.abs(copy[0, side] - r[1, side])) < 1e-3
+    # at the corridor's walls (1 m) the hall's middle is a new kind, a corridor scan itself
+    narrow = started(r, LASER, ahead=True, wall=1.0)
+    assert changed(r[[0]], narrow[[0]], LASER)[0] and not changed(r[[2]], narrow[[2]], LASER)[0]
+    # behind (the hall ended 0.5 m behind): every beam ahead walled at 2.5 m across the path
+    back = started(r, LASER, ahead=False, wall=2.5)
+    walled = np.fmin(r[0], 2.5 / np.maximum(np.abs(np.sin(LASER.angles)), 1e-6))
+    assert np.allclose(back[0, deg > 20], walled[deg > 20], atol=1e-4, equal_nan=True)
 
 
 def test_stretched_doubles_the_width_and_keeps_the_length_along_the_path() -> None:

@@ -150,6 +150,7 @@ def test_default_travels_better_than_the_mozos_baseline(seed: int) -> None:
         glass_ahead=True,
         canonical_width=0.0,
         resemble=0.0,
+        augment_starts=0.0,
     )
     narrow = protocol_scores(old, runs)
     wide = protocol_scores(dataclasses.replace(old, beside=1.0), runs)
@@ -185,6 +186,7 @@ def test_the_reach_in_metres_finds_a_hall_of_the_other_kind() -> None:
                 canonical_width=0.0,
                 leaf_weight=0.0,
                 resemble=1.0,
+                augment_starts=0.0,
             ),
             runs,
         )["c"]["recall"]["hall"]
@@ -235,7 +237,7 @@ def test_opened_copies_find_a_hall_of_the_other_kind(seed: int) -> None:
     in 0.54 of its scans without the opened copies). With the trees of the time (`leaf_weight`
     0: with session 21's 0.5, 0.27 of the hall is found without the opened copies)."""
     runs = worlds(seed)
-    old = Config(glass_ahead=True, leaf_weight=0.0, resemble=1.0)
+    old = Config(glass_ahead=True, leaf_weight=0.0, resemble=1.0, augment_starts=0.0)
     with_copies = protocol_scores(old, runs)
     without = protocol_scores(dataclasses.replace(old, augment_open=0.0), runs)
     assert without["c"]["recall"]["hall"] < 0.2
@@ -256,7 +258,7 @@ def test_context_seen_either_side_calls_fewer_scans_before_a_door_doors(seed: in
     session 14: without them 0.54 -> 0.64)."""
     runs = worlds(seed)
     # as at the time: no resemblance check (session 20), which drops most of the same doors
-    then = Config(augment_open=0.0, glass_ahead=True, resemble=0.0)
+    then = Config(augment_open=0.0, glass_ahead=True, resemble=0.0, augment_starts=0.0)
     seen = protocol_scores(then, runs)
     scans = protocol_scores(dataclasses.replace(then, context_seen=False), runs)
     for k in "ab":
@@ -286,8 +288,9 @@ def test_without_the_no_returns_ahead_fewer_scans_before_a_window_are_windows(se
     stays above 0.95, and the balanced accuracy rises (a) 0.972 -> 0.988, (b) 0.973 -> 0.984."""
     runs = {k: v for k, v in worlds(seed).items() if k in "ab"}
     # without the resemblance check (session 20), which drops most of the same windows
-    now = protocol_scores(Config(resemble=0.0), runs)
-    ahead = protocol_scores(Config(glass_ahead=True, resemble=0.0), runs)
+    # and without the copies of session 23 (`augment_starts`)
+    now = protocol_scores(Config(resemble=0.0, augment_starts=0.0), runs)
+    ahead = protocol_scores(Config(glass_ahead=True, resemble=0.0, augment_starts=0.0), runs)
     assert now["a"]["precision"]["window"] > ahead["a"]["precision"]["window"] + 0.12
     assert min(now[k]["recall"]["window"] for k in "ab") > 0.95
     assert all(now[k]["ba"] > ahead[k]["ba"] + 0.005 for k in "ab")

@@ -199,3 +199,33 @@ def ended(
         end = np.where(cos > 0, distance / np.maximum(cos, 1e-9), np.inf)
     reach = np.where(cross > distance, wall / sin, end).astype(np.float32)
     return np.asarray(np.minimum(r, reach[None, :]), dtype=np.float32)  # a no-return kept
+
+
+#: m ahead of (or behind) the laser from which `started` leaves the place open: the
+#: corridor just outside a hall, where door22 found a sixth of transfer's false doors
+#: (docs/journal/places.md, session 23)
+START_AHEAD = 0.5
+
+
+def started(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    ahead: bool = True,
+    distance: float = START_AHEAD,
+    wall: float | None = None,
+) -> np.ndarray:
+    """Each scan as from the corridor just outside its place: what lies past the side walls
+    short of `distance` m ahead of the laser (behind it, `ahead` False) is closed by the
+    side walls at `wall` m (default `usual_wall`), what lies beyond is kept (the place
+    starts there). A beam that crosses the wall line short of the start stops there (r =
+    wall / |sin|, a no-return too where that is within `range_max`); one that crosses it
+    beyond keeps its range (the place's far wall is as far across the path from there). `ended`'s complement: a place taught at its middle, the
+    corridor before it (or after it) met. Why: the corridor by a hall fell to the door."""
+    r = np.asarray(ranges, dtype=np.float32)
+    wall = usual_wall(r, laser) if wall is None else wall
+    sin = np.maximum(np.abs(np.sin(laser.angles)), 1e-6)
+    cos = np.cos(laser.angles) * (1.0 if ahead else -1.0)  # along the open direction
+    cross = wall * cos / sin  # where along the path the beam crosses the wall line
+    side = wall / sin  # a no-return short of the start is the wall, unless out of range
+    reach = np.where((cross < distance) & (side <= laser.range_max), side, np.inf)
+    return np.asarray(np.fmin(r, reach.astype(np.float32)[None, :]), dtype=np.float32)

@@ -16,7 +16,7 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.augment import canonical, changed, closed, ended, opened
+from toolkit.features.augment import canonical, changed, closed, ended, opened, started
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -246,18 +246,29 @@ def _fit_places(
     # the taught scans' copies with the less open side of the path closed (or opened): what
     # lies across the path from a place is that spot's accident (a hall opens on one side or
     # on both); copies that are the scan again are left out (`augment.changed`)
-    copies: list[tuple[float, Callable[[np.ndarray, LaserGeometry], np.ndarray], bool]] = [
-        (config.augment_closed, closed, False),
-        (config.augment_open, opened, False),
+    # each: weight, copy, the places copied (empty: all), the label (None: the place's own)
+    Copy = Callable[[np.ndarray, LaserGeometry], np.ndarray]
+    copies: list[tuple[float, Copy, tuple[str, ...], str | None]] = [
+        (config.augment_closed, closed, (), None),
+        (config.augment_open, opened, (), None),
     ]
     # and as at the place's end, ahead and behind (a hall's end, a corner's edge), and the
     # closed copies' ends (a two-sided hall's end as a one-sided one's)
     for front in (True, False):
-        copies.append((config.augment_ends, partial(ended, ahead=front), True))
+        copies.append((config.augment_ends, partial(ended, ahead=front), config.ends_of, None))
         if config.ends_one_sided:
-            copies.append((config.augment_ends, partial(_closed_end, ahead=front), True))
+            copies.append(
+                (config.augment_ends, partial(_closed_end, ahead=front), config.ends_of, None)
+            )
+    # and as from the corridor just outside the place, taught as corridor (where taught);
+    # not where the context is off: a scan alone, the hall's near part taught as corridor
+    # (a random world's run b, seed 6, with the local map: 0.93 -> 0.76; session 23)
+    if "corridor" in y and config.context > 0:
+        for front in (True, False):
+            for start in (partial(started, ahead=front), partial(_closed_start, ahead=front)):
+                copies.append((config.augment_starts, start, config.starts_of, "corridor"))
     extra = []
-    for weight, copy, end in copies:
+    for weight, copy, of, label in copies:
         if weight > 0 and config.classifier == "trees":
             copied = copy(ranges, laser)
             xa = features(
@@ -265,9 +276,10 @@ def _fit_places(
                 config.local_map, ahead, config.opening, factor, config.reach_metres,
             )  # fmt: skip
             new = changed(ranges[idx], copied[idx], laser)  # not the scan again
-            if end and config.ends_of:
-                new &= np.isin(y, config.ends_of)
-            extra.append((xa[idx][new], y[new], np.full(int(new.sum()), weight)))
+            if of:
+                new &= np.isin(y, of)
+            labels = y[new] if label is None else np.full(int(new.sum()), label)
+            extra.append((xa[idx][new], labels, np.full(int(new.sum()), weight)))
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=own_width,
@@ -282,6 +294,12 @@ def _closed_end(ranges: np.ndarray, laser: LaserGeometry, ahead: bool) -> np.nda
     """The closed copy (`augment.closed`) as at the place's end (`augment.ended`): a hall open
     on both sides, taught, met at the end of one open on one side."""
     return ended(closed(ranges, laser), laser, ahead=ahead)
+
+
+def _closed_start(ranges: np.ndarray, laser: LaserGeometry, ahead: bool) -> np.ndarray:
+    """The closed copy (`augment.closed`) as from the corridor outside the place
+    (`augment.started`): the corridor by a hall open on one side."""
+    return started(closed(ranges, laser), laser, ahead=ahead)
 
 
 def _statistics(

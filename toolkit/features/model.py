@@ -208,6 +208,13 @@ class Config:
     # two-sided hall's end as a one-sided one's)
     ends_of: tuple[str, ...] = ()  # with `augment_ends`, only these places' scans copied
     # (empty: every taught place's)
+    augment_starts: float = 1.0  # weight of the taught scans' copies as from the corridor
+    # just outside their place, labelled corridor: past the side walls closed short of 0.5
+    # m ahead of the laser (the place starting there), and (another copy) behind it, the
+    # closed copies' too (augment.started: the corridor by a hall fell to the door; 0:
+    # none, session 22's default; docs/journal/places.md, session 23)
+    starts_of: tuple[str, ...] = ("hall",)  # with `augment_starts`, these places' scans
+    # copied
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
     # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
     # depth in metres whatever the corridor's width (docs/journal/places.md, session 22)
@@ -235,6 +242,7 @@ class Config:
             raise ToolkitError(f"claim_quantile {self.claim_quantile}: a share in (0, 1)")
         object.__setattr__(self, "resemble_places", tuple(self.resemble_places))  # JSON: list
         object.__setattr__(self, "ends_of", tuple(self.ends_of))  # JSON: a list
+        object.__setattr__(self, "starts_of", tuple(self.starts_of))
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
@@ -255,14 +263,16 @@ class Config:
 
 #: fields whose value, before they were added, was not their default: a model saved before
 #: session 17 measured widths in metres, and session 17's canonical width was a stretch; one
-#: saved before session 20 had no resemblance check; one learnt on a sparse log before
-#: session 23 kept the geometric dwell
+#: saved before session 20 had no resemblance check; one learnt before session 23 had no
+#: copies as from the corridor outside a hall, and on a sparse log kept the geometric dwell
+#: (the learning-only fields too, so that a loaded model's config says how it was learnt)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
     "resemble": 0.0,
     "leaf_weight": 0.0,
     "sparse_dwell_stages": 0,
+    "augment_starts": 0.0,
 }
 
 
