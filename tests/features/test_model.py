@@ -287,6 +287,8 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     # before session 23, no copies as from the corridor outside a place: learnt without
     unstarted = {k: v for k, v in now.items() if k not in ("augment_starts", "starts_of")}
     assert Config.from_dict(unstarted).augment_starts == 0.0 and Config().augment_starts > 0
+    unended = {k: v for k, v in now.items() if k not in ("augment_ends", "ends_of")}
+    assert Config.from_dict(unended).augment_ends == 0.0 and Config().augment_ends > 0
 
 
 def test_background_density_integrates_to_one() -> None:

@@ -102,8 +102,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: without the resemblance check (resemble 0: the default until session 20; a door or window call unlike the trees' own door or window scans keeps its share)", dataclasses.replace(FULL, resemble=0.0)),
     ("alternative: session 20's default (leaf_weight 0: self-trained scans alone may form a leaf; resemble 1)", dataclasses.replace(FULL, leaf_weight=0.0, resemble=1.0)),
     ("alternative: + the reach beside the laser also in metres, not rescaled (reach_metres: session 22)", dataclasses.replace(FULL, reach_metres=True)),
-    ("alternative: + the taught hall's and corner's copies as at their ends, closed past 0.5 m ahead / behind (augment_ends: session 22)", dataclasses.replace(FULL, augment_ends=1.0, ends_of=("hall", "corner"))),
-    ("alternative: session 22's default (augment_starts 0: no copies of the taught hall as from the corridor just outside it)", dataclasses.replace(FULL, augment_starts=0.0)),
+    ("alternative: without the taught hall's and corner's copies as at their ends (augment_ends 0: ends23's default, session 23)", dataclasses.replace(FULL, augment_ends=0.0)),
+    ("alternative: session 22's default (augment_starts 0, augment_ends 0: no copies of the taught hall as from the corridor just outside it, nor as at its ends)", dataclasses.replace(FULL, augment_starts=0.0, augment_ends=0.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -253,8 +253,9 @@ def _fit_places(
         (config.augment_open, opened, (), None),
     ]
     # and as at the place's end, ahead and behind (a hall's end, a corner's edge), and the
-    # closed copies' ends (a two-sided hall's end as a one-sided one's)
-    for front in (True, False):
+    # closed copies' ends (a two-sided hall's end as a one-sided one's); where the context is
+    # on (measured there only: the sparse path stays as session 23 measured it)
+    for front in (True, False) if config.context > 0 else ():
         copies.append((config.augment_ends, partial(ended, ahead=front), config.ends_of, None))
         if config.ends_one_sided:
             copies.append(

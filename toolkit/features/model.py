@@ -200,14 +200,15 @@ class Config:
     # (descriptors.WIDTH_LIKE: the taught world's runs as they were, session 18); "stretch":
     # the whole log stretched and resampled first (augment.to_width: costs the taught
     # world's runs, session 17)
-    augment_ends: float = 0.0  # weight of the taught scans' copies as at the place's end:
+    augment_ends: float = 1.0  # weight of the taught scans' copies as at the place's end:
     # past the side walls closed beyond 0.5 m ahead of the laser, and (another copy) behind
-    # it (augment.ended: a hall's end, a corner's edge met; 0: none; docs/journal/places.md,
-    # session 22)
+    # it (augment.ended: a hall's end, a corner's edge met; the door's precision +0.03 in
+    # every protocol; not where the context is off; 0: none, session 22's default;
+    # docs/journal/places.md, sessions 22-23)
     ends_one_sided: bool = True  # with `augment_ends`, also the closed copies' ends (a
     # two-sided hall's end as a one-sided one's)
-    ends_of: tuple[str, ...] = ()  # with `augment_ends`, only these places' scans copied
-    # (empty: every taught place's)
+    ends_of: tuple[str, ...] = ("hall", "corner")  # with `augment_ends`, only these places'
+    # scans copied (empty: every taught place's)
     augment_starts: float = 1.0  # weight of the taught scans' copies as from the corridor
     # just outside their place, labelled corridor: past the side walls closed short of 0.5
     # m ahead of the laser (the place starting there), and (another copy) behind it, the
@@ -264,7 +265,7 @@ class Config:
 #: fields whose value, before they were added, was not their default: a model saved before
 #: session 17 measured widths in metres, and session 17's canonical width was a stretch; one
 #: saved before session 20 had no resemblance check; one learnt before session 23 had no
-#: copies as from the corridor outside a hall, and on a sparse log kept the geometric dwell
+#: copies as from the corridor outside a hall nor as at a hall's or corner's end, and on a sparse log kept the geometric dwell
 #: (the learning-only fields too, so that a loaded model's config says how it was learnt)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
@@ -273,6 +274,7 @@ LEGACY: dict[str, Any] = {
     "leaf_weight": 0.0,
     "sparse_dwell_stages": 0,
     "augment_starts": 0.0,
+    "augment_ends": 0.0,
 }
 
 
