@@ -717,7 +717,8 @@ def resemblance(
         if mine.sum() < RESEMBLE_MIN_CALLS:
             continue
         ref = RESEMBLE_MARGIN * float(np.median(proximity[mine, j]))
-        short = np.log(ref / np.maximum(proximity[:, j], PROXIMITY_FLOOR))  # inf: not measured
+        with np.errstate(divide="ignore"):  # ref 0 (the calls' median unlike any): no penalty
+            short = np.log(ref / np.maximum(proximity[:, j], PROXIMITY_FLOOR))  # inf: not measured
         out[:, j] = -slope * np.maximum(short, 0.0)
     return out
 
