@@ -60,6 +60,9 @@ def test_only_the_taught_places_are_scored_on_thinned_runs() -> None:
     assert table.loc[0, "seeds"] == 1  # seed 0 teaches one place: left out
     assert table.loc[0, "(c) BA mean"] == round(only["c"]["ba"], 3)
     assert set(places["place"]) == {"corridor", "hall"}
+    for key in "abc":  # the lowest place's precision per protocol: the 0.8 target
+        lowest = places.loc[places["run"] == key, "precision"].min()
+        assert table.loc[0, f"({key}) min precision"] == lowest
 
 
 def test_the_sparse_dwell_calibrates_the_labels_of_a_sparse_log() -> None:

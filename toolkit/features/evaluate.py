@@ -269,8 +269,10 @@ def protocol(
             row[f"({key}) BA P10"] = round(float(np.percentile(ba, 10)), 3)
         for key in "abc":
             row[f"({key}) ECE"] = round(float(np.mean([r[key]["ece"] for r in per_seed])), 3)
-        precision = _mean_per_place(per_seed, "a", "precision")
-        row["(a) min precision"] = round(min(precision.values()), 3) if precision else float("nan")
+        for key in "abc":  # the "precision of every place": its lowest place
+            precision = _mean_per_place(per_seed, key, "precision")
+            lowest = min(precision.values()) if precision else float("nan")
+            row[f"({key}) min precision"] = round(lowest, 3)
         row["(a) none share"] = round(float(np.mean([r["a"]["none"] for r in per_seed])), 3)
         rows.append(row)
     chosen = next((n for n, c in configs if c == FULL), configs[0][0])
