@@ -42,7 +42,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from toolkit.dataset import Dataset
 from toolkit.features.classify import classify
 from toolkit.features.fitting import fit
 from toolkit.features.metrics import (
@@ -173,7 +172,7 @@ def worlds(seed: int, spacing: float = 0.0) -> dict[str, Any]:
 
 def thinned(sim: Simulation, spacing: float) -> Simulation:
     """The run with only the scans at least `spacing` m of true path after the last one kept
-    (the first scan kept), its regions chosen again among them (`training_regions`)."""
+    (the first scan kept), its regions chosen again among them (`Simulation.take`)."""
     along = sim.distance()
     keep = [0]
     while True:  # a step per kept scan
@@ -181,26 +180,7 @@ def thinned(sim: Simulation, spacing: float) -> Simulation:
         if i >= len(along):
             break
         keep.append(i)
-    k = np.array(keep)
-    ds = sim.dataset
-    cut = Dataset(
-        t=ds.t[k],
-        ranges=ds.ranges[k],
-        laser=ds.laser,
-        odometry=None if ds.odometry is None else ds.odometry.iloc[k].reset_index(drop=True),
-        groundtruth=None
-        if ds.groundtruth is None
-        else ds.groundtruth.iloc[k].reset_index(drop=True),
-        meta={**ds.meta, "spacing": spacing},
-    )
-    return dataclasses.replace(
-        sim,
-        dataset=cut,
-        labels=sim.labels[k],
-        regions=training_regions(cut.t, sim.labels[k], along=along[k]),
-        sections=sim.sections[k],
-        params={**sim.params, "spacing": spacing},
-    )
+    return sim.take(np.array(keep), spacing=spacing)
 
 
 def protocol_scores(

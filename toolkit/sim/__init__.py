@@ -64,23 +64,32 @@ class Simulation:
 
     def head(self, n: int) -> Simulation:
         """The first `n` scans, with their truth (regions re-chosen within them)."""
+        return self.take(np.arange(min(n, self.dataset.n_scans)), head=n)
+
+    def take(self, index: np.ndarray, **note: float) -> Simulation:
+        """The scans at `index` (ascending), with their truth (regions re-chosen within them,
+        by the true path); `note` joins the dataset's meta and the parameters."""
         ds = self.dataset
-        t = ds.t[:n]
+        t = ds.t[index]
         cut = Dataset(
             t=t,
-            ranges=ds.ranges[:n],
+            ranges=ds.ranges[index],
             laser=ds.laser,
-            odometry=None if ds.odometry is None else ds.odometry.iloc[:n],
-            groundtruth=None if ds.groundtruth is None else ds.groundtruth.iloc[:n],
-            meta={**ds.meta, "head": n},
+            odometry=None
+            if ds.odometry is None
+            else ds.odometry.iloc[index].reset_index(drop=True),
+            groundtruth=None
+            if ds.groundtruth is None
+            else ds.groundtruth.iloc[index].reset_index(drop=True),
+            meta={**ds.meta, **note},
         )
         return dataclasses.replace(
             self,
             dataset=cut,
-            labels=self.labels[:n],
-            regions=training_regions(t, self.labels[:n], along=self.distance()[:n]),
-            sections=self.sections[:n],
-            params={**self.params, "head": n},
+            labels=self.labels[index],
+            regions=training_regions(t, self.labels[index], along=self.distance()[index]),
+            sections=self.sections[index],
+            params={**self.params, **note},
         )
 
     def distance(self) -> np.ndarray:
