@@ -224,8 +224,86 @@ def classify(
     if cfg.smoothing != "none":
         eps = switch_probability(cfg, len(prob), poses)
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
+    if cfg.beside_reach > 0:
+        prob = beside_only(prob, model, ranges, poses)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
+
+
+# ---------------------------------------------------------------- an opening beside the laser
+
+#: beams within this of square to the path (rad) see what is beside the laser
+SQUARE = np.radians(3.0)
+#: m past a side's usual wall that its square beams reach through an opening beside the
+#: laser (a random world's rooms are 3-4 m deep behind their doors; a closed door's niche or
+#: a box along the wall do not reach so far)
+OPENING_DEPTH = 1.0
+
+
+def opening_beside(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray | None:
+    """Per scan, whether the beams square to the path on the left or on the right (the median
+    of their distances across the path; no return: open) reach `OPENING_DEPTH` m past that
+    side's usual wall (the median of the log's scans); None if the laser has no beam
+    within `SQUARE` of square to the path on each side."""
+    across = np.abs(np.sin(laser.angles + laser.yaw))
+    side = np.sign(np.sin(laser.angles + laser.yaw))
+    square = across >= np.cos(SQUARE) - 1e-9
+    out = np.zeros(len(ranges), dtype=bool)
+    for sign in (1.0, -1.0):
+        beams = square & (side == sign)
+        if not beams.any():
+            return None
+        r = np.asarray(ranges[:, beams], dtype=np.float64)
+        seen = np.median(np.where(np.isfinite(r), r, np.inf) * across[beams], axis=1)
+        usual = seen[np.isfinite(seen)]
+        if len(usual):
+            out |= seen > float(np.median(usual)) + OPENING_DEPTH
+    return out
+
+
+def opening_distance(
+    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None
+) -> np.ndarray | None:
+    """Per scan, the path the laser travels (m, its positions by `poses`) to the nearest
+    scan with an opening beside it (`opening_beside`; inf: none in the log); None without
+    poses or square beams."""
+    beside = opening_beside(ranges, laser)
+    if beside is None or poses is None or len(poses) != len(ranges):
+        return None
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    xy = poses[:, :2] + np.c_[laser.x * c - laser.y * s, laser.x * s + laser.y * c]
+    along = np.r_[0.0, np.cumsum(np.nan_to_num(np.hypot(*np.diff(xy, axis=0).T)))]
+    if not beside.any():
+        return np.full(len(ranges), np.inf)
+    at = along[beside]
+    i = np.searchsorted(at, along)
+    before = along - at[np.clip(i - 1, 0, len(at) - 1)]
+    after = at[np.clip(i, 0, len(at) - 1)] - along
+    return np.asarray(np.minimum(np.abs(before), np.abs(after)))
+
+
+def beside_only(
+    prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, poses: np.ndarray | None
+) -> np.ndarray:
+    """The posteriors with the places of `beside_places` ruled out (their share given to the
+    others) at the scans more than `beside_reach` m of path from a scan with an opening
+    beside the laser (`opening_distance`): a door is where the robot has the opening beside
+    it, and the trees' and the HMM's call runs past it by a scan or two (docs/journal/
+    places.md, session 24). Unchanged without poses, without beams square to the path, or
+    where the scans lie more than half the reach apart (the distance is then too coarse)."""
+    cfg = model.config
+    places = np.array([j for j, k in enumerate(model.classes) if k in cfg.beside_places], int)
+    distance = opening_distance(ranges, model.laser, poses)
+    if not len(places) or distance is None or len(distance) < 2:
+        return prob
+    steps = path_steps(len(distance), poses)
+    if steps is None or not np.nanmedian(steps[1:]) <= cfg.beside_reach / 2:
+        return prob
+    far = distance > cfg.beside_reach
+    out = prob.copy()
+    out[np.ix_(far, places)] = 0.0
+    total = out.sum(axis=1, keepdims=True)
+    return np.where(total > 0, out / np.where(total > 0, total, 1.0), prob)
 
 
 #: Scans scored at once between two progress steps (every scan is scored on its own: the
