@@ -220,8 +220,8 @@ class Config:
     # than this from a scan whose beams square to the path see an opening beside the laser
     # goes to the next place (classify.beside_only: a found door's call ran a scan or two
     # past its zone, and its share went to the hall by it). Over 220 development worlds
-    # (fitted on 70 others) the door's precision +0.045 / +0.034 / +0.035, balanced
-    # accuracy +0.0004 / +0.0012 / +0.0011, ECE -0.002 to -0.005, the door's recall -0.002
+    # (fitted on 70 others) the door's precision +0.045 / +0.034 / +0.036, balanced
+    # accuracy +0.0004 / +0.0012 / +0.0012, ECE -0.002 to -0.004, the door's recall -0.002
     # (0: off, session 23's default; docs/journal/places.md, session 24)
     beside_places: tuple[str, ...] = ("door", "hall")  # with `beside_reach`, the places
     # ruled out far from an opening beside the laser
