@@ -154,6 +154,7 @@ def test_default_travels_better_than_the_mozos_baseline(seed: int) -> None:
         augment_starts=0.0,
         augment_ends=0.0,
         beside_reach=0.0,
+        narrow_opening=0.0,
     )
     narrow = protocol_scores(old, runs)
     wide = protocol_scores(dataclasses.replace(old, beside=1.0), runs)
@@ -275,6 +276,7 @@ def test_context_seen_either_side_calls_fewer_scans_before_a_door_doors(seed: in
         augment_starts=0.0,
         augment_ends=0.0,
         beside_reach=0.0,
+        narrow_opening=0.0,
     )
     seen = protocol_scores(then, runs)
     scans = protocol_scores(dataclasses.replace(then, context_seen=False), runs)
@@ -307,7 +309,9 @@ def test_without_the_no_returns_ahead_fewer_scans_before_a_window_are_windows(se
     # without the resemblance check (session 20), which drops most of the same windows
     # and without the copies of session 23 (`augment_starts`, `augment_ends`) and session
     # 24's door and hall calls only near an opening beside the laser (`beside_reach`)
-    then = Config(resemble=0.0, augment_starts=0.0, augment_ends=0.0, beside_reach=0.0)
+    then = Config(
+        resemble=0.0, augment_starts=0.0, augment_ends=0.0, beside_reach=0.0, narrow_opening=0.0
+    )
     now = protocol_scores(then, runs)
     ahead = protocol_scores(dataclasses.replace(then, glass_ahead=True), runs)
     assert now["a"]["precision"]["window"] > ahead["a"]["precision"]["window"] + 0.12
@@ -395,8 +399,8 @@ def test_a_door_called_only_where_the_scan_resembles_the_trees_doors(seed: int) 
     laser kept, as until session 24 (`beside_reach` 0: with it the door's precision without
     the check is 0.50)."""
     runs = {"a": simulate("random", seed=seed)}
-    now = protocol_scores(Config(beside_reach=0.0), runs)["a"]
-    before = protocol_scores(Config(resemble=0.0, beside_reach=0.0), runs)["a"]
+    now = protocol_scores(Config(beside_reach=0.0, narrow_opening=0.0), runs)["a"]
+    before = protocol_scores(Config(resemble=0.0, beside_reach=0.0, narrow_opening=0.0), runs)["a"]
     assert before["precision"]["door"] < 0.35 and now["precision"]["door"] > 0.6
     assert now["recall"]["door"] > 0.95
     assert now["precision"]["window"] > before["precision"]["window"] + 0.02

@@ -224,7 +224,7 @@ def classify(
     if cfg.smoothing != "none":
         eps = switch_probability(cfg, len(prob), poses)
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
-    if cfg.beside_reach > 0:
+    if cfg.beside_reach > 0 or cfg.narrow_opening > 0:
         prob = beside_only(prob, model, ranges, poses)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
@@ -267,6 +267,17 @@ def opening_distance(
     """Per scan, the path the laser travels (m, its positions by `poses`) to the nearest
     scan with an opening beside it (`opening_beside`; inf: none in the log); None without
     poses or square beams."""
+    found = openings(ranges, laser, poses)
+    return None if found is None else found[0]
+
+
+def openings(
+    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Per scan, the path (m) to the nearest scan with an opening beside it, the length
+    along the path of that scan's run of consecutive such scans (the opening's length: a
+    door's about 0.8 m), both inf where the log has none; and the laser's path from the
+    first scan. None without poses or square beams (`opening_beside`)."""
     beside = opening_beside(ranges, laser)
     if beside is None or poses is None or len(poses) != len(ranges):
         return None
@@ -274,34 +285,51 @@ def opening_distance(
     xy = poses[:, :2] + np.c_[laser.x * c - laser.y * s, laser.x * s + laser.y * c]
     along = np.r_[0.0, np.cumsum(np.nan_to_num(np.hypot(*np.diff(xy, axis=0).T)))]
     if not beside.any():
-        return np.full(len(ranges), np.inf)
-    at = along[beside]
+        return np.full(len(ranges), np.inf), np.full(len(ranges), np.inf), along
+    idx = np.flatnonzero(beside)
+    new = np.r_[True, np.diff(idx) > 1]  # the first scan of each run
+    run = np.cumsum(new) - 1
+    length = along[idx[np.r_[new[1:], True]]] - along[idx[new]]
+    at = along[idx]
     i = np.searchsorted(at, along)
-    before = along - at[np.clip(i - 1, 0, len(at) - 1)]
-    after = at[np.clip(i, 0, len(at) - 1)] - along
-    return np.asarray(np.minimum(np.abs(before), np.abs(after)))
+    before, after = np.clip(i - 1, 0, len(idx) - 1), np.clip(i, 0, len(idx) - 1)
+    to_before, to_after = np.abs(along - at[before]), np.abs(at[after] - along)
+    nearest = np.where(to_after < to_before, after, before)
+    return np.minimum(to_before, to_after), length[run[nearest]], along
+
+
+#: the median path step (m) over which the openings are too coarse to place a door's edge
+DENSE_STEP = 0.25
 
 
 def beside_only(
     prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, poses: np.ndarray | None
 ) -> np.ndarray:
-    """The posteriors with the places of `beside_places` ruled out (their share given to the
-    others) at the scans more than `beside_reach` m of path from a scan with an opening
-    beside the laser (`opening_distance`): a door is where the robot has the opening beside
-    it, and the trees' and the HMM's call runs past it by a scan or two (docs/journal/
-    places.md, session 24). Unchanged without poses, without beams square to the path, or
-    where the scans lie more than half the reach apart (the distance is then too coarse)."""
+    """The posteriors with places ruled out (their share given to the others) where the
+    opening beside the laser says they are not: the places of `beside_places` at the scans
+    more than `beside_reach` m of path from a scan with an opening beside the laser (a
+    door's call runs a scan or two past its zone), those of `narrow_places` where that
+    nearest opening is longer than `narrow_opening` m along the path (a hall's or a
+    crossing corridor's, not a door's; `openings`; docs/journal/places.md, session 24).
+    Unchanged without poses, without beams square to the path, or where the median scan
+    lies more than `DENSE_STEP` m from the last (the path is then too coarse)."""
     cfg = model.config
-    places = np.array([j for j, k in enumerate(model.classes) if k in cfg.beside_places], int)
-    distance = opening_distance(ranges, model.laser, poses)
-    if not len(places) or distance is None or len(distance) < 2:
+    names = list(model.classes)
+    found = openings(ranges, model.laser, poses)
+    if found is None or len(ranges) < 2:
         return prob
-    steps = path_steps(len(distance), poses)
-    if steps is None or not np.nanmedian(steps[1:]) <= cfg.beside_reach / 2:
+    distance, length, along = found
+    if not np.median(np.diff(along)) <= DENSE_STEP:
         return prob
-    far = distance > cfg.beside_reach
     out = prob.copy()
-    out[np.ix_(far, places)] = 0.0
+    rules = (
+        (cfg.beside_reach, cfg.beside_places, distance),
+        (cfg.narrow_opening, cfg.narrow_places, length),
+    )
+    for limit, places, measure in rules:
+        columns = np.array([names.index(k) for k in places if k in names], int)
+        if limit > 0 and len(columns):
+            out[np.ix_(measure > limit, columns)] = 0.0
     total = out.sum(axis=1, keepdims=True)
     return np.where(total > 0, out / np.where(total > 0, total, 1.0), prob)
 
