@@ -66,7 +66,7 @@ def test_door_calls_past_the_opening_go_to_the_next_place() -> None:
     and hall calls more than 0.5 m of path from an opening beside the laser, and the door
     calls whose nearest opening is longer than 2 m, go to their next place; the door's
     precision rises (0.846 -> 0.930), no true door scan is lost, every other scan keeps its
-    label."""
+    label; streaming, nothing changes."""
     train, other = simulate("random", seed=7), simulate("random", seed=7, route=1)
     ds, ob = train.dataset, other.dataset
     assert ds.groundtruth is not None and ob.groundtruth is not None
@@ -93,6 +93,11 @@ def test_door_calls_past_the_opening_go_to_the_next_place() -> None:
 
     assert precision(after.label) > precision(before.label) + 0.05
     np.testing.assert_allclose(after.prob.sum(axis=1), 1.0)
+    # streaming (the forward filter): the rules look ahead, so they are left out
+    model.config = Config(smoothing="forward")
+    streamed = classify(model, ob.ranges, their)
+    model.config = Config(smoothing="forward", beside_reach=0.0, narrow_opening=0.0)
+    assert np.array_equal(streamed.prob, classify(model, ob.ranges, their).prob)
 
 
 def test_beside_only_leaves_sparse_logs_and_logs_without_poses_alone() -> None:

@@ -224,8 +224,8 @@ def classify(
     if cfg.smoothing != "none":
         eps = switch_probability(cfg, len(prob), poses)
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
-    if cfg.beside_reach > 0 or cfg.narrow_opening > 0:
-        prob = beside_only(prob, model, ranges, poses)
+    if (cfg.beside_reach > 0 or cfg.narrow_opening > 0) and cfg.smoothing != "forward":
+        prob = beside_only(prob, model, ranges, poses)  # it looks ahead: not when streaming
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -312,7 +312,8 @@ def beside_only(
     nearest opening is longer than `narrow_opening` m along the path (a hall's or a
     crossing corridor's, not a door's; `openings`; docs/journal/places.md, session 24).
     Unchanged without poses, without beams square to the path, or where the median scan
-    lies more than `DENSE_STEP` m from the last (the path is then too coarse)."""
+    lies more than `DENSE_STEP` m from the last (the path is then too coarse); `classify`
+    leaves it out when streaming (`smoothing` "forward": it looks at the scans ahead)."""
     cfg = model.config
     names = list(model.classes)
     found = openings(ranges, model.laser, poses)
