@@ -25,7 +25,9 @@ def runs() -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def measured(runs: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    return protocol_scores(Config(canonical_width=0.0), runs)
+    # with session 23's labels: session 24's hall calls only near an opening beside the
+    # laser (`beside_reach`) give most of this corridor back (recall 0.898, ECE 0.43)
+    return protocol_scores(Config(canonical_width=0.0, beside_reach=0.0, narrow_opening=0.0), runs)
 
 
 def test_a_wider_buildings_corridor_is_called_hall_in_metres(measured) -> None:  # type: ignore[no-untyped-def]
@@ -35,7 +37,9 @@ def test_a_wider_buildings_corridor_is_called_hall_in_metres(measured) -> None: 
 
 @pytest.mark.parametrize("how", ["stretch", "rescale"])
 def test_a_wider_buildings_corridor_is_found_at_a_canonical_width(runs, measured, how) -> None:  # type: ignore[no-untyped-def]
-    canonical = protocol_scores(Config(canonical_width=2.0, canonical_how=how), runs)
+    canonical = protocol_scores(
+        Config(canonical_width=2.0, canonical_how=how, beside_reach=0.0, narrow_opening=0.0), runs
+    )
     c = canonical["c"]
     assert c["recall"]["corridor"] > 0.9  # stretch 0.975, rescale 0.959
     assert c["ba"] > measured["c"]["ba"] + 0.2  # 0.698 / 0.675 against 0.440

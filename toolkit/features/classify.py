@@ -224,8 +224,115 @@ def classify(
     if cfg.smoothing != "none":
         eps = switch_probability(cfg, len(prob), poses)
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
+    if (cfg.beside_reach > 0 or cfg.narrow_opening > 0) and cfg.smoothing != "forward":
+        prob = beside_only(prob, model, ranges, poses)  # it looks ahead: not when streaming
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
+
+
+# ---------------------------------------------------------------- an opening beside the laser
+
+#: beams within this of square to the path (rad) see what is beside the laser
+SQUARE = np.radians(3.0)
+#: m past a side's usual wall that its square beams reach through an opening beside the
+#: laser (a random world's rooms are 3-4 m deep behind their doors; a closed door's niche or
+#: a box along the wall do not reach so far)
+OPENING_DEPTH = 1.0
+
+
+def opening_beside(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray | None:
+    """Per scan, whether the beams square to the path on the left or on the right (the median
+    of their distances across the path; no return: open) reach `OPENING_DEPTH` m past that
+    side's usual wall (the median of the log's scans); None if the laser has no beam
+    within `SQUARE` of square to the path on each side."""
+    across = np.abs(np.sin(laser.angles + laser.yaw))
+    side = np.sign(np.sin(laser.angles + laser.yaw))
+    square = across >= np.cos(SQUARE) - 1e-9
+    out = np.zeros(len(ranges), dtype=bool)
+    for sign in (1.0, -1.0):
+        beams = square & (side == sign)
+        if not beams.any():
+            return None
+        r = np.asarray(ranges[:, beams], dtype=np.float64)
+        seen = np.median(np.where(np.isfinite(r), r, np.inf) * across[beams], axis=1)
+        usual = seen[np.isfinite(seen)]
+        if len(usual):
+            out |= seen > float(np.median(usual)) + OPENING_DEPTH
+    return out
+
+
+def opening_distance(
+    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None
+) -> np.ndarray | None:
+    """Per scan, the path the laser travels (m, its positions by `poses`) to the nearest
+    scan with an opening beside it (`opening_beside`; inf: none in the log); None without
+    poses or square beams."""
+    found = openings(ranges, laser, poses)
+    return None if found is None else found[0]
+
+
+def openings(
+    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Per scan, the path (m) to the nearest scan with an opening beside it, the length
+    along the path of that scan's run of consecutive such scans (the opening's length: a
+    door's about 0.8 m), both inf where the log has none; and the laser's path from the
+    first scan. None without poses or square beams (`opening_beside`)."""
+    beside = opening_beside(ranges, laser)
+    if beside is None or poses is None or len(poses) != len(ranges):
+        return None
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    xy = poses[:, :2] + np.c_[laser.x * c - laser.y * s, laser.x * s + laser.y * c]
+    along = np.r_[0.0, np.cumsum(np.nan_to_num(np.hypot(*np.diff(xy, axis=0).T)))]
+    if not beside.any():
+        return np.full(len(ranges), np.inf), np.full(len(ranges), np.inf), along
+    idx = np.flatnonzero(beside)
+    new = np.r_[True, np.diff(idx) > 1]  # the first scan of each run
+    run = np.cumsum(new) - 1
+    length = along[idx[np.r_[new[1:], True]]] - along[idx[new]]
+    at = along[idx]
+    i = np.searchsorted(at, along)
+    before, after = np.clip(i - 1, 0, len(idx) - 1), np.clip(i, 0, len(idx) - 1)
+    to_before, to_after = np.abs(along - at[before]), np.abs(at[after] - along)
+    nearest = np.where(to_after < to_before, after, before)
+    return np.minimum(to_before, to_after), length[run[nearest]], along
+
+
+#: the median path step (m) over which the openings are too coarse to place a door's edge
+DENSE_STEP = 0.25
+
+
+def beside_only(
+    prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, poses: np.ndarray | None
+) -> np.ndarray:
+    """The posteriors with places ruled out (their share given to the others) where the
+    opening beside the laser says they are not: the places of `beside_places` at the scans
+    more than `beside_reach` m of path from a scan with an opening beside the laser (a
+    door's call runs a scan or two past its zone), those of `narrow_places` where that
+    nearest opening is longer than `narrow_opening` m along the path (a hall's or a
+    crossing corridor's, not a door's; `openings`; docs/journal/places.md, session 24).
+    Unchanged without poses, without beams square to the path, or where the median scan
+    lies more than `DENSE_STEP` m from the last (the path is then too coarse); `classify`
+    leaves it out when streaming (`smoothing` "forward": it looks at the scans ahead)."""
+    cfg = model.config
+    names = list(model.classes)
+    found = openings(ranges, model.laser, poses)
+    if found is None or len(ranges) < 2:
+        return prob
+    distance, length, along = found
+    if not np.median(np.diff(along)) <= DENSE_STEP:
+        return prob
+    out = prob.copy()
+    rules = (
+        (cfg.beside_reach, cfg.beside_places, distance),
+        (cfg.narrow_opening, cfg.narrow_places, length),
+    )
+    for limit, places, measure in rules:
+        columns = np.array([names.index(k) for k in places if k in names], int)
+        if limit > 0 and len(columns):
+            out[np.ix_(measure > limit, columns)] = 0.0
+    total = out.sum(axis=1, keepdims=True)
+    return np.where(total > 0, out / np.where(total > 0, total, 1.0), prob)
 
 
 #: Scans scored at once between two progress steps (every scan is scored on its own: the

@@ -216,6 +216,23 @@ class Config:
     # none, session 22's default; docs/journal/places.md, session 23)
     starts_of: tuple[str, ...] = ("hall",)  # with `augment_starts`, these places' scans
     # copied
+    beside_reach: float = 0.5  # m of path: a call of a place of `beside_places` farther
+    # than this from a scan whose beams square to the path see an opening beside the laser
+    # goes to the next place (classify.beside_only: a found door's call ran a scan or two
+    # past its zone, and its share went to the hall by it). Over 220 development worlds
+    # (fitted on 70 others) the door's precision +0.045 / +0.034 / +0.036, balanced
+    # accuracy +0.0004 / +0.0012 / +0.0012, ECE -0.002 to -0.004, the door's recall -0.002
+    # (0: off, session 23's default; docs/journal/places.md, session 24)
+    beside_places: tuple[str, ...] = ("door", "hall")  # with `beside_reach`, the places
+    # ruled out far from an opening beside the laser
+    narrow_opening: float = 2.0  # m along the path: a call of a place of `narrow_places`
+    # whose nearest opening beside the laser (the run of scans whose square beams see through
+    # it) is longer than this goes to the next place (classify.beside_only: a door's opening
+    # is 0.9 m, a hall's 8-14 m; the false doors by a hall and in it). Over 220 development
+    # worlds with `beside_reach`, against session 23's default: the door's precision +0.097
+    # / +0.084 / +0.100, balanced accuracy +0.003 / +0.004 / +0.005, the hall's recall
+    # +0.011 to +0.015, its precision (a) -0.004 (0: off; docs/journal/places.md, session 24)
+    narrow_places: tuple[str, ...] = ("door",)  # with `narrow_opening`, the places ruled out
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
     # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
     # depth in metres whatever the corridor's width (docs/journal/places.md, session 22)
@@ -244,6 +261,10 @@ class Config:
         object.__setattr__(self, "resemble_places", tuple(self.resemble_places))  # JSON: list
         object.__setattr__(self, "ends_of", tuple(self.ends_of))  # JSON: a list
         object.__setattr__(self, "starts_of", tuple(self.starts_of))
+        object.__setattr__(self, "beside_places", tuple(self.beside_places))
+        object.__setattr__(self, "narrow_places", tuple(self.narrow_places))
+        if self.beside_reach < 0 or self.narrow_opening < 0:
+            raise ToolkitError("beside_reach and narrow_opening: 0 or more")
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
@@ -265,7 +286,9 @@ class Config:
 #: fields whose value, before they were added, was not their default: a model saved before
 #: session 17 measured widths in metres, and session 17's canonical width was a stretch; one
 #: saved before session 20 had no resemblance check; one learnt before session 23 had no
-#: copies as from the corridor outside a hall nor as at a hall's or corner's end, and on a sparse log kept the geometric dwell
+#: copies as from the corridor outside a hall nor as at a hall's or corner's end, and on a sparse log kept the geometric dwell;
+#: one saved before session 24 kept a door or hall call far from an opening beside the laser
+#: or beside a long one
 #: (the learning-only fields too, so that a loaded model's config says how it was learnt)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
@@ -275,6 +298,8 @@ LEGACY: dict[str, Any] = {
     "sparse_dwell_stages": 0,
     "augment_starts": 0.0,
     "augment_ends": 0.0,
+    "beside_reach": 0.0,
+    "narrow_opening": 0.0,
 }
 
 

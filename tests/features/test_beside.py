@@ -1,0 +1,113 @@
+"""A door call only where the laser has an opening beside it (`Config.beside_reach`,
+classify.beside_only): the opening's distance along the path on a ray-cast corridor, and
+the door's false calls past its zone on a random world."""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tests.features import world
+from tests.features.world import LASER, cast, drive
+from toolkit.features import Config, fit
+from toolkit.features.classify import beside_only, classify, opening_distance, openings
+from toolkit.features.model import FeatureModel
+from toolkit.features.regions import spans_from_frame, training_indices
+from toolkit.sim import simulate
+
+
+def test_opening_distance_is_the_path_to_the_room_beside_the_corridor() -> None:
+    """Along the test world's 2 m corridor the room above opens at x 12: the path to the
+    first scan whose square beams see into it is 12 m less the laser's x (less the 0.05 m
+    ahead at which the beam at 87 degrees crosses the wall line), within a step of 0.1 m;
+    in the room's stretch it is 0; the pillar at x 5 (0.2 m out of the wall) is no opening.
+    A laser with no beam square to the path measures nothing."""
+    x = np.arange(1.0, 38.0, 0.1)
+    poses = np.c_[x, np.zeros_like(x), np.zeros_like(x)]  # the centre line
+    distance = opening_distance(cast(poses), LASER, poses)
+    assert distance is not None
+    before = (x > 6.0) & (x < 11.9)
+    assert np.all(np.abs(distance[before] - (11.95 - x[before])) <= 0.1)
+    assert np.all(distance[(x > 12.1) & (x < 15.9)] == 0.0)
+    assert np.all(distance[x < 6.0] > 5.0)
+    narrow = replace(LASER, beams=120, angle_min=float(LASER.angles[30]))
+    assert opening_distance(cast(poses, narrow), narrow, poses) is None
+
+
+def test_a_doors_opening_is_short_and_a_halls_long(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 2 m corridor (x 0..30) with a 0.9 m door (x 9.55..10.45) into a 3 m deep room on the
+    left and a hall 10 m long (x 16..26) 4 m deep on the right: the run of scans whose square
+    beams see through the door is 0.9 m long less a step or two, the hall's 10 m less one;
+    each scan gets its nearest opening's length."""
+    w = [
+        (0, 1, 9.55, 1), (9.55, 1, 9.55, 4), (9.55, 4, 10.45, 4), (10.45, 4, 10.45, 1),
+        (10.45, 1, 30, 1), (0, -1, 16, -1), (16, -1, 16, -5), (16, -5, 26, -5),
+        (26, -5, 26, -1), (26, -1, 30, -1), (0, -1, 0, 1), (30, -1, 30, 1),
+    ]  # fmt: skip
+    monkeypatch.setattr(world, "walls", lambda: np.array(w, dtype=np.float64))
+    x = np.arange(1.0, 29.0, 0.05)
+    poses = np.c_[x, np.zeros_like(x), np.zeros_like(x)]
+    found = openings(cast(poses), LASER, poses)
+    assert found is not None
+    distance, length, along = found
+    assert np.allclose(along, x - 1.0)
+    assert 0.75 <= length[np.argmin(np.abs(x - 10.0))] <= 0.9
+    assert 9.85 <= length[np.argmin(np.abs(x - 21.0))] <= 10.0
+    assert np.all(length[x < 13.0] < 1.0) and np.all(length[(x > 14.0) & (x < 28.0)] > 9.0)
+    assert np.all(distance[(x > 9.6) & (x < 10.35)] == 0.0)
+
+
+def test_door_calls_past_the_opening_go_to_the_next_place() -> None:
+    """Random world 7 (development), taught on run a, labelling run b: by default the door
+    and hall calls more than 0.5 m of path from an opening beside the laser, and the door
+    calls whose nearest opening is longer than 2 m, go to their next place; the door's
+    precision rises (0.846 -> 0.930), no true door scan is lost, every other scan keeps its
+    label; streaming, nothing changes."""
+    train, other = simulate("random", seed=7), simulate("random", seed=7, route=1)
+    ds, ob = train.dataset, other.dataset
+    assert ds.groundtruth is not None and ob.groundtruth is not None
+    spans = spans_from_frame(train.regions, ds.t)
+    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
+    their = ob.groundtruth[["x", "y", "theta"]].to_numpy()
+    model = fit(ds.ranges, ds.laser, training_indices(spans), Config(), spans, poses)
+    after = classify(model, ob.ranges, their)
+    model.config = Config(beside_reach=0.0, narrow_opening=0.0)
+    before = classify(model, ob.ranges, their)
+    truth = np.asarray(other.labels).astype(str)
+    found = openings(ob.ranges, ob.laser, their)
+    assert found is not None
+    distance, length, _ = found
+    changed = before.label != after.label
+    assert changed.any()
+    far, door = distance[changed] > 0.5, before.label[changed] == "door"
+    assert np.all((far & np.isin(before.label[changed], ["door", "hall"])) | (door & ~far))
+    assert np.all(length[changed][~far] > 2.0)
+    assert not np.any((truth == "door") & (before.label == "door") & (after.label != "door"))
+
+    def precision(label: np.ndarray) -> float:
+        return float(np.mean(truth[label == "door"] == "door"))
+
+    assert precision(after.label) > precision(before.label) + 0.05
+    np.testing.assert_allclose(after.prob.sum(axis=1), 1.0)
+    # streaming (the forward filter): the rules look ahead, so they are left out
+    model.config = Config(smoothing="forward")
+    streamed = classify(model, ob.ranges, their)
+    model.config = Config(smoothing="forward", beside_reach=0.0, narrow_opening=0.0)
+    assert np.array_equal(streamed.prob, classify(model, ob.ranges, their).prob)
+
+
+def test_beside_only_leaves_sparse_logs_and_logs_without_poses_alone() -> None:
+    """Where the scans lie more than half the reach apart (here 1 m) or there are no poses,
+    the posteriors are returned as they are."""
+    _, poses, _ = drive(step=1.0)
+    ranges = cast(poses)
+    prob = np.tile([0.7, 0.3], (len(poses), 1))
+
+    fields = {"config": Config(), "classes": ["door", "corridor"], "laser": LASER}
+    model = typing.cast(FeatureModel, SimpleNamespace(**fields))  # the fields beside_only reads
+    assert beside_only(prob, model, ranges, poses) is prob
+    assert beside_only(prob, model, ranges, None) is prob
