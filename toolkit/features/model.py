@@ -216,6 +216,17 @@ class Config:
     # none, session 22's default; docs/journal/places.md, session 23)
     starts_of: tuple[str, ...] = ("hall",)  # with `augment_starts`, these places' scans
     # copied
+    across_of: tuple[str, ...] = ()  # these places' taught scans with glass across the
+    # path from their opening (augment.glass_across), or whose opening `closed` would wall
+    # (augment.across_left: the side seen through decides, not the mean range), have no
+    # closed or opened copy (the window labelled door) but one walled across from the
+    # opening (augment.walled_across: the door without the window): untaught doors were
+    # missed whole where the taught door lay across from a window (docs/journal/places.md,
+    # session 24; empty: off)
+    augment_glass: float = 0.0  # weight of the copies of the taught scans of `across_of`
+    # (empty: the door's) with a window across from their opening (augment.glazed: no
+    # return there but near normal): a door met across from a window was called window
+    # (session 24; 0: none)
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
     # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
     # depth in metres whatever the corridor's width (docs/journal/places.md, session 22)
@@ -244,6 +255,7 @@ class Config:
         object.__setattr__(self, "resemble_places", tuple(self.resemble_places))  # JSON: list
         object.__setattr__(self, "ends_of", tuple(self.ends_of))  # JSON: a list
         object.__setattr__(self, "starts_of", tuple(self.starts_of))
+        object.__setattr__(self, "across_of", tuple(self.across_of))
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
 
