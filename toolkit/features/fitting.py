@@ -17,11 +17,9 @@ import numpy as np
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
 from toolkit.features.augment import (
-    across_left,
     canonical,
     changed,
     closed,
-    closed_left,
     ended,
     glass_across,
     glazable,
@@ -264,15 +262,12 @@ def _fit_places(
     # in any beam)
     Copy = Callable[[np.ndarray, LaserGeometry], np.ndarray]
     # a scan of `across_of` with glass across the path from its opening (a door across from
-    # a window), or whose opening `closed` would wall, has no closed or opened copy (the
-    # window, or the corridor, labelled door) but one walled across from its opening, kept
-    # however little the glass was (the door without the window)
+    # a window) has no closed or opened copy (`closed` takes the glass for the more open
+    # side: the window labelled door) but one walled across from its opening, kept however
+    # little glass it saw (the door without the window)
     glassy = np.zeros(len(idx), dtype=bool)
     if config.across_of:
-        taught = ranges[idx]
-        glassy = np.isin(y, config.across_of) & (
-            (across_left(taught, laser) != closed_left(taught, laser)) | glass_across(taught, laser)
-        )
+        glassy = np.isin(y, config.across_of) & glass_across(ranges[idx], laser)
     plain = ~glassy if glassy.any() else None
     copies: list[tuple[float, Copy, tuple[str, ...], str | None, np.ndarray | None, bool]] = [
         (config.augment_closed, closed, (), None, plain, True),

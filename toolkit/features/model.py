@@ -217,10 +217,9 @@ class Config:
     starts_of: tuple[str, ...] = ("hall",)  # with `augment_starts`, these places' scans
     # copied
     across_of: tuple[str, ...] = ()  # these places' taught scans with glass across the
-    # path from their opening (augment.glass_across), or whose opening `closed` would wall
-    # (augment.across_left: the side seen through decides, not the mean range), have no
-    # closed or opened copy (the window labelled door) but one walled across from the
-    # opening (augment.walled_across: the door without the window): untaught doors were
+    # path from their opening (augment.glass_across; the side seen through is the opening)
+    # have no closed or opened copy (the window labelled door) but one walled across from
+    # the opening (augment.walled_across: the door without the window): untaught doors were
     # missed whole where the taught door lay across from a window (docs/journal/places.md,
     # session 24; empty: off)
     augment_glass: float = 0.0  # weight of the copies of the taught scans of `across_of`
