@@ -8,9 +8,15 @@ import numpy as np
 
 from tests.features.world import LASER, cast, drive
 from toolkit.features.augment import (
+    PANE_HALF,
+    across_left,
     changed,
     closed,
+    closed_left,
     ended,
+    glass_across,
+    glazable,
+    glazed,
     mirror_index,
     opened,
     started,
@@ -18,6 +24,7 @@ from toolkit.features.augment import (
     to_width,
     usual_wall,
     usual_width,
+    walled_across,
     width_factor,
 )
 from toolkit.features.descriptors import (
@@ -72,6 +79,38 @@ def test_closed_walls_the_less_open_side_at_the_usual_distance() -> None:
     corridor = np.flatnonzero((label == "corridor") & (poses[:, 0] < 11))
     assert changed(r[corridor], c[corridor], LASER).mean() < 0.1
     assert changed(r[hall], c[hall], LASER).mean() > 0.5  # (the hall walled: a new kind)
+
+
+def test_a_room_across_from_glass_is_walled_across_not_itself() -> None:
+    # beside the room (left, x 12-16) with a window across the path: the right wall's beams
+    # at 30-150 degrees give no return (glass), which `closed` takes for the more open side
+    r, poses, _ = _scans()
+    at = np.flatnonzero((poses[:, 0] > 13.0) & (poses[:, 0] < 14.0))  # short of the lobby
+    right = (LASER.angles < 0) & (np.abs(np.sin(LASER.angles)) >= 0.5)
+    glass = r[at].copy()
+    glass[:, right] = np.nan
+    assert closed_left(glass, LASER).all()  # closed walls the room (the left)
+    assert not across_left(glass, LASER).any()  # the room is seen through: the right across
+    # without the glass both wall the right
+    assert not closed_left(r[at], LASER).any() and not across_left(r[at], LASER).any()
+    assert glass_across(glass, LASER).all() and not glass_across(r[at], LASER).any()
+    w = walled_across(glass, LASER, wall=1.0)
+    left = LASER.angles > np.radians(60)
+    assert np.allclose(w[:, left], r[at][:, left], equal_nan=True)  # the room kept
+    # the glass walled at 1 m: the scan without the window (the corridor's right wall at 1 m,
+    # short of the lobby that the beams at 30-60 degrees reach)
+    wall = LASER.angles < -np.radians(60)
+    assert np.nanmax(np.abs(w[:, wall] - r[at][:, wall])) < 0.15  # the sway: up to 0.1 m
+    assert not changed(r[at], w, LASER).any()
+    # and the window put back across the room's scan (glazed): no return on the right within
+    # PANE_HALF m along the path but near normal, the room as it was
+    g = glazed(r[at], LASER)
+    assert glazable(r[at], LASER).all()  # the room seen through, nothing through the wall
+    pane = right & (np.abs(np.cos(LASER.angles)) <= PANE_HALF * np.abs(np.sin(LASER.angles)))
+    oblique = pane & (np.abs(np.cos(LASER.angles)) > np.sin(np.radians(15.0)))
+    assert np.isnan(g[:, oblique]).all() and np.isfinite(r[at][:, oblique]).all()
+    assert np.allclose(g[:, left], r[at][:, left], equal_nan=True)
+    assert changed(r[at], g, LASER).all()
 
 
 def test_ended_copy_of_the_hall_is_the_scan_at_its_end() -> None:

@@ -289,6 +289,9 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     assert Config.from_dict(unstarted).augment_starts == 0.0 and Config().augment_starts > 0
     unended = {k: v for k, v in now.items() if k not in ("augment_ends", "ends_of")}
     assert Config.from_dict(unended).augment_ends == 0.0 and Config().augment_ends > 0
+    # before session 24, a door's closed copy could wall the door where glass lay across
+    unglazed = {k: v for k, v in now.items() if k != "across_of"}
+    assert Config.from_dict(unglazed).across_of == () and Config().across_of == ("door",)
 
 
 def test_background_density_integrates_to_one() -> None:

@@ -60,12 +60,116 @@ def closed(ranges: np.ndarray, laser: LaserGeometry, wall: float | None = None) 
     `usual_wall`), nearer returns kept (r = min(r, wall / |sin angle|) on that side)."""
     r = np.asarray(ranges, dtype=np.float32)
     wall = usual_wall(r, laser) if wall is None else wall
+    return _walled(r, laser, closed_left(r, laser), wall)
+
+
+def closed_left(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Per scan, whether `closed` walls its left side (the left is the less open: a
+    no-return counts as 20 m)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    return np.asarray(_openness(r, laser.angles, True) <= _openness(r, laser.angles, False))
+
+
+def _walled(r: np.ndarray, laser: LaserGeometry, left: np.ndarray, wall: float) -> np.ndarray:
+    """Each scan with its left side (`left`, per scan) or else its right walled at `wall`
+    m along the path, nearer returns kept (r = min(r, wall / |sin angle|) on that side)."""
     angles = laser.angles
-    left = _openness(r, angles, True) <= _openness(r, angles, False)  # (S,) left is less open
     side = np.where(left[:, None], angles[None, :] > 0, angles[None, :] < 0)
     reach = (wall / np.maximum(np.abs(np.sin(angles)), 1e-6)).astype(np.float32)
     near = np.where(np.isnan(r), reach[None, :], np.fmin(r, reach[None, :]))
     return np.where(side, near, r).astype(np.float32)
+
+
+#: m beyond a side's nearest end point (its wall) from which a return is seen through an
+#: opening in it (`across_left`): a door's room is 3-4 m deep, a box along the wall 0.2-0.6
+DEPTH = 1.0
+
+
+def across_left(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Per scan, whether its left side is the one across the path from its place's opening:
+    the side with the smaller share of beams (at 30-150 degrees) returned from `DEPTH` m or
+    more beyond the side's nearest end point (what is seen through an opening; a no-return,
+    glass, is not counted); where the shares are equal, `closed_left`'s side. `closed_left`
+    takes the less open side by the mean log range, a no-return as 20 m: a door across the
+    path from a window, or in the nearer wall of a wide corridor, is walled itself
+    (docs/journal/places.md, session 24)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    left, right = (_beyond(r, laser.angles, s) for s in (True, False))
+    return np.asarray(np.where(left == right, closed_left(r, laser), left < right))
+
+
+def glass_across(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Per scan, whether the side across from its opening (`across_left`) gives a no-return
+    at 30-150 degrees: glass across the path (or nothing within range)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    angles = laser.angles
+    left = across_left(r, laser)
+    across = np.where(left[:, None], angles[None, :] > 0, angles[None, :] < 0)
+    beside = across & (np.abs(np.sin(angles)) >= LATERAL)[None, :]
+    return np.asarray((beside & np.isnan(r)).any(axis=1))
+
+
+def _beyond(r: np.ndarray, angles: np.ndarray, left: bool) -> np.ndarray:
+    """Per scan, the share of one side's beams at 30-150 degrees returned from `DEPTH` m or
+    more beyond the side's nearest lateral distance to an end point."""
+    side = ((angles > 0) == left) & (np.abs(np.sin(angles)) >= LATERAL)
+    lateral = np.abs(r[:, side] * np.sin(angles[side])[None, :])  # a no-return: NaN
+    with np.errstate(all="ignore"):
+        wall = np.nanmin(lateral, axis=1, initial=np.inf)
+    return np.asarray((lateral >= wall[:, None] + DEPTH).mean(axis=1))
+
+
+#: degrees from normal incidence within which `glazed`'s pane returns (the simulator's
+#: `glass_normal_deg`: a pane seen obliquely gives no return)
+PANE_NORMAL = 15.0
+#: m along the path either side of the laser that `glazed`'s window spans (the random
+#: worlds' windows are 1.5-10 m long)
+PANE_HALF = 2.0
+#: m nearer than a side's wall that `glazed` still takes for the wall (noise, the path's sway)
+PANE_SLACK = 0.25
+
+
+def walled_across(
+    ranges: np.ndarray, laser: LaserGeometry, wall: float | None = None
+) -> np.ndarray:
+    """Each scan with the side across from its opening (`across_left`: glass is not an
+    opening) walled at `wall` m (default `usual_wall`), nearer returns kept: a door across
+    the path from a window, taught, as the door alone. Where that is the side `closed`
+    walls, the copy is `closed`'s."""
+    r = np.asarray(ranges, dtype=np.float32)
+    wall = usual_wall(r, laser) if wall is None else wall
+    return _walled(r, laser, across_left(r, laser), wall)
+
+
+def glazed(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Each scan with a window across from its opening (`across_left`): on that side, a
+    beam that meets the side's wall (its median lateral distance to an end point, within
+    `PANE_SLACK` m) or gives no return, where the wall lies within `PANE_HALF` m along the
+    path, gets no return but within `PANE_NORMAL` degrees of normal incidence (glass);
+    nearer returns kept. A door taught with a wall across the path, met across from a
+    window, was called window (docs/journal/places.md, session 24)."""
+    r = np.asarray(ranges, dtype=np.float32)
+    angles = laser.angles
+    left = across_left(r, laser)
+    sin = np.maximum(np.abs(np.sin(angles)), 1e-6)
+    lateral = np.abs(r * np.sin(angles)[None, :])
+    across = np.where(left[:, None], angles[None, :] > 0, angles[None, :] < 0)
+    beside = across & (sin >= LATERAL)[None, :]
+    with np.errstate(all="ignore"):
+        wall = np.nanmedian(np.where(beside, lateral, np.nan), axis=1)  # NaN: all glass
+    wall = np.where(np.isfinite(wall), wall, usual_wall(r, laser))[:, None]
+    pane = beside & (wall * np.abs(np.cos(angles))[None, :] / sin[None, :] <= PANE_HALF)
+    meets = np.isnan(r) | (lateral >= wall - PANE_SLACK)
+    oblique = np.abs(np.cos(angles)) > np.sin(np.radians(PANE_NORMAL))
+    return np.where(pane & meets & oblique[None, :], np.nan, r).astype(np.float32)
+
+
+def glazable(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray:
+    """Per scan, whether an opening is seen through one side and nothing through the other
+    (`DEPTH`): a place across from a plain wall, which `glazed` turns into a window."""
+    r = np.asarray(ranges, dtype=np.float32)
+    left, right = (_beyond(r, laser.angles, s) for s in (True, False))
+    return np.asarray((np.minimum(left, right) == 0) & (np.maximum(left, right) > 0))
 
 
 def usual_wall(ranges: np.ndarray, laser: LaserGeometry) -> float:

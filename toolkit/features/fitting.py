@@ -16,7 +16,18 @@ import numpy as np
 
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
-from toolkit.features.augment import canonical, changed, closed, ended, opened, started
+from toolkit.features.augment import (
+    canonical,
+    changed,
+    closed,
+    ended,
+    glass_across,
+    glazable,
+    glazed,
+    opened,
+    started,
+    walled_across,
+)
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -246,20 +257,48 @@ def _fit_places(
     # the taught scans' copies with the less open side of the path closed (or opened): what
     # lies across the path from a place is that spot's accident (a hall opens on one side or
     # on both); copies that are the scan again are left out (`augment.changed`)
-    # each: weight, copy, the places copied (empty: all), the label (None: the place's own)
+    # each: weight, copy, the places copied (empty: all), the label (None: the place's own),
+    # the taught scans copied (None: all), whether a copy must differ by `changed` (else:
+    # in any beam)
     Copy = Callable[[np.ndarray, LaserGeometry], np.ndarray]
-    copies: list[tuple[float, Copy, tuple[str, ...], str | None]] = [
-        (config.augment_closed, closed, (), None),
-        (config.augment_open, opened, (), None),
+    # a scan of `across_of` with glass across the path from its opening (a door across from
+    # a window) has no closed or opened copy (`closed` takes the glass for the more open
+    # side: the window labelled door) but one walled across from its opening, kept however
+    # little glass it saw (the door without the window)
+    glassy = np.zeros(len(idx), dtype=bool)
+    if config.across_of:
+        glassy = np.isin(y, config.across_of) & glass_across(ranges[idx], laser)
+    plain = ~glassy if glassy.any() else None
+    copies: list[tuple[float, Copy, tuple[str, ...], str | None, np.ndarray | None, bool]] = [
+        (config.augment_closed, closed, (), None, plain, True),
+        (config.augment_open, opened, (), None, plain, True),
+        (config.augment_closed, walled_across, config.across_of, None, glassy, False),
+        (
+            config.augment_glass,
+            glazed,
+            config.across_of or ("door",),
+            None,
+            glazable(ranges[idx], laser),
+            True,
+        ),
     ]
     # and as at the place's end, ahead and behind (a hall's end, a corner's edge), and the
     # closed copies' ends (a two-sided hall's end as a one-sided one's); where the context is
     # on (measured there only: the sparse path stays as session 23 measured it)
     for front in (True, False) if config.context > 0 else ():
-        copies.append((config.augment_ends, partial(ended, ahead=front), config.ends_of, None))
+        copies.append(
+            (config.augment_ends, partial(ended, ahead=front), config.ends_of, None, None, True)
+        )
         if config.ends_one_sided:
             copies.append(
-                (config.augment_ends, partial(_closed_end, ahead=front), config.ends_of, None)
+                (
+                    config.augment_ends,
+                    partial(_closed_end, ahead=front),
+                    config.ends_of,
+                    None,
+                    None,
+                    True,
+                )
             )
     # and as from the corridor just outside the place, taught as corridor (where taught);
     # not where the context is off: a scan alone, the hall's near part taught as corridor
@@ -267,18 +306,28 @@ def _fit_places(
     if "corridor" in y and config.context > 0:
         for front in (True, False):
             for start in (partial(started, ahead=front), partial(_closed_start, ahead=front)):
-                copies.append((config.augment_starts, start, config.starts_of, "corridor"))
+                copies.append(
+                    (config.augment_starts, start, config.starts_of, "corridor", None, True)
+                )
     extra = []
-    for weight, copy, of, label in copies:
-        if weight > 0 and config.classifier == "trees":
+    for weight, copy, of, label, which, fresh in copies:
+        if weight > 0 and config.classifier == "trees" and (which is None or which.any()):
             copied = copy(ranges, laser)
             xa = features(
                 copied, laser, columns, along, config.context, None, config.beside, poses,
                 config.local_map, ahead, config.opening, factor, config.reach_metres,
             )  # fmt: skip
-            new = changed(ranges[idx], copied[idx], laser)  # not the scan again
+            if fresh:
+                new = changed(ranges[idx], copied[idx], laser)  # not the scan again
+            else:
+                new = ~np.all(
+                    (copied[idx] == ranges[idx]) | (np.isnan(copied[idx]) & np.isnan(ranges[idx])),
+                    axis=1,
+                )
             if of:
                 new &= np.isin(y, of)
+            if which is not None:
+                new &= which
             labels = y[new] if label is None else np.full(int(new.sum()), label)
             extra.append((xa[idx][new], labels, np.full(int(new.sum()), weight)))
     return fit_places(
