@@ -245,20 +245,32 @@ def opening_beside(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray | Non
     of their distances across the path; no return: open) reach `OPENING_DEPTH` m past that
     side's usual wall (the median of the log's scans); None if the laser has no beam
     within `SQUARE` of square to the path on each side."""
+    found = _seen_beside(ranges, laser)
+    if found is None:
+        return None
+    seen, wall = found
+    out: np.ndarray = np.any(seen > wall + OPENING_DEPTH, axis=1)
+    return out
+
+
+def _seen_beside(ranges: np.ndarray, laser: LaserGeometry) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per scan and side (S x 2: left, right), the median distance across the path the beams
+    square to it see (inf: no return), and per side the usual wall (the log's median; inf
+    if no scan returns there); None without such beams on each side."""
     across = np.abs(np.sin(laser.angles + laser.yaw))
     side = np.sign(np.sin(laser.angles + laser.yaw))
     square = across >= np.cos(SQUARE) - 1e-9
-    out = np.zeros(len(ranges), dtype=bool)
-    for sign in (1.0, -1.0):
+    seen, wall = np.empty((len(ranges), 2)), np.full(2, np.inf)
+    for k, sign in enumerate((1.0, -1.0)):
         beams = square & (side == sign)
         if not beams.any():
             return None
         r = np.asarray(ranges[:, beams], dtype=np.float64)
-        seen = np.median(np.where(np.isfinite(r), r, np.inf) * across[beams], axis=1)
-        usual = seen[np.isfinite(seen)]
+        seen[:, k] = np.median(np.where(np.isfinite(r), r, np.inf) * across[beams], axis=1)
+        usual = seen[np.isfinite(seen[:, k]), k]
         if len(usual):
-            out |= seen > float(np.median(usual)) + OPENING_DEPTH
-    return out
+            wall[k] = float(np.median(usual))
+    return seen, wall
 
 
 def opening_distance(
@@ -300,6 +312,59 @@ def openings(
 
 #: the median path step (m) over which the openings are too coarse to place a door's edge
 DENSE_STEP = 0.25
+#: a taught place gets the reach rule if at least this share of its taught scans lie within
+#: `beside_reach` of an opening beside the laser (doors, halls and corners all; a corridor's
+#: none; docs/journal/places.md, session 24, taught24)
+TAUGHT_NEAR = 0.9
+#: m past the usual wall: a taught place's opening seen deeper (the median of its taught
+#: scans that see an opening with returns) is a crossing corridor seen down (a corner's:
+#: 2.8-24 m, median 18), not a door's room (2.6-4.0 m in the random worlds): no length rule
+#: then (10 m let 7 corners of 290 worlds have it: the hall's precision (c) -0.0005)
+ROOM_DEPTH = 5.0
+#: m of path: the reach the places are learnt with when `beside_reach` is 0
+LEARN_REACH = 0.5
+
+
+def learn_opening_places(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray | None,
+    training: dict[str, np.ndarray],
+    reach: float,
+    narrow: float,
+) -> dict[str, tuple[str, ...]]:
+    """Which taught places the opening rules (`beside_only`) apply to, from the taught scans'
+    own geometry, not their names: "beside" (the reach rule), the places whose taught scans
+    (at least `TAUGHT_NEAR` of them) lie within `reach` m of path of an opening beside the
+    laser and at least one of which sees through it to a wall (returns: not glass, not a
+    window); "narrow" (the length rule), those of them whose taught scans' nearest openings
+    are all at most `narrow` m long and not seen down deeper than `ROOM_DEPTH` (a door's
+    room, not a crossing corridor). Both empty where `beside_only` would not apply (no poses,
+    no square beams, a sparse log)."""
+    none: dict[str, tuple[str, ...]] = {"beside": (), "narrow": ()}
+    found = openings(ranges, laser, poses)
+    seen_wall = _seen_beside(ranges, laser)
+    if found is None or seen_wall is None or len(ranges) < 2:
+        return none
+    distance, length, along = found
+    if not np.median(np.diff(along)) <= DENSE_STEP:
+        return none
+    seen, wall = seen_wall
+    with np.errstate(invalid="ignore"):
+        past = np.max(seen - wall, axis=1)  # the deeper side's reach past its wall
+    room = np.isfinite(past) & (past > OPENING_DEPTH)
+    beside, short = [], []
+    for name, idx in training.items():
+        idx = np.asarray(idx, dtype=np.intp)
+        if not len(idx) or name == "none":
+            continue
+        near = np.mean(distance[idx] <= (reach or LEARN_REACH)) >= TAUGHT_NEAR
+        rooms = idx[room[idx]]
+        if near and len(rooms):
+            beside.append(name)
+            if np.all(length[idx] <= narrow) and np.median(past[rooms]) <= ROOM_DEPTH:
+                short.append(name)
+    return {"beside": tuple(beside), "narrow": tuple(short)}
 
 
 def beside_only(
@@ -310,7 +375,9 @@ def beside_only(
     more than `beside_reach` m of path from a scan with an opening beside the laser (a
     door's call runs a scan or two past its zone), those of `narrow_places` where that
     nearest opening is longer than `narrow_opening` m along the path (a hall's or a
-    crossing corridor's, not a door's; `openings`; docs/journal/places.md, session 24).
+    crossing corridor's, not a door's; `openings`; docs/journal/places.md, session 24);
+    either None (the default): the places learnt when fitting (`model.opening_places`,
+    `learn_opening_places`).
     Unchanged without poses, without beams square to the path, or where the median scan
     lies more than `DENSE_STEP` m from the last (the path is then too coarse); `classify`
     leaves it out when streaming (`smoothing` "forward": it looks at the scans ahead)."""
@@ -323,11 +390,13 @@ def beside_only(
     if not np.median(np.diff(along)) <= DENSE_STEP:
         return prob
     out = prob.copy()
+    learnt = model.opening_places
     rules = (
-        (cfg.beside_reach, cfg.beside_places, distance),
-        (cfg.narrow_opening, cfg.narrow_places, length),
+        (cfg.beside_reach, cfg.beside_places, learnt.get("beside", ()), distance),
+        (cfg.narrow_opening, cfg.narrow_places, learnt.get("narrow", ()), length),
     )
-    for limit, places, measure in rules:
+    for limit, named, learnt_places, measure in rules:
+        places = learnt_places if named is None else named
         columns = np.array([names.index(k) for k in places if k in names], int)
         if limit > 0 and len(columns):
             out[np.ix_(measure > limit, columns)] = 0.0

@@ -107,6 +107,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: without the opening rules (beside_reach 0, narrow_opening 0: a door or hall call far from an opening beside the laser, and a door call by a long one, kept; margin24, session 24)", dataclasses.replace(FULL, beside_reach=0.0, narrow_opening=0.0)),
     ("alternative: without the copies walled across (across_of empty: a taught door across from a window keeps its closed and opened copies, the window labelled door; miss24, session 24)", dataclasses.replace(FULL, across_of=())),
     ("alternative: + the taught door's copies with a window across (augment_glass 1: session 24)", dataclasses.replace(FULL, augment_glass=1.0)),
+    ("alternative: the opening rules' places named, not learnt (beside_places door and hall, narrow_places door: margin24's, session 24)", dataclasses.replace(FULL, beside_places=("door", "hall"), narrow_places=("door",))),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -28,6 +28,7 @@ from toolkit.features.augment import (
     started,
     walled_across,
 )
+from toolkit.features.classify import learn_opening_places
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
     chosen_columns,
@@ -203,6 +204,15 @@ def fit(
         )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
+    if None in (config.beside_places, config.narrow_places):  # which places the opening
+        # rules apply to, from the taught scans' geometry (their names are the user's)
+        taught = {
+            name: np.concatenate([i for n, i in components if n == name]) for name, _ in components
+        }
+        model.opening_places = learn_opening_places(
+            ranges, laser, poses, taught, config.beside_reach, config.narrow_opening
+        )
+        model.fit_report["opening_places"] = {k: list(v) for k, v in model.opening_places.items()}
     return model
 
 

@@ -223,8 +223,12 @@ class Config:
     # (fitted on 70 others) the door's precision +0.045 / +0.034 / +0.036, balanced
     # accuracy +0.0004 / +0.0012 / +0.0012, ECE -0.002 to -0.004, the door's recall -0.002
     # (0: off, session 23's default; docs/journal/places.md, session 24)
-    beside_places: tuple[str, ...] = ("door", "hall")  # with `beside_reach`, the places
-    # ruled out far from an opening beside the laser
+    beside_places: tuple[str, ...] | None = None  # with `beside_reach`, the places ruled
+    # out far from an opening beside the laser; None: those learnt when fitting from the
+    # taught scans' geometry (classify.learn_opening_places: the door, hall and corner of the
+    # random worlds, whatever their names; over 290 development worlds against the names
+    # door and hall: balanced accuracy +0.0004, the corner's precision +0.009; session 24,
+    # taught24); a tuple: those names (session 24's first default: ("door", "hall"))
     narrow_opening: float = 2.0  # m along the path: a call of a place of `narrow_places`
     # whose nearest opening beside the laser (the run of scans whose square beams see through
     # it) is longer than this goes to the next place (classify.beside_only: a door's opening
@@ -232,7 +236,9 @@ class Config:
     # worlds with `beside_reach`, against session 23's default: the door's precision +0.097
     # / +0.084 / +0.100, balanced accuracy +0.003 / +0.004 / +0.005, the hall's recall
     # +0.011 to +0.015, its precision (a) -0.004 (0: off; docs/journal/places.md, session 24)
-    narrow_places: tuple[str, ...] = ("door",)  # with `narrow_opening`, the places ruled out
+    narrow_places: tuple[str, ...] | None = None  # with `narrow_opening`, the places ruled
+    # out; None: learnt when fitting (the door's: its taught openings short and a room behind
+    # them); a tuple: those names (session 24's first default: ("door",))
     across_of: tuple[str, ...] = ("door",)  # these places' taught scans with glass across
     # the path from their opening (augment.glass_across; the side seen through is the opening)
     # have no closed or opened copy (the window labelled door) but one walled across from
@@ -272,8 +278,9 @@ class Config:
         object.__setattr__(self, "resemble_places", tuple(self.resemble_places))  # JSON: list
         object.__setattr__(self, "ends_of", tuple(self.ends_of))  # JSON: a list
         object.__setattr__(self, "starts_of", tuple(self.starts_of))
-        object.__setattr__(self, "beside_places", tuple(self.beside_places))
-        object.__setattr__(self, "narrow_places", tuple(self.narrow_places))
+        for name in ("beside_places", "narrow_places"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.beside_reach < 0 or self.narrow_opening < 0:
             raise ToolkitError("beside_reach and narrow_opening: 0 or more")
         object.__setattr__(self, "across_of", tuple(self.across_of))
@@ -300,8 +307,8 @@ class Config:
 #: saved before session 20 had no resemblance check; one learnt before session 23 had no
 #: copies as from the corridor outside a hall nor as at a hall's or corner's end, and on a
 #: sparse log kept the geometric dwell; one saved before session 24 kept a door or hall call
-#: far from an opening beside the laser or beside a long one, and (learnt) a door's closed
-#: and opened copies where glass lay across
+#: far from an opening beside the laser or beside a long one (and named the places those
+#: rules apply to), and (learnt) a door's closed and opened copies where glass lay across
 #: (the learning-only fields too, so that a loaded model's config says how it was learnt)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
@@ -314,6 +321,8 @@ LEGACY: dict[str, Any] = {
     "beside_reach": 0.0,
     "narrow_opening": 0.0,
     "across_of": (),
+    "beside_places": ("door", "hall"),
+    "narrow_places": ("door",),
 }
 
 
@@ -371,6 +380,9 @@ class FeatureModel:
     spans: list[dict[str, Any]] = field(default_factory=list)
     fit_report: dict[str, Any] = field(default_factory=dict)
     places: PlaceClassifier | None = None  # the classifier on scan descriptors
+    # the places the opening rules apply to, learnt when fitting ("beside", "narrow":
+    # classify.learn_opening_places; used where the config's tuples are None)
+    opening_places: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -414,6 +426,8 @@ class FeatureModel:
         }
         if self.places is not None:
             out["places"] = self.places.to_dict()
+        if self.opening_places:
+            out["opening_places"] = {k: list(v) for k, v in self.opening_places.items()}
         if self.background is not None:
             out["background"] = {
                 "p_return": arr(self.background.p_return),
@@ -465,6 +479,9 @@ class FeatureModel:
                 spans=list(d.get("training_spans", [])),
                 fit_report=dict(d.get("fit_report", {})),
                 places=PlaceClassifier.from_dict(d["places"]) if "places" in d else None,
+                opening_places={
+                    str(k): tuple(map(str, v)) for k, v in d.get("opening_places", {}).items()
+                },
             )
         except (KeyError, TypeError, ValueError) as e:
             raise FormatError(
