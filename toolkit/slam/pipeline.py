@@ -100,7 +100,7 @@ class SlamConfig:
     # loop's end, added after the last round (the stretches no loop reaches). An expert
     # setting, off: 0.04 m with reach 10 m was measured (development seeds, paired against
     # the default, docs/journal/maps.md session 24) better on freiburg-campus (mean ATE 0.342
-    # -> 0.331 m, 45 runs), infinite-corridor (0.385 -> 0.377, 42) and acapulco, but worse on
+    # -> 0.331 m, 45 runs), infinite-corridor (0.384 -> 0.375, 45) and acapulco, but worse on
     # belgioioso (+0.005 m) and edmonton (+0.005) beyond 2 SE (24 runs each)
     odometry_along: float = 0.0
     odometry_per_metre: float = 0.0
