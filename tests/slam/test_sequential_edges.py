@@ -67,9 +67,10 @@ def test_the_mapper_passes_the_front_ends_covariances_when_asked(building: toolk
     ds = with_drift(building, seed=0)
     result, run = slam_trajectory(ds, slam=SlamConfig(matcher_cov=3.0))
     _, plain = slam_trajectory(ds)
-    seq = [e for e in run.edges if not e.loop]
-    seq_plain = [e for e in plain.edges if not e.loop]
-    assert len(seq) == len(seq_plain) > 100
+    # the sequential edges come first (then the odometry's where no loop reaches, the loops)
+    seq = run.edges[: len(run.keys) - 1]
+    seq_plain = plain.edges[: len(plain.keys) - 1]
+    assert len(seq) == len(seq_plain) > 100 and not any(e.loop for e in seq)
     floor = sequential_edges(run.keys, run.before, SlamConfig())
     changed = [not np.allclose(e.covariance, f.covariance) for e, f in zip(seq, floor, strict=True)]
     assert np.mean(changed) > 0.9
@@ -120,7 +121,7 @@ def test_odometry_edges_take_the_scale_out_and_hold_only_the_forward_motion() ->
         before[k + 1] = se2.compose(before[k], step)
         odometry[k + 1] = se2.compose(odometry[k], step * np.array([1.03, 1.03, 1.0]))
     keys = np.array([0, 1, 2, 4, 5, 8])
-    assert odometry_edges(keys, before, odometry, SlamConfig()) == []
+    assert odometry_edges(keys, before, odometry, SlamConfig(odometry_along=0.0)) == []
     config = SlamConfig(odometry_along=0.02, odometry_per_metre=0.01, odometry_loose=(0.5, 0.3))
     edges = odometry_edges(keys, before, odometry, config)
     truth = se2.between(before[keys[:-1]], before[keys[1:]])
@@ -135,16 +136,17 @@ def test_odometry_edges_take_the_scale_out_and_hold_only_the_forward_motion() ->
 
 
 def test_the_mapper_adds_odometry_edges_only_where_asked(building: toolkit.Dataset) -> None:
-    """Off, the graph is the default's; `odometry_along` everywhere: one odometry edge per
-    sequential edge; with `odometry_reach`, only on edges farther along the path than that
-    from every accepted loop's end; the map stays right."""
+    """Off, no odometry edge; `odometry_along` with no reach: one odometry edge per
+    sequential edge; with `odometry_reach` (the default's 10 m, here 3 m), only on edges
+    farther along the path than that from every accepted loop's end; the map stays right."""
     truth = truth_poses(building)
     assert truth is not None
     ds = with_drift(building, seed=0)
-    _, plain = slam_trajectory(ds)
+    _, plain = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.0))
     seq = sum(not e.loop for e in plain.edges)
-    _, every = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.02))
+    _, every = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.02, odometry_reach=0.0))
     assert sum(not e.loop for e in every.edges) == 2 * seq
+    assert SlamConfig().odometry_along > 0 and SlamConfig().odometry_reach > 0
     result, reach = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.02, odometry_reach=3.0))
     added = [e for e in reach.edges if not e.loop][seq:]
     ends = np.array([along for lp in reach.loops if lp.accepted for along in (lp.a, lp.b)])

@@ -95,17 +95,18 @@ class SlamConfig:
     # > 0: the odometry's forward motion as a second sequential edge between consecutive
     # keyframes (its scale taken out: the odometry's path length over the estimate's), this
     # spread (m, plus `odometry_per_metre` per metre of the edge) along the first keyframe's
-    # heading, none across or in heading (`odometry_loose`); needs `close_loops(odometry=...)`.
-    # `odometry_reach` > 0: only on edges farther than this (m of path) from every accepted
-    # loop's end, added after the last round (the stretches no loop reaches). An expert
-    # setting, off: 0.04 m with reach 10 m was measured (development seeds, paired against
-    # the default, docs/journal/maps.md session 24) better on freiburg-campus (mean ATE 0.342
-    # -> 0.331 m, 45 runs), infinite-corridor (0.384 -> 0.375, 45) and acapulco, but worse on
-    # belgioioso (+0.005 m) and edmonton (+0.005) beyond 2 SE (24 runs each)
-    odometry_along: float = 0.0
+    # heading, none across or in heading (`odometry_loose`); needs `close_loops(odometry=...)`
+    # (`slam_trajectory` passes it; 0: off). `odometry_reach` > 0: only on edges farther than
+    # this (m of path) from every accepted loop's end, added after the last round (the
+    # stretches no loop reaches; 0: every edge, from the start). The default since session 24
+    # (development seeds, paired, docs/journal/maps.md): freiburg-campus mean ATE 0.342 ->
+    # 0.335 m, infinite-corridor 0.384 -> 0.377 (45 runs each, both beyond 2 SE), acapulco,
+    # belgioioso and orebro a little better, no log worse; 0.04 m cost belgioioso and edmonton
+    # 5 mm, and every edge (no reach) costs infinite-corridor 0.07-0.3 m
+    odometry_along: float = 0.08
     odometry_per_metre: float = 0.0
     odometry_loose: tuple[float, float] = (1.0, 1.0)  # m across, rad: the edge's other spreads
-    odometry_reach: float = 0.0
+    odometry_reach: float = 10.0
     loop: LoopConfig = field(default_factory=LoopConfig)
     front_end: str = "map"  # sequential matching: "map" (scan-to-map) or "keyframe" (the paper's)
     scan_map: MapConfig = field(default_factory=MapConfig)
