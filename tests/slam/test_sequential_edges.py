@@ -10,7 +10,7 @@ import toolkit
 from toolkit import se2
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses, with_drift
-from toolkit.slam.pipeline import SlamConfig, local_map_edges, sequential_edges
+from toolkit.slam.pipeline import SlamConfig, local_map_edges, odometry_edges, sequential_edges
 from toolkit.slam.run import slam_trajectory
 from toolkit.slam.scanmap import scan_to_map
 
@@ -67,9 +67,10 @@ def test_the_mapper_passes_the_front_ends_covariances_when_asked(building: toolk
     ds = with_drift(building, seed=0)
     result, run = slam_trajectory(ds, slam=SlamConfig(matcher_cov=3.0))
     _, plain = slam_trajectory(ds)
-    seq = [e for e in run.edges if not e.loop]
-    seq_plain = [e for e in plain.edges if not e.loop]
-    assert len(seq) == len(seq_plain) > 100
+    # the sequential edges come first (then the odometry's where no loop reaches, the loops)
+    seq = run.edges[: len(run.keys) - 1]
+    seq_plain = plain.edges[: len(plain.keys) - 1]
+    assert len(seq) == len(seq_plain) > 100 and not any(e.loop for e in seq)
     floor = sequential_edges(run.keys, run.before, SlamConfig())
     changed = [not np.allclose(e.covariance, f.covariance) for e, f in zip(seq, floor, strict=True)]
     assert np.mean(changed) > 0.9
@@ -105,4 +106,52 @@ def test_lag_edges_join_the_scan_to_map_front_end_only_when_asked(
     assert np.median(off) < 0.03 and np.max(off) < 0.2
     result, run = slam_trajectory(ds, slam=SlamConfig(lag_edges=True))
     assert len(run.edges) >= len(plain.edges) + len(lagged) // 2
+    assert evaluate(result.poses, truth)["ate"]["rmse"] < 0.1
+
+
+def test_odometry_edges_take_the_scale_out_and_hold_only_the_forward_motion() -> None:
+    """`SlamConfig.odometry_along`: per keyframe pair the odometry's motion with its scale
+    (the odometry's path over the estimate's) divided out, tight along the first keyframe's
+    heading only; off (0), no edge."""
+    rng = np.random.default_rng(2)
+    steps = np.c_[rng.uniform(0.5, 1.0, 8), rng.normal(0, 0.05, 8), rng.normal(0, 0.2, 8)]
+    before = np.zeros((9, 3))
+    odometry = np.zeros((9, 3))
+    for k, step in enumerate(steps):
+        before[k + 1] = se2.compose(before[k], step)
+        odometry[k + 1] = se2.compose(odometry[k], step * np.array([1.03, 1.03, 1.0]))
+    keys = np.array([0, 1, 2, 4, 5, 8])
+    assert odometry_edges(keys, before, odometry, SlamConfig(odometry_along=0.0)) == []
+    config = SlamConfig(odometry_along=0.02, odometry_per_metre=0.01, odometry_loose=(0.5, 0.3))
+    edges = odometry_edges(keys, before, odometry, config)
+    truth = se2.between(before[keys[:-1]], before[keys[1:]])
+    for e, t, a, b in zip(edges, truth, keys[:-1], keys[1:], strict=True):
+        assert (e.a, e.b) == (a, b) and not e.loop
+        assert np.allclose(e.pose, t, atol=1e-9)  # the 3% scale is out
+        along = 0.02 + 0.01 * np.hypot(t[0], t[1])
+        assert np.allclose(e.covariance, np.diag([along**2, 0.25, 0.09]))
+    # the odometry's scale as it is: the edges are 3% longer than the estimate's
+    raw = se2.between(odometry[keys[:-1]], odometry[keys[1:]])
+    assert np.allclose(np.hypot(raw[:, 0], raw[:, 1]), 1.03 * np.hypot(truth[:, 0], truth[:, 1]))
+
+
+def test_the_mapper_adds_odometry_edges_only_where_asked(building: toolkit.Dataset) -> None:
+    """Off, no odometry edge; `odometry_along` with no reach: one odometry edge per
+    sequential edge; with `odometry_reach` (the default's 10 m, here 3 m), only on edges
+    farther along the path than that from every accepted loop's end; the map stays right."""
+    truth = truth_poses(building)
+    assert truth is not None
+    ds = with_drift(building, seed=0)
+    _, plain = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.0))
+    seq = sum(not e.loop for e in plain.edges)
+    _, every = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.02, odometry_reach=0.0))
+    assert sum(not e.loop for e in every.edges) == 2 * seq
+    assert SlamConfig().odometry_along > 0 and SlamConfig().odometry_reach > 0
+    result, reach = slam_trajectory(ds, slam=SlamConfig(odometry_along=0.02, odometry_reach=3.0))
+    added = [e for e in reach.edges if not e.loop][seq:]
+    ends = np.array([along for lp in reach.loops if lp.accepted for along in (lp.a, lp.b)])
+    assert 0 < len(added) < seq and len(ends) > 0
+    path = np.r_[0, np.cumsum(np.hypot(*np.diff(reach.before[:, :2], axis=0).T))]
+    mid = 0.5 * (path[[e.a for e in added]] + path[[e.b for e in added]])
+    assert np.abs(mid[:, None] - path[ends][None, :]).min(axis=1).min() > 3.0
     assert evaluate(result.poses, truth)["ate"]["rmse"] < 0.1

@@ -92,6 +92,21 @@ class SlamConfig:
     # acapulco, belgioioso, fhw, intel, worse on seattle, edmonton and infinite-corridor
     # (docs/journal/maps.md, session 21)
     lag_edges: bool = False
+    # > 0: the odometry's forward motion as a second sequential edge between consecutive
+    # keyframes (its scale taken out: the odometry's path length over the estimate's), this
+    # spread (m, plus `odometry_per_metre` per metre of the edge) along the first keyframe's
+    # heading, none across or in heading (`odometry_loose`); needs `close_loops(odometry=...)`
+    # (`slam_trajectory` passes it; 0: off). `odometry_reach` > 0: only on edges farther than
+    # this (m of path) from every accepted loop's end, added after the last round (the
+    # stretches no loop reaches; 0: every edge, from the start). The default since session 24
+    # (development seeds, paired, docs/journal/maps.md): freiburg-campus mean ATE 0.342 ->
+    # 0.335 m, infinite-corridor 0.384 -> 0.377 (45 runs each, both beyond 2 SE), acapulco,
+    # belgioioso and orebro a little better, no log worse; 0.04 m cost belgioioso and edmonton
+    # 5 mm, and every edge (no reach) costs infinite-corridor 0.07-0.3 m
+    odometry_along: float = 0.08
+    odometry_per_metre: float = 0.0
+    odometry_loose: tuple[float, float] = (1.0, 1.0)  # m across, rad: the edge's other spreads
+    odometry_reach: float = 10.0
     loop: LoopConfig = field(default_factory=LoopConfig)
     front_end: str = "map"  # sequential matching: "map" (scan-to-map) or "keyframe" (the paper's)
     scan_map: MapConfig = field(default_factory=MapConfig)
@@ -208,6 +223,29 @@ def _chain_cov(
     return out
 
 
+def odometry_edges(
+    keys: np.ndarray, before: np.ndarray, odometry: np.ndarray, config: SlamConfig
+) -> list[pg.Edge]:
+    """Per consecutive keyframe pair: the odometry's motion, its scale taken out (the
+    odometry's keyframe path over `before`'s), tight only along the first keyframe's heading
+    (`SlamConfig.odometry_along`): wheels measure the forward motion well over many steps once
+    their scale is known, the heading poorly (a wheel-diameter drift, noise of ~1 deg a step)."""
+    if config.odometry_along <= 0 or len(keys) < 2:
+        return []
+    rel = se2.between(odometry[keys[:-1]], odometry[keys[1:]])
+    est = se2.between(before[keys[:-1]], before[keys[1:]])
+    length = np.hypot(est[:, 0], est[:, 1])
+    odo_length = np.hypot(rel[:, 0], rel[:, 1])
+    scale = float(odo_length.sum() / length.sum()) if length.sum() > 0 else 1.0
+    rel[:, :2] /= scale if scale > 0 else 1.0
+    along = config.odometry_along + config.odometry_per_metre * length
+    across, turn = config.odometry_loose
+    return [
+        pg.Edge(int(a), int(b), r, np.diag([t * t, across * across, turn * turn]))
+        for a, b, r, t in zip(keys[:-1], keys[1:], rel, along, strict=True)
+    ]
+
+
 def local_map_edges(
     ds: Dataset,
     keys: np.ndarray,
@@ -277,15 +315,19 @@ def close_loops(
     before: np.ndarray,
     config: SlamConfig | None = None,
     step_cov: np.ndarray | None = None,
+    odometry: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[pg.Edge], list[Loop], dict[str, float], np.ndarray]:
     """Local-map edges, loop closure and pose graph optimisation over a sequential estimate
     `before` (S x 3); returns the poses, keyframes, edges, loops, timings and the estimate
-    before loops (with the local map)."""
+    before loops (with the local map). `odometry` (S x 3): for `SlamConfig.odometry_along`."""
     config = config or SlamConfig()
     timings = {"loops": 0.0, "optimisation": 0.0}
     keys = keyframes_of(before, config.keyframe_distance, config.keyframe_angle)
     edges = sequential_edges(keys, before, config, step_cov)
     sequential_only = list(edges)
+    odo_edges = odometry_edges(keys, before, odometry, config) if odometry is not None else []
+    if odo_edges and config.odometry_reach <= 0:
+        edges = edges + odo_edges  # everywhere, from the start
     if not config.loops or len(keys) < 3:
         return before.copy(), keys, edges, [], timings, before
     t0 = time.perf_counter()
@@ -445,6 +487,21 @@ def close_loops(
             found.setdefault((lp.a, lp.b), lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
+    if odo_edges and config.odometry_reach > 0:
+        # the stretches no loop reaches: their keyframe edges get the odometry's, solved again
+        ends = np.array([along[e] for lp in found.values() if lp.accepted for e in (lp.a, lp.b)])
+        if len(ends):
+            mid = 0.5 * (along[keys[:-1]] + along[keys[1:]])
+            far = np.abs(mid[:, None] - ends[None, :]).min(axis=1) > config.odometry_reach
+        else:
+            far = np.ones(len(odo_edges), dtype=bool)
+        extra = [e for e, f in zip(odo_edges, far, strict=True) if f]
+        if extra:
+            t0 = time.perf_counter()
+            fixed.push_back(pg.edge_factors(extra, config.robust))
+            edges = edges + extra
+            timings["optimisation"] += time.perf_counter() - t0
+            poses = solve()
     accepted = [lp for lp in found.values() if lp.accepted]
     edges = edges + [
         pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True) for lp in accepted

@@ -128,7 +128,8 @@ def slam_trajectory(
     step_cov = None
     if slam.front_end == "map" and result.matches is not None:
         step_cov = result.matches.covariance  # scan-to-map: world frame, per scan step
-    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam, step_cov)
+    odometry = odometry_poses(ds) if slam.odometry_along > 0 else None
+    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam, step_cov, odometry)
     out = replace(result, stream=PoseStream(result.stream.t, poses))
     run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)
     return out, run
