@@ -254,9 +254,9 @@ class Config:
     # the first at a scan whose beams square to the path see, on either side, returns from
     # 1 to 5 m past that side's usual wall (a room behind an opening) goes to the second
     # (classify.glass_room: a window's glass never returns from a room; a door across the
-    # path from its own window was called window). Over 150 development worlds balanced
-    # accuracy +0.006 / +0.006 / +0.005, the door's recall +0.028 / +0.029 / +0.027, its
-    # precision +0.003, the window's +0.009 to +0.011, ECE -0.001 (docs/journal/places.md,
+    # path from its own window was called window). Over 290 development worlds balanced
+    # accuracy +0.004 / +0.004 / +0.006, the door's recall +0.022 / +0.022 / +0.030, its
+    # precision +0.002 to +0.009, the window's +0.007 to +0.010, ECE -0.001 (places journal,
     # session 24, glass24; empty: off, until then)
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
     # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
