@@ -14,8 +14,15 @@ import pytest
 
 from tests.features import world
 from tests.features.world import LASER, cast, drive
+from toolkit.errors import ToolkitError
 from toolkit.features import Config, fit
-from toolkit.features.classify import beside_only, classify, opening_distance, openings
+from toolkit.features.classify import (
+    beside_only,
+    classify,
+    glass_room,
+    opening_distance,
+    openings,
+)
 from toolkit.features.model import FeatureModel
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import simulate
@@ -171,3 +178,37 @@ def test_the_rules_places_are_learnt_from_the_taught_scans_not_their_names(
     # named after the user's words, the names-keyed rules do nothing for them
     renamed.config = replace(renamed.config, **NAMED)
     assert not np.array_equal(classify(renamed, ranges, poses).label, other.label)
+
+
+def test_a_window_call_that_sees_a_room_beside_goes_to_the_door() -> None:
+    """Random world 3 (development; a door across the path from a window), taught on run a,
+    labelling run b: with `glass_to` ("window", "door"), the default, the 13 scans called window whose
+    square beams see a room 1-5 m past a side's usual wall are called door, every one of them
+    a door scan in truth; every other scan keeps its label and posterior; streaming, nothing
+    changes; a `glass_to` that is not a pair is refused."""
+    train, other = simulate("random", seed=3), simulate("random", seed=3, route=1)
+    ds, ob = train.dataset, other.dataset
+    assert ds.groundtruth is not None and ob.groundtruth is not None
+    spans = spans_from_frame(train.regions, ds.t)
+    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
+    their = ob.groundtruth[["x", "y", "theta"]].to_numpy()
+    model = fit(ds.ranges, ds.laser, training_indices(spans), Config(), spans, poses)
+    assert model.config.glass_to == ("window", "door")
+    new = classify(model, ob.ranges, their)
+    model.config = replace(model.config, glass_to=())
+    base = classify(model, ob.ranges, their)
+    model.config = replace(model.config, glass_to=("window", "door"))
+    moved = base.label != new.label
+    assert moved.sum() == 13
+    assert set(base.label[moved]) == {"window"} and set(new.label[moved]) == {"door"}
+    assert set(np.asarray(other.labels)[moved].astype(str)) == {"door"}
+    assert np.array_equal(base.prob[~moved], new.prob[~moved])
+    assert np.array_equal(glass_room(base.prob, model, ob.ranges), new.prob)
+    np.testing.assert_allclose(new.prob.sum(axis=1), 1.0)
+    # streaming (the forward filter): the usual wall is the whole log's, so it is left out
+    model.config = replace(model.config, smoothing="forward")
+    streamed = classify(model, ob.ranges, their)
+    model.config = replace(model.config, glass_to=())
+    assert np.array_equal(streamed.prob, classify(model, ob.ranges, their).prob)
+    with pytest.raises(ToolkitError):
+        Config(glass_to=("window",))

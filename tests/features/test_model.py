@@ -292,6 +292,9 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     # before session 24, a door's closed copy could wall the door where glass lay across
     unglazed = {k: v for k, v in now.items() if k != "across_of"}
     assert Config.from_dict(unglazed).across_of == () and Config().across_of == ("door",)
+    # before session 24 (glass24), a window call kept where a room was seen beside the laser
+    roomless = {k: v for k, v in now.items() if k != "glass_to"}
+    assert Config.from_dict(roomless).glass_to == () and Config().glass_to == ("window", "door")
 
 
 def test_background_density_integrates_to_one() -> None:

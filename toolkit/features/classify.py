@@ -226,6 +226,8 @@ def classify(
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
     if (cfg.beside_reach > 0 or cfg.narrow_opening > 0) and cfg.smoothing != "forward":
         prob = beside_only(prob, model, ranges, poses)  # it looks ahead: not when streaming
+    if len(cfg.glass_to) == 2 and cfg.smoothing != "forward":
+        prob = glass_room(prob, model, ranges)  # the usual wall is the log's: not streaming
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -402,6 +404,31 @@ def beside_only(
             out[np.ix_(measure > limit, columns)] = 0.0
     total = out.sum(axis=1, keepdims=True)
     return np.where(total > 0, out / np.where(total > 0, total, 1.0), prob)
+
+
+def glass_room(prob: np.ndarray, model: FeatureModel, ranges: np.ndarray) -> np.ndarray:
+    """The posteriors with a call of the glass place (`glass_to`'s first) given to the room
+    place (its second: the glass place's share added to it) at the scans whose beams square
+    to the path see, on either side, returns from `OPENING_DEPTH` to `ROOM_DEPTH` m past
+    that side's usual wall (`_seen_beside`): a room behind an opening, which a window's glass
+    (no return, or the pane at the wall) never shows; a door across the path from a window
+    was called window (docs/journal/places.md, session 24, glass24). Unchanged without
+    beams square to the path or without both places."""
+    glass, room_place = model.config.glass_to
+    names = list(model.classes)
+    found = _seen_beside(ranges, model.laser)
+    if found is None or glass not in names or room_place not in names:
+        return prob
+    seen, wall = found
+    with np.errstate(invalid="ignore"):
+        past = seen - wall
+    room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)
+    g, r = names.index(glass), names.index(room_place)
+    hit = room & (prob.argmax(axis=1) == g)
+    out = prob.copy()
+    out[hit, r] += out[hit, g]
+    out[hit, g] = 0.0
+    return out
 
 
 #: Scans scored at once between two progress steps (every scan is scored on its own: the

@@ -103,11 +103,12 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + the reach beside the laser also in metres, not rescaled (reach_metres: session 22)", dataclasses.replace(FULL, reach_metres=True)),
     ("alternative: without the taught hall's and corner's copies as at their ends (augment_ends 0: ends23's default, session 23)", dataclasses.replace(FULL, augment_ends=0.0)),
     ("alternative: session 22's default (augment_starts 0, augment_ends 0: no copies of the taught hall as from the corridor just outside it, nor as at its ends)", dataclasses.replace(FULL, augment_starts=0.0, augment_ends=0.0)),
-    ("alternative: session 23's default (beside_reach 0, narrow_opening 0, across_of empty: neither the opening rules nor the copies walled across)", dataclasses.replace(FULL, beside_reach=0.0, narrow_opening=0.0, across_of=())),
+    ("alternative: session 23's default (beside_reach 0, narrow_opening 0, across_of and glass_to empty: neither the opening rules, nor the copies walled across, nor the window call by a room going to the door)", dataclasses.replace(FULL, beside_reach=0.0, narrow_opening=0.0, across_of=(), glass_to=())),
     ("alternative: without the opening rules (beside_reach 0, narrow_opening 0: a door or hall call far from an opening beside the laser, and a door call by a long one, kept; margin24, session 24)", dataclasses.replace(FULL, beside_reach=0.0, narrow_opening=0.0)),
     ("alternative: without the copies walled across (across_of empty: a taught door across from a window keeps its closed and opened copies, the window labelled door; miss24, session 24)", dataclasses.replace(FULL, across_of=())),
     ("alternative: + the taught door's copies with a window across (augment_glass 1: session 24)", dataclasses.replace(FULL, augment_glass=1.0)),
     ("alternative: the opening rules' places named, not learnt (beside_places door and hall, narrow_places door: margin24's, session 24)", dataclasses.replace(FULL, beside_places=("door", "hall"), narrow_places=("door",))),
+    ("alternative: without the window call by a room going to the door (glass_to empty: a window call where the square beams see a room beside the laser kept; glass24, session 24)", dataclasses.replace(FULL, glass_to=())),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))
