@@ -16,13 +16,7 @@ from tests.features import world
 from tests.features.world import LASER, cast, drive
 from toolkit.errors import ToolkitError
 from toolkit.features import Config, fit
-from toolkit.features.classify import (
-    beside_only,
-    classify,
-    glass_room,
-    opening_distance,
-    openings,
-)
+from toolkit.features.classify import beside_only, classify, glass_room, openings
 from toolkit.features.model import FeatureModel
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import simulate
@@ -36,14 +30,15 @@ def test_opening_distance_is_the_path_to_the_room_beside_the_corridor() -> None:
     A laser with no beam square to the path measures nothing."""
     x = np.arange(1.0, 38.0, 0.1)
     poses = np.c_[x, np.zeros_like(x), np.zeros_like(x)]  # the centre line
-    distance = opening_distance(cast(poses), LASER, poses)
-    assert distance is not None
+    found = openings(cast(poses), LASER, poses)
+    assert found is not None
+    distance = found[0]
     before = (x > 6.0) & (x < 11.9)
     assert np.all(np.abs(distance[before] - (11.95 - x[before])) <= 0.1)
     assert np.all(distance[(x > 12.1) & (x < 15.9)] == 0.0)
     assert np.all(distance[x < 6.0] > 5.0)
     narrow = replace(LASER, beams=120, angle_min=float(LASER.angles[30]))
-    assert opening_distance(cast(poses, narrow), narrow, poses) is None
+    assert openings(cast(poses, narrow), narrow, poses) is None
 
 
 def test_a_doors_opening_is_short_and_a_halls_long(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -79,18 +74,11 @@ def test_door_calls_past_the_opening_go_to_the_next_place() -> None:
     opening beside the laser, and the door calls whose nearest opening is longer than 2 m,
     go to their next place; the door's precision rises (0.846 -> 0.930), no true door scan
     is lost, every other scan keeps its label; streaming, nothing changes."""
-    train, other = simulate("random", seed=7), simulate("random", seed=7, route=1)
-    ds, ob = train.dataset, other.dataset
-    assert ds.groundtruth is not None and ob.groundtruth is not None
-    spans = spans_from_frame(train.regions, ds.t)
-    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
-    their = ob.groundtruth[["x", "y", "theta"]].to_numpy()
-    model = fit(ds.ranges, ds.laser, training_indices(spans), Config(**NAMED), spans, poses)
-    after = classify(model, ob.ranges, their)
+    model, ranges, their, truth = _taught(7, {}, Config(**NAMED))
+    after = classify(model, ranges, their)
     model.config = Config(beside_reach=0.0, narrow_opening=0.0)
-    before = classify(model, ob.ranges, their)
-    truth = np.asarray(other.labels).astype(str)
-    found = openings(ob.ranges, ob.laser, their)
+    before = classify(model, ranges, their)
+    found = openings(ranges, model.laser, their)
     assert found is not None
     distance, length, _ = found
     changed = before.label != after.label
@@ -107,9 +95,9 @@ def test_door_calls_past_the_opening_go_to_the_next_place() -> None:
     np.testing.assert_allclose(after.prob.sum(axis=1), 1.0)
     # streaming (the forward filter): the rules look ahead, so they are left out
     model.config = Config(smoothing="forward")
-    streamed = classify(model, ob.ranges, their)
+    streamed = classify(model, ranges, their)
     model.config = Config(smoothing="forward", beside_reach=0.0, narrow_opening=0.0)
-    assert np.array_equal(streamed.prob, classify(model, ob.ranges, their).prob)
+    assert np.array_equal(streamed.prob, classify(model, ranges, their).prob)
 
 
 def test_beside_only_leaves_sparse_logs_and_logs_without_poses_alone() -> None:
@@ -125,23 +113,26 @@ def test_beside_only_leaves_sparse_logs_and_logs_without_poses_alone() -> None:
     assert beside_only(prob, model, ranges, None) is prob
 
 
-def _taught(seed: int, rename: dict[str, str]) -> tuple[FeatureModel, np.ndarray, np.ndarray]:
-    """Random world `seed`'s model taught on run a with its places renamed (the default
-    Config, its other settings keyed to names renamed alike), run b's scans and poses."""
+def _taught(
+    seed: int, rename: dict[str, str], config: Config | None = None
+) -> tuple[FeatureModel, np.ndarray, np.ndarray, np.ndarray]:
+    """Random world `seed`'s model taught on run a with its places renamed (`config`, default
+    Config(), its settings keyed to names renamed alike); run b's scans, poses and truth."""
     train, other = simulate("random", seed=seed), simulate("random", seed=seed, route=1)
     ds, ob = train.dataset, other.dataset
     assert ds.groundtruth is not None and ob.groundtruth is not None
     regions = train.regions.assign(feature=train.regions["feature"].replace(rename))
     spans = spans_from_frame(regions, ds.t)
     poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
-    cfg = Config()
+    cfg = config or Config()
     named: dict[str, typing.Any] = {
         k: tuple(rename.get(p, p) for p in getattr(cfg, k))
         for k in ("resemble_places", "ends_of", "starts_of")
     }
     cfg = replace(cfg, **named)
     model = fit(ds.ranges, ds.laser, training_indices(spans), cfg, spans, poses)
-    return model, ob.ranges, ob.groundtruth[["x", "y", "theta"]].to_numpy()
+    their = ob.groundtruth[["x", "y", "theta"]].to_numpy()
+    return model, ob.ranges, their, np.asarray(other.labels).astype(str)
 
 
 def test_the_rules_places_are_learnt_from_the_taught_scans_not_their_names(
@@ -154,13 +145,13 @@ def test_the_rules_places_are_learnt_from_the_taught_scans_not_their_names(
     "lobby" (and so in the settings keyed to names: `resemble_places`, `ends_of`,
     `starts_of`) learn the same and label run b alike, name for name; the names as an expert
     override give session 24's first posteriors but where the corner is ruled out."""
-    model, ranges, poses = _taught(7, {})
+    model, ranges, poses, _ = _taught(7, {})
     assert set(model.opening_places["beside"]) == {"door", "hall", "corner"}
     assert model.opening_places["narrow"] == ("door",)
     loaded = FeatureModel.load(model.save(tmp_path / "model.json"))
     assert loaded.opening_places == model.opening_places
     learnt = classify(model, ranges, poses)
-    renamed, _, _ = _taught(7, {"door": "doorway", "hall": "lobby"})
+    renamed, _, _, _ = _taught(7, {"door": "doorway", "hall": "lobby"})
     assert set(renamed.opening_places["beside"]) == {"doorway", "lobby", "corner"}
     assert renamed.opening_places["narrow"] == ("doorway",)
     other = classify(renamed, ranges, poses)
@@ -186,29 +177,23 @@ def test_a_window_call_that_sees_a_room_beside_goes_to_the_door() -> None:
     square beams see a room 1-5 m past a side's usual wall are called door, every one of them
     a door scan in truth; every other scan keeps its label and posterior; streaming, nothing
     changes; a `glass_to` that is not a pair is refused."""
-    train, other = simulate("random", seed=3), simulate("random", seed=3, route=1)
-    ds, ob = train.dataset, other.dataset
-    assert ds.groundtruth is not None and ob.groundtruth is not None
-    spans = spans_from_frame(train.regions, ds.t)
-    poses = ds.groundtruth[["x", "y", "theta"]].to_numpy()
-    their = ob.groundtruth[["x", "y", "theta"]].to_numpy()
-    model = fit(ds.ranges, ds.laser, training_indices(spans), Config(), spans, poses)
+    model, ranges, their, truth = _taught(3, {})
     assert model.config.glass_to == ("window", "door")
-    new = classify(model, ob.ranges, their)
+    new = classify(model, ranges, their)
     model.config = replace(model.config, glass_to=())
-    base = classify(model, ob.ranges, their)
+    base = classify(model, ranges, their)
     model.config = replace(model.config, glass_to=("window", "door"))
     moved = base.label != new.label
     assert moved.sum() == 13
     assert set(base.label[moved]) == {"window"} and set(new.label[moved]) == {"door"}
-    assert set(np.asarray(other.labels)[moved].astype(str)) == {"door"}
+    assert set(truth[moved]) == {"door"}
     assert np.array_equal(base.prob[~moved], new.prob[~moved])
-    assert np.array_equal(glass_room(base.prob, model, ob.ranges), new.prob)
+    assert np.array_equal(glass_room(base.prob, model, ranges), new.prob)
     np.testing.assert_allclose(new.prob.sum(axis=1), 1.0)
     # streaming (the forward filter): the usual wall is the whole log's, so it is left out
     model.config = replace(model.config, smoothing="forward")
-    streamed = classify(model, ob.ranges, their)
+    streamed = classify(model, ranges, their)
     model.config = replace(model.config, glass_to=())
-    assert np.array_equal(streamed.prob, classify(model, ob.ranges, their).prob)
+    assert np.array_equal(streamed.prob, classify(model, ranges, their).prob)
     with pytest.raises(ToolkitError):
         Config(glass_to=("window",))

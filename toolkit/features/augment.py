@@ -36,6 +36,13 @@ def changed(ranges: np.ndarray, copy: np.ndarray, laser: LaserGeometry) -> np.nd
     return np.asarray(diff.mean(axis=1) >= CHANGED)
 
 
+def differs(ranges: np.ndarray, copy: np.ndarray) -> np.ndarray:
+    """Per scan, whether its copy differs from it in any beam (a no-return equal to a
+    no-return): `changed` without its threshold, for a copy kept however little it moved."""
+    same = (copy == ranges) | (np.isnan(copy) & np.isnan(ranges))
+    return np.asarray(~np.all(same, axis=1))
+
+
 def mirror_index(laser: LaserGeometry) -> np.ndarray:
     """Per beam, the beam at the opposite bearing (-angle), or itself where the scan has no
     beam there."""

@@ -224,10 +224,14 @@ def classify(
     if cfg.smoothing != "none":
         eps = switch_probability(cfg, len(prob), poses)
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
-    if (cfg.beside_reach > 0 or cfg.narrow_opening > 0) and cfg.smoothing != "forward":
-        prob = beside_only(prob, model, ranges, poses)  # it looks ahead: not when streaming
-    if len(cfg.glass_to) == 2 and cfg.smoothing != "forward":
-        prob = glass_room(prob, model, ranges)  # the usual wall is the log's: not streaming
+    # the rules beside the laser look ahead and at the whole log's usual wall: not streaming
+    opening_rules = cfg.beside_reach > 0 or cfg.narrow_opening > 0
+    if (opening_rules or len(cfg.glass_to) == 2) and cfg.smoothing != "forward":
+        view = side_view(ranges, model.laser)
+        if opening_rules:
+            prob = beside_only(prob, model, ranges, poses, view)
+        if len(cfg.glass_to) == 2:
+            prob = glass_room(prob, model, ranges, view)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -242,23 +246,16 @@ SQUARE = np.radians(3.0)
 OPENING_DEPTH = 1.0
 
 
-def opening_beside(ranges: np.ndarray, laser: LaserGeometry) -> np.ndarray | None:
-    """Per scan, whether the beams square to the path on the left or on the right (the median
-    of their distances across the path; no return: open) reach `OPENING_DEPTH` m past that
-    side's usual wall (the median of the log's scans); None if the laser has no beam
-    within `SQUARE` of square to the path on each side."""
-    found = _seen_beside(ranges, laser)
-    if found is None:
-        return None
-    seen, wall = found
-    out: np.ndarray = np.any(seen > wall + OPENING_DEPTH, axis=1)
-    return out
+#: Per scan and side (S x 2: left, right), the median distance across the path the beams
+#: square to it see (inf: no return), and per side the usual wall (`side_view`)
+SideView = tuple[np.ndarray, np.ndarray]
 
 
-def _seen_beside(ranges: np.ndarray, laser: LaserGeometry) -> tuple[np.ndarray, np.ndarray] | None:
+def side_view(ranges: np.ndarray, laser: LaserGeometry) -> SideView | None:
     """Per scan and side (S x 2: left, right), the median distance across the path the beams
     square to it see (inf: no return), and per side the usual wall (the log's median; inf
-    if no scan returns there); None without such beams on each side."""
+    if no scan returns there); None without such beams on each side. Computed once per
+    log and shared by the rules beside the laser (`openings`, `glass_room`)."""
     across = np.abs(np.sin(laser.angles + laser.yaw))
     side = np.sign(np.sin(laser.angles + laser.yaw))
     square = across >= np.cos(SQUARE) - 1e-9
@@ -275,26 +272,23 @@ def _seen_beside(ranges: np.ndarray, laser: LaserGeometry) -> tuple[np.ndarray, 
     return seen, wall
 
 
-def opening_distance(
-    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None
-) -> np.ndarray | None:
-    """Per scan, the path the laser travels (m, its positions by `poses`) to the nearest
-    scan with an opening beside it (`opening_beside`; inf: none in the log); None without
-    poses or square beams."""
-    found = openings(ranges, laser, poses)
-    return None if found is None else found[0]
-
-
 def openings(
-    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray | None,
+    view: SideView | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Per scan, the path (m) to the nearest scan with an opening beside it, the length
-    along the path of that scan's run of consecutive such scans (the opening's length: a
-    door's about 0.8 m), both inf where the log has none; and the laser's path from the
-    first scan. None without poses or square beams (`opening_beside`)."""
-    beside = opening_beside(ranges, laser)
-    if beside is None or poses is None or len(poses) != len(ranges):
+    """Per scan, the path (m) to the nearest scan with an opening beside it (its square
+    beams, the median of their distances across the path, reach `OPENING_DEPTH` m past that
+    side's usual wall; no return: open), the length along the path of that scan's run of
+    consecutive such scans (the opening's length: a door's about 0.8 m), both inf where the
+    log has none; and the laser's path from the first scan. None without poses or square
+    beams. `view`: `side_view(ranges, laser)` when the caller has it."""
+    view = side_view(ranges, laser) if view is None else view
+    if view is None or poses is None or len(poses) != len(ranges):
         return None
+    seen, wall = view
+    beside = np.any(seen > wall + OPENING_DEPTH, axis=1)
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     xy = poses[:, :2] + np.c_[laser.x * c - laser.y * s, laser.x * s + laser.y * c]
     along = np.r_[0.0, np.cumsum(np.nan_to_num(np.hypot(*np.diff(xy, axis=0).T)))]
@@ -327,6 +321,17 @@ ROOM_DEPTH = 5.0
 LEARN_REACH = 0.5
 
 
+def _dense_openings(
+    ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray | None, view: SideView | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """`openings`, or None where the rules do not apply: no poses, no square beams, fewer
+    than two scans, or the median scan more than `DENSE_STEP` m from the last."""
+    found = openings(ranges, laser, poses, view) if len(ranges) >= 2 else None
+    if found is None or not np.median(np.diff(found[2])) <= DENSE_STEP:
+        return None
+    return found
+
+
 def learn_opening_places(
     ranges: np.ndarray,
     laser: LaserGeometry,
@@ -343,15 +348,12 @@ def learn_opening_places(
     are all at most `narrow` m long and not seen down deeper than `ROOM_DEPTH` (a door's
     room, not a crossing corridor). Both empty where `beside_only` would not apply (no poses,
     no square beams, a sparse log)."""
-    none: dict[str, tuple[str, ...]] = {"beside": (), "narrow": ()}
-    found = openings(ranges, laser, poses)
-    seen_wall = _seen_beside(ranges, laser)
-    if found is None or seen_wall is None or len(ranges) < 2:
-        return none
-    distance, length, along = found
-    if not np.median(np.diff(along)) <= DENSE_STEP:
-        return none
-    seen, wall = seen_wall
+    view = side_view(ranges, laser)
+    found = _dense_openings(ranges, laser, poses, view)
+    if found is None or view is None:
+        return {"beside": (), "narrow": ()}
+    distance, length, _ = found
+    seen, wall = view
     with np.errstate(invalid="ignore"):
         past = np.max(seen - wall, axis=1)  # the deeper side's reach past its wall
     room = np.isfinite(past) & (past > OPENING_DEPTH)
@@ -370,7 +372,11 @@ def learn_opening_places(
 
 
 def beside_only(
-    prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, poses: np.ndarray | None
+    prob: np.ndarray,
+    model: FeatureModel,
+    ranges: np.ndarray,
+    poses: np.ndarray | None,
+    view: SideView | None = None,
 ) -> np.ndarray:
     """The posteriors with places ruled out (their share given to the others) where the
     opening beside the laser says they are not: the places of `beside_places` at the scans
@@ -382,15 +388,14 @@ def beside_only(
     `learn_opening_places`).
     Unchanged without poses, without beams square to the path, or where the median scan
     lies more than `DENSE_STEP` m from the last (the path is then too coarse); `classify`
-    leaves it out when streaming (`smoothing` "forward": it looks at the scans ahead)."""
+    leaves it out when streaming (`smoothing` "forward": it looks at the scans ahead).
+    `view`: `side_view(ranges, model.laser)` when the caller has it."""
     cfg = model.config
     names = list(model.classes)
-    found = openings(ranges, model.laser, poses)
-    if found is None or len(ranges) < 2:
+    found = _dense_openings(ranges, model.laser, poses, view)
+    if found is None:
         return prob
-    distance, length, along = found
-    if not np.median(np.diff(along)) <= DENSE_STEP:
-        return prob
+    distance, length, _ = found
     out = prob.copy()
     learnt = model.opening_places
     rules = (
@@ -406,20 +411,22 @@ def beside_only(
     return np.where(total > 0, out / np.where(total > 0, total, 1.0), prob)
 
 
-def glass_room(prob: np.ndarray, model: FeatureModel, ranges: np.ndarray) -> np.ndarray:
+def glass_room(
+    prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, view: SideView | None = None
+) -> np.ndarray:
     """The posteriors with a call of the glass place (`glass_to`'s first) given to the room
     place (its second: the glass place's share added to it) at the scans whose beams square
     to the path see, on either side, returns from `OPENING_DEPTH` to `ROOM_DEPTH` m past
-    that side's usual wall (`_seen_beside`): a room behind an opening, which a window's glass
+    that side's usual wall (`side_view`; `view` when the caller has it): a room behind an opening, which a window's glass
     (no return, or the pane at the wall) never shows; a door across the path from a window
     was called window (docs/journal/places.md, session 24, glass24). Unchanged without
     beams square to the path or without both places."""
     glass, room_place = model.config.glass_to
     names = list(model.classes)
-    found = _seen_beside(ranges, model.laser)
-    if found is None or glass not in names or room_place not in names:
+    view = side_view(ranges, model.laser) if view is None else view
+    if view is None or glass not in names or room_place not in names:
         return prob
-    seen, wall = found
+    seen, wall = view
     with np.errstate(invalid="ignore"):
         past = seen - wall
     room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -20,6 +20,7 @@ from toolkit.features.augment import (
     canonical,
     changed,
     closed,
+    differs,
     ended,
     glass_across,
     glazable,
@@ -266,12 +267,8 @@ def _fit_places(
         claim = (wide[idx], wide[rest])
     # the taught scans' copies with the less open side of the path closed (or opened): what
     # lies across the path from a place is that spot's accident (a hall opens on one side or
-    # on both); copies that are the scan again are left out (`augment.changed`)
-    # each: weight, copy, the places copied (empty: all), the label (None: the place's own),
-    # the taught scans copied (None: all), whether a copy must differ by `changed` (else:
-    # in any beam)
-    Copy = Callable[[np.ndarray, LaserGeometry], np.ndarray]
-    # a scan of `across_of` with glass across the path from its opening (a door across from
+    # on both); copies that are the scan again are left out (`augment.changed`).
+    # A scan of `across_of` with glass across the path from its opening (a door across from
     # a window) has no closed or opened copy (`closed` takes the glass for the more open
     # side: the window labelled door) but one walled across from its opening, kept however
     # little glass it saw (the door without the window)
@@ -279,37 +276,22 @@ def _fit_places(
     if config.across_of:
         glassy = np.isin(y, config.across_of) & glass_across(ranges[idx], laser)
     plain = ~glassy if glassy.any() else None
-    copies: list[tuple[float, Copy, tuple[str, ...], str | None, np.ndarray | None, bool]] = [
-        (config.augment_closed, closed, (), None, plain, True),
-        (config.augment_open, opened, (), None, plain, True),
-        (config.augment_closed, walled_across, config.across_of, None, glassy, False),
-        (
-            config.augment_glass,
-            glazed,
-            config.across_of or ("door",),
-            None,
-            glazable(ranges[idx], laser),
-            True,
-        ),
+    copies = [
+        _Copy(config.augment_closed, closed, which=plain),
+        _Copy(config.augment_open, opened, which=plain),
+        _Copy(config.augment_closed, walled_across, config.across_of, which=glassy, fresh=False),
     ]
+    if config.augment_glass > 0:
+        glass_of = config.across_of or ("door",)
+        copies.append(_Copy(config.augment_glass, glazed, glass_of, glazable(ranges[idx], laser)))
     # and as at the place's end, ahead and behind (a hall's end, a corner's edge), and the
     # closed copies' ends (a two-sided hall's end as a one-sided one's); where the context is
     # on (measured there only: the sparse path stays as session 23 measured it)
     for front in (True, False) if config.context > 0 else ():
-        copies.append(
-            (config.augment_ends, partial(ended, ahead=front), config.ends_of, None, None, True)
-        )
+        copies.append(_Copy(config.augment_ends, partial(ended, ahead=front), config.ends_of))
         if config.ends_one_sided:
-            copies.append(
-                (
-                    config.augment_ends,
-                    partial(_closed_end, ahead=front),
-                    config.ends_of,
-                    None,
-                    None,
-                    True,
-                )
-            )
+            closed_end = partial(_closed_end, ahead=front)
+            copies.append(_Copy(config.augment_ends, closed_end, config.ends_of))
     # and as from the corridor just outside the place, taught as corridor (where taught);
     # not where the context is off: a scan alone, the hall's near part taught as corridor
     # (a random world's run b, seed 6, with the local map: 0.93 -> 0.76; session 23)
@@ -317,29 +299,26 @@ def _fit_places(
         for front in (True, False):
             for start in (partial(started, ahead=front), partial(_closed_start, ahead=front)):
                 copies.append(
-                    (config.augment_starts, start, config.starts_of, "corridor", None, True)
+                    _Copy(config.augment_starts, start, config.starts_of, label="corridor")
                 )
     extra = []
-    for weight, copy, of, label, which, fresh in copies:
-        if weight > 0 and config.classifier == "trees" and (which is None or which.any()):
-            copied = copy(ranges, laser)
-            xa = features(
-                copied, laser, columns, along, config.context, None, config.beside, poses,
-                config.local_map, ahead, config.opening, factor, config.reach_metres,
-            )  # fmt: skip
-            if fresh:
-                new = changed(ranges[idx], copied[idx], laser)  # not the scan again
-            else:
-                new = ~np.all(
-                    (copied[idx] == ranges[idx]) | (np.isnan(copied[idx]) & np.isnan(ranges[idx])),
-                    axis=1,
-                )
-            if of:
-                new &= np.isin(y, of)
-            if which is not None:
-                new &= which
-            labels = y[new] if label is None else np.full(int(new.sum()), label)
-            extra.append((xa[idx][new], labels, np.full(int(new.sum()), weight)))
+    for c in copies if config.classifier == "trees" else ():
+        taken = np.isin(y, c.of) if c.of else np.ones(len(idx), dtype=bool)
+        if c.which is not None:
+            taken &= c.which
+        if c.weight <= 0 or not taken.any():  # no taught scan to copy: no whole-log copy
+            continue
+        copied = c.make(ranges, laser)
+        xa = features(
+            copied, laser, columns, along, config.context, None, config.beside, poses,
+            config.local_map, ahead, config.opening, factor, config.reach_metres,
+        )  # fmt: skip
+        if c.fresh:
+            taken &= changed(ranges[idx], copied[idx], laser)  # not the scan again
+        else:
+            taken &= differs(ranges[idx], copied[idx])
+        labels = y[taken] if c.label is None else np.full(int(taken.sum()), c.label)
+        extra.append((xa[idx][taken], labels, np.full(int(taken.sum()), c.weight)))
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=own_width,
@@ -348,6 +327,17 @@ def _fit_places(
         claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,
         leaf_weight=config.leaf_weight,
     )  # fmt: skip
+
+
+class _Copy(NamedTuple):
+    """One kind of copy of the taught scans that the trees also learn (`_fit_places`)."""
+
+    weight: float  # the copies' weight (0: none)
+    make: Callable[[np.ndarray, LaserGeometry], np.ndarray]  # the whole log copied
+    of: tuple[str, ...] = ()  # the places whose taught scans are copied (empty: all)
+    which: np.ndarray | None = None  # ... and of the taught scans, these (None: all)
+    label: str | None = None  # the copies' label (None: the place's own)
+    fresh: bool = True  # a copy must differ by `augment.changed` (else: in any beam)
 
 
 def _closed_end(ranges: np.ndarray, laser: LaserGeometry, ahead: bool) -> np.ndarray:
