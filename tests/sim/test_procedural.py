@@ -72,3 +72,39 @@ def test_cli_simulates_a_random_world_on_another_route(tmp_path: Path, cli: Cli)
         "simulate", "corridor", "-p", "route=1", "--out", str(tmp_path / "c"), "-f", "dataset"
     )
     assert code == 1 and "route" in err
+
+
+def test_worlds_and_paths_without_entered_are_as_before() -> None:
+    """`entered` is off by default: seed 5's paths as before the option (session 25)."""
+    first, back = random_world(5), random_world(5, route=1)
+    assert (first.scans, back.scans, len(first.zones)) == (1573, 1788, 9)
+    assert np.allclose(first.waypoints[:3], [[1.0, -0.246144], [32.143306, -0.246144], [32.143306, -17.732656]], atol=1e-6)  # fmt: skip
+    assert np.allclose(back.waypoints[-1], [1.0, 0.171801], atol=1e-6)
+    assert "room" not in {z.label for z in first.zones}
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_entered_paths_enter_rooms_labelled_room(seed: int) -> None:
+    """With `entered` the building is the same, the path turns at two doors or more, drives
+    into the room (its laser positions labelled "room", from the doorway on), turns there and
+    comes back out; the other route enters the same rooms."""
+    plain, entered = random_world(seed), random_world(seed, entered=True)
+    assert np.array_equal(plain.world.segments, entered.world.segments)
+    rooms = [z for z in entered.zones if z.label == "room"]
+    assert len(rooms) == sum(z.label == "door" for z in entered.zones)  # a zone per open door
+    sim = simulate("random", seed=seed, entered=True)
+    assert sim.params["entered"] is True and "entered" not in simulate("random", seed=seed).params
+    visits = [(first, last) for label, first, last in runs(sim.labels) if label == "room"]
+    assert len(visits) >= 2
+    for first, last in visits:
+        assert sim.labels[first - 1] == "door" and sim.labels[last + 1] == "door"  # the doorway
+        assert last - first > 50  # in, a look left and right, out: many scans
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    # inside, the robot turns: more than a full turn per visit
+    turned = [np.abs(np.diff(np.unwrap(gt.theta.to_numpy()[a : b + 1]))).sum() for a, b in visits]
+    assert min(turned) > 2 * np.pi
+    assert np.nanmin(sim.dataset.ranges) > 0.1  # nothing hit
+    back = simulate("random", seed=seed, route=1, entered=True)
+    assert sum(label == "room" for label, _, _ in runs(back.labels)) == len(visits)
+    assert set(sim.labels) == set(PLACES) | {"room"}

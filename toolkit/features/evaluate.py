@@ -14,7 +14,7 @@ the seeds), top-label ECE, and precision and recall per place (means over the se
 row of the ablation adds one part to the one before; the default row is `Config()`.
 
     python -m toolkit.features.evaluate [--seeds 100-119] [--scenarios] [--spacing 1.0]
-        [--out table.md]
+        [--turn 0.5] [--entered] [--out table.md]
 
 With `--spacing` (m) every run is thinned to scans that far apart along the true path, as
 in a log whose scans are far apart (the Intel log's are about 1 m apart, and the sparse-scan
@@ -22,7 +22,12 @@ rule, `fitting._sparse`, fires on such logs): run a's regions are chosen again a
 kept scans (ten per place, `training_regions`, so only places of 10 m of path or more are
 taught), only the scans of taught places are scored (as on the Intel log, whose check
 scores its corridor and rooms), and the seeds whose run a teaches fewer than two places are
-left out (the table says how many are used).
+left out (the table says how many are used). `--turn` (rad) also keeps a scan at every turn
+of that much, as the Intel log's does (0.5 rad) on its turns on the spot.
+
+With `--entered` the paths also enter rooms (`random_world(..., entered=True)`) and every run
+is labelled and taught as the Intel log is (`as_intel`): corridor (its doorways, windows and
+crossings included) and room, two spans of ten scans each; only those are scored.
 
 The default seeds, 100-119, were the first held-out set. Each session since has held out a
 fresh set, run only to measure and then spent for development (300-319, 400-419, 500-519,
@@ -52,7 +57,8 @@ from toolkit.features.metrics import (
 from toolkit.features.model import PAPER, SURROUNDINGS, Config
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import Simulation, simulate
-from toolkit.sim.truth import REGION_PARTS, training_regions
+from toolkit.sim.truth import REGION_PARTS, REGION_SCANS, training_regions
+from toolkit.sim.truth import runs as label_runs
 
 FULL = Config()
 BEAMS = Config(descriptors=False)  # the per-beam model alone (the former default)
@@ -165,28 +171,85 @@ def score(
     )
 
 
-def worlds(seed: int, spacing: float = 0.0) -> dict[str, Any]:
+def worlds(
+    seed: int, spacing: float = 0.0, turn: float = 0.0, entered: bool = False
+) -> dict[str, Any]:
     """The three runs of the protocol for one seed: a (teach and score), b (same world,
-    other route), c (another world); with `spacing` > 0 each thinned (`thinned`)."""
+    other route), c (another world); with `spacing` > 0 each thinned (`thinned`, also at
+    every `turn` rad turned when > 0); with `entered` the paths enter rooms and the runs are
+    labelled and taught as the Intel log is (`as_intel`)."""
+    more = {"entered": True} if entered else {}
     runs = {
-        "a": simulate("random", seed=seed),
-        "b": simulate("random", seed=seed, route=1),
-        "c": simulate("random", seed=seed + TRANSFER),
+        "a": simulate("random", seed=seed, **more),
+        "b": simulate("random", seed=seed, route=1, **more),
+        "c": simulate("random", seed=seed + TRANSFER, **more),
     }
-    return {k: thinned(v, spacing) for k, v in runs.items()} if spacing > 0 else runs
+    if spacing > 0:
+        runs = {k: thinned(v, spacing, turn) for k, v in runs.items()}
+    return {k: as_intel(v) for k, v in runs.items()} if entered else runs
 
 
-def thinned(sim: Simulation, spacing: float) -> Simulation:
+def thinned(sim: Simulation, spacing: float, turn: float = 0.0) -> Simulation:
     """The run with only the scans at least `spacing` m of true path after the last one kept
-    (the first scan kept), its regions chosen again among them (`Simulation.take`)."""
+    or, with `turn` > 0, at least `turn` rad of turning after it (the Intel log keeps a scan
+    every 1 m or 0.5 rad: on its turns on the spot too), the first scan kept; its regions
+    chosen again among them (`Simulation.take`)."""
     along = sim.distance()
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    turned = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(np.unwrap(gt["theta"]))))])
     keep = [0]
     while True:  # a step per kept scan
         i = int(np.searchsorted(along, along[keep[-1]] + spacing, side="left"))
+        if turn > 0:
+            i = min(i, int(np.searchsorted(turned, turned[keep[-1]] + turn, side="left")))
         if i >= len(along):
             break
         keep.append(i)
-    return sim.take(np.array(keep), spacing=spacing)
+    note = {"spacing": spacing, **({"turn": turn} if turn > 0 else {})}
+    return sim.take(np.array(keep), **note)
+
+
+#: With `entered`: the places of the corridor's own stretch are "corridor", as the Intel
+#: check's position rule calls its ring (the rooms' doorways, windows and crossings).
+AS_CORRIDOR = ("door", "window", "corner")
+
+
+def as_intel(sim: Simulation) -> Simulation:
+    """The run labelled and taught as the Intel log is: "corridor" for the corridor's whole
+    stretch (`AS_CORRIDOR`), "room" inside rooms, the hall kept (not taught, so not scored);
+    the corridor taught from two spans of ten scans driven straight along two of its runs,
+    the rooms from ten scans in each of two rooms (the README's intel-regions.csv); a place
+    with one such run has its two spans there, at a quarter and three quarters of it."""
+    labels = np.where(np.isin(sim.labels, AS_CORRIDOR), "corridor", sim.labels)
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    xy = gt[["x", "y"]].to_numpy()
+    step = np.hypot(*np.diff(xy, axis=0).T)
+    driving = np.concatenate([[False], step > 0.5 * (step.max() if len(step) else 0.0)])
+    t = sim.dataset.t
+    rows = []
+    for place in ("corridor", "room"):
+        found = []  # per run of the place: the first scans of its windows of ten
+        for label, first, last in label_runs(labels):
+            if label != place or last - first + 1 < REGION_SCANS:
+                continue
+            ok = driving[first : last + 1] if place == "corridor" else np.ones(last - first + 1)
+            good = np.convolve(ok, np.ones(REGION_SCANS), "valid") == REGION_SCANS
+            if good.any():
+                found.append(first + np.flatnonzero(good))
+        if len(found) >= 2:  # the middle window of the first two runs
+            chosen = [int(w[len(w) // 2]) for w in found[:2]]
+        elif found:
+            w = found[0]
+            chosen = [int(w[len(w) // 4]), int(w[3 * len(w) // 4])]
+            if chosen[1] - chosen[0] < REGION_SCANS:
+                chosen = [int(w[len(w) // 2])]
+        else:
+            chosen = []
+        rows += [(place, float(t[i]), float(t[i + REGION_SCANS - 1])) for i in chosen]
+    regions = pd.DataFrame(rows, columns=["feature", "start", "end"])
+    return dataclasses.replace(sim, labels=labels, regions=regions)
 
 
 def protocol_scores(
@@ -231,23 +294,30 @@ def teaches_two(runs: dict[str, Any]) -> bool:
 
 
 def protocol(
-    configs: list[tuple[str, Config]], seeds: tuple[int, ...], spacing: float = 0.0
+    configs: list[tuple[str, Config]],
+    seeds: tuple[int, ...],
+    spacing: float = 0.0,
+    turn: float = 0.0,
+    entered: bool = False,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The protocol's table (a row per configuration) and, for the first configuration
     marked default (else the first), precision and recall per place and run. With `spacing`
-    the runs are thinned (`worlds`), and seeds teaching fewer than two places left out."""
+    (and `turn`) the runs are thinned, with `entered` they enter rooms and are taught as the
+    Intel log (`worlds`); then only taught places are scored, and seeds teaching fewer than
+    two places left out."""
     results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
+    partial = spacing > 0 or entered
     for seed in seeds:
-        runs = worlds(seed, spacing)
-        if spacing > 0 and not teaches_two(runs):
+        runs = worlds(seed, spacing, turn, entered)
+        if partial and not teaches_two(runs):
             continue
         for name, config in configs:
-            results[name].append(protocol_scores(config, runs, taught_only=spacing > 0))
+            results[name].append(protocol_scores(config, runs, taught_only=partial))
     rows = []
     for name, config in configs:
         per_seed = results[name]
         row: dict[str, Any] = {"model": name + (" (default)" if config == FULL else "")}
-        if spacing > 0:
+        if partial:
             row["seeds"] = len(per_seed)
         for key in "abc":
             ba = np.array([r[key]["ba"] for r in per_seed])
@@ -339,6 +409,17 @@ def main() -> None:
         default=0.0,
         help="m: thin every run to scans this far apart (e.g. 1.0, as the Intel log's)",
     )
+    parser.add_argument(
+        "--turn",
+        type=float,
+        default=0.0,
+        help="rad: with --spacing, also keep a scan at every this much turning (the Intel log: 0.5)",
+    )
+    parser.add_argument(
+        "--entered",
+        action="store_true",
+        help="paths that enter rooms, labelled and taught as the Intel log (corridor and room)",
+    )
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     wrong = [i for i in args.rows or () if not 0 <= i < len(ABLATION)]
@@ -346,10 +427,15 @@ def main() -> None:
         parser.error(f"--rows: no ablation row {wrong[0]} (rows 0-{len(ABLATION) - 1})")
     configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
     started = time.perf_counter()
-    table, places = protocol(configs, args.seeds, args.spacing)
+    table, places = protocol(configs, args.seeds, args.spacing, args.turn, args.entered)
     text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)})"
+    if args.entered:
+        text += ", paths entering rooms, taught as the Intel log"
     if args.spacing > 0:
-        text += f", scans {args.spacing:g} m apart (the seeds teaching two places or more)"
+        text += f", scans {args.spacing:g} m apart"
+        text += f" or {args.turn:g} rad of turning" if args.turn > 0 else ""
+    if args.spacing > 0 or args.entered:
+        text += " (the seeds teaching two places or more)"
     text += ":\n\n"
     text += markdown(table) + "\n\nPer place, the default (means over the seeds):\n\n"
     text += markdown(places)

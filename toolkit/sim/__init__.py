@@ -126,6 +126,10 @@ def parameters(
     if route is not None and scenario != "random":
         raise ToolkitError("route is a parameter of the random scenario only")
     way = cast(int, convert(route, int, "route", "the simulator")) if route is not None else 0
+    entered = params.pop("entered", None)
+    if entered is not None and scenario != "random":
+        raise ToolkitError("entered is a parameter of the random scenario only")
+    enter = _yes(entered) if entered is not None else False
     laps = params.pop("laps", None)
     if laps is not None and scenario != "building":
         raise ToolkitError("laps is a parameter of the building scenario only")
@@ -133,7 +137,7 @@ def parameters(
     if rounds < 1:
         raise ToolkitError(f"laps must be at least 1, not {rounds}")
     if scenario == "random":
-        scn = random_world(seed, way)
+        scn = random_world(seed, way, enter)
     elif scenario == "building":
         scn = building(rounds)
     else:
@@ -160,10 +164,15 @@ def parameters(
     return scn, LaserModel(**laser_args), OdometryModel(**odo_args)
 
 
+def _yes(value: Param) -> bool:
+    return bool(convert(value, bool, "entered", "the simulator"))
+
+
 def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
-    `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`; for
-    "building", `laps`: times round the ring)."""
+    `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`, and
+    `entered`: true for a path that also enters rooms; for "building", `laps`: times round
+    the ring)."""
     scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
@@ -178,6 +187,11 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
         **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
+        **(
+            {"entered": True}
+            if params.get("entered") not in (None, False) and _yes(params["entered"])
+            else {}
+        ),
         **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
         **laser.to_dict(),
         **odometry.to_dict(),

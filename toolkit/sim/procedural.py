@@ -19,6 +19,13 @@ The world is drawn from `seed`; `route` picks the path through it: 0 from the fi
 the last, 1 the other way round, each at its own speed and lateral offset (up to a fifth of
 the width off the centre line). The noise of the laser and odometry is the simulator's, from
 its own seed.
+
+With `entered` (off by default: every world and path as without it, to the bit) the path also
+enters rooms, as the Intel lab's robot does: before at least two of the open doors (each
+with probability 0.6, the same doors on both routes) the robot turns on the spot to face the
+door, drives to the room's middle, turns to look left and right along it, and comes back out
+and turns to go on. The laser inside a room is labelled "room" (a zone per room, entered or
+not); the turns in front of a door are in the door's zone. The world itself is unchanged.
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ SCAN_RATE = 5.0  # Hz
 DOOR_WIDTH = 0.9  # m
 DOOR_MARGIN = 0.4  # m either side of an open door: the zone "door"
 CORNER_MARGIN = 0.3  # m either side of the crossing: the zone "corner"
+ENTER_SHARE = 0.6  # with `entered`: the share of the open doors whose room the path enters
 
 
 @dataclass
@@ -111,8 +119,9 @@ class _Sides:
         return None
 
 
-def random_world(seed: int = 0, route: int = 0) -> Scenario:
-    """A random building (see the module docstring), and a path through it by `route`."""
+def random_world(seed: int = 0, route: int = 0, entered: bool = False) -> Scenario:
+    """A random building (see the module docstring), and a path through it by `route`; with
+    `entered`, one that also enters rooms through their doors (labelled "room")."""
     rng = np.random.default_rng([seed, 16])
     width = float(rng.uniform(1.6, 4.0))
     h = width / 2
@@ -126,6 +135,7 @@ def random_world(seed: int = 0, route: int = 0) -> Scenario:
     zones: list[Zone] = []
     openings: dict[tuple[int, int], list[tuple[float, float, str]]] = {}
     rooms: dict[tuple[int, int], list[tuple[float, float]]] = {}
+    placed: list[tuple[int, int, float, float, float]] = []  # leg, side, door start, w, depth
 
     def along(leg: _Leg, u0: float, u1: float, margin: float, label: str) -> Zone:
         a = leg.start + leg.direction * (u0 - margin)
@@ -170,6 +180,7 @@ def random_world(seed: int = 0, route: int = 0) -> Scenario:
         d0 = u + room_w / 2 - DOOR_WIDTH / 2
         openings.setdefault((k, s), []).append((d0, d0 + DOOR_WIDTH, "door"))
         rooms.setdefault((k, s), []).append((room_w, float(rng.uniform(3.0, 4.0))))
+        placed.append((k, s, d0, room_w, rooms[k, s][-1][1]))
         zones.append(along(legs[k], d0, d0 + DOOR_WIDTH, DOOR_MARGIN, "door"))
         doors += 1
         if doors >= 5:
@@ -256,12 +267,20 @@ def random_world(seed: int = 0, route: int = 0) -> Scenario:
     way = _offset(centre, offset)
     way[0] += legs[0].direction * 1.0
     way[-1] -= legs[-1].direction * 1.0
+    if entered:
+        way = _entering(way, legs, placed, offset, h, seed)
+        zones += [_room_zone(legs[k], s, d0, w, depth, h) for k, s, d0, w, depth in placed]
     if route % 2 == 1:
         way = way[::-1]
     speed = float(path_rng.uniform(0.35, 0.6))
     turn_rate = 0.5
     length = float(np.hypot(*np.diff(way, axis=0).T).sum())
-    seconds = length / speed + (len(way) - 2) * (np.pi / 2) / turn_rate
+    if entered:  # turns of any angle (in a room, half turns)
+        d = np.diff(way, axis=0)
+        turned = float(np.abs(np.diff(np.unwrap(np.arctan2(d[:, 1], d[:, 0])))).sum())
+        seconds = length / speed + turned / turn_rate
+    else:
+        seconds = length / speed + (len(way) - 2) * (np.pi / 2) / turn_rate
     return Scenario(
         name="random",
         world=b.build(),
@@ -277,6 +296,46 @@ def random_world(seed: int = 0, route: int = 0) -> Scenario:
             p: int(parts) for p, parts in zip(PLACES, rng.integers(1, 3, len(PLACES)), strict=True)
         },
     )
+
+
+def _entering(
+    way: np.ndarray,
+    legs: list[_Leg],
+    placed: list[tuple[int, int, float, float, float]],
+    offset: float,
+    h: float,
+    seed: int,
+) -> np.ndarray:
+    """The waypoints `way` (route 0) with detours into rooms: at least two of the `placed`
+    rooms (leg, side, door start, width, depth), each with probability `ENTER_SHARE`, drawn
+    from their own generator so that the world's draws are unchanged."""
+    rng = np.random.default_rng([seed, 16, 25])
+    pick = rng.random(len(placed)) < ENTER_SHARE
+    if pick.sum() < 2:
+        pick[rng.permutation(len(placed))[:2]] = True
+    out: list[np.ndarray] = [way[0]]
+    for k, leg in enumerate(legs):
+        here = sorted(
+            (placed[i] for i in np.flatnonzero(pick) if placed[i][0] == k), key=lambda r: r[2]
+        )
+        for _, s, d0, w, depth in here:
+            u = d0 + DOOR_WIDTH / 2
+            n = _normal(leg.direction) * s
+            front = leg.start + leg.direction * u + _normal(leg.direction) * offset
+            middle = leg.start + leg.direction * u + n * (h + depth / 2)
+            look = leg.direction * (w / 4)
+            out += [front, middle, middle + look, middle - look, middle, front]
+        out.append(way[k + 1])
+    return np.array(out)
+
+
+def _room_zone(leg: _Leg, side: int, d0: float, w: float, depth: float, h: float) -> Zone:
+    """The room behind the door at `d0` on `side` of `leg`: "room"."""
+    n = _normal(leg.direction) * side
+    c = leg.start + leg.direction * (d0 + DOOR_WIDTH / 2)
+    pts = [c + leg.direction * a + n * b for a in (-w / 2, w / 2) for b in (h, h + depth)]
+    xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+    return Zone("room", min(xs), min(ys), max(xs), max(ys))
 
 
 def _pt(p: np.ndarray) -> tuple[float, float]:
