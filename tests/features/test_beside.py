@@ -221,3 +221,28 @@ def test_the_glass_and_room_places_are_learnt_whatever_their_names() -> None:
     renamed.config = replace(renamed.config, glass_to=("window", "door"))
     keyed = classify(renamed, ranges, their)
     assert (keyed.label != labels.label).sum() == 13
+
+
+def test_a_corridor_call_by_a_found_door_goes_to_the_door_with_room_margin() -> None:
+    """Random world 3 (development), taught on run a, labelling run b: with `room_margin`
+    0.4 (off by default) the 5 scans called corridor, with the door the runner-up, within
+    0.4 m of path of a door call that sees a room beside the laser are called door, every
+    one a door scan in truth (the door zone past its opening); every other scan keeps its
+    posterior; streaming, nothing changes; a negative margin is refused."""
+    model, ranges, their, truth = _taught(3, {})
+    assert model.config.room_margin == 0.0
+    base = classify(model, ranges, their)
+    model.config = replace(model.config, room_margin=0.4)
+    new = classify(model, ranges, their)
+    moved = base.label != new.label
+    assert moved.sum() == 5
+    assert set(base.label[moved]) == {"corridor"} and set(new.label[moved]) == {"door"}
+    assert set(truth[moved]) == {"door"}
+    assert np.array_equal(base.prob[~moved], new.prob[~moved])
+    np.testing.assert_allclose(new.prob.sum(axis=1), 1.0)
+    model.config = replace(model.config, smoothing="forward")
+    streamed = classify(model, ranges, their)
+    model.config = replace(model.config, room_margin=0.0)
+    assert np.array_equal(streamed.prob, classify(model, ranges, their).prob)
+    with pytest.raises(ToolkitError):
+        Config(room_margin=-0.1)

@@ -227,12 +227,14 @@ def classify(
     # the rules beside the laser look ahead and at the whole log's usual wall: not streaming
     opening_rules = cfg.beside_reach > 0 or cfg.narrow_opening > 0
     glass = cfg.glass_to is None or len(cfg.glass_to) == 2
-    if (opening_rules or glass) and cfg.smoothing != "forward":
+    if (opening_rules or glass or cfg.room_margin > 0) and cfg.smoothing != "forward":
         view = side_view(ranges, model.laser)
         if opening_rules:
             prob = beside_only(prob, model, ranges, poses, view)
         if glass:
             prob = glass_room(prob, model, ranges, view)
+        if cfg.room_margin > 0:
+            prob = room_margin(prob, model, ranges, poses, view)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -458,12 +460,7 @@ def glass_room(
     (`model.opening_places` "glass" and "room", `learn_opening_places`). Unchanged without
     beams square to the path or without places of both kinds."""
     names = list(model.classes)
-    pair = model.config.glass_to
-    if pair is None:
-        learnt = model.opening_places
-        glass_places, room_places = learnt.get("glass", ()), learnt.get("room", ())
-    else:
-        glass_places, room_places = pair[:1], pair[1:]
+    glass_places, room_places, _ = _places_of(model)
     g = np.array([names.index(k) for k in glass_places if k in names], int)
     r = np.array([names.index(k) for k in room_places if k in names and k not in glass_places], int)
     view = side_view(ranges, model.laser) if view is None else view
@@ -479,6 +476,64 @@ def glass_room(
     share = out[hit, g[0]] if len(g) == 1 else out[np.ix_(hit, g)].sum(axis=1)
     out[hit, to] += share
     out[np.ix_(hit, g)] = 0.0
+    return out
+
+
+def _places_of(model: FeatureModel) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """The glass, room and reach ("beside") places of `model`: its config's names where
+    given, else those learnt when fitting (`learn_opening_places`)."""
+    cfg, learnt = model.config, model.opening_places
+    glass, room = (
+        (learnt.get("glass", ()), learnt.get("room", ()))
+        if cfg.glass_to is None
+        else (cfg.glass_to[:1], cfg.glass_to[1:])
+    )
+    beside = learnt.get("beside", ()) if cfg.beside_places is None else cfg.beside_places
+    return glass, room, beside
+
+
+def room_margin(
+    prob: np.ndarray,
+    model: FeatureModel,
+    ranges: np.ndarray,
+    poses: np.ndarray | None,
+    view: SideView | None = None,
+) -> np.ndarray:
+    """The posteriors with a call of a place that has no opening of its own (not a reach
+    place of `beside_only`, not the room place: the corridor, the window) given to the room
+    place (its share added) where the room place is the runner-up and a scan called the room
+    place whose square beams see a room beside the laser (`glass_room`'s 1-5 m) lies within
+    `room_margin` m of path: a found door's zone runs on past its opening, where the scans
+    see no room and were called corridor (docs/journal/places.md, session 25, door25).
+    Unchanged where `beside_only` does not apply (no poses, a sparse log) or without a
+    room place."""
+    names = list(model.classes)
+    _, rooms, beside = _places_of(model)
+    found = _dense_openings(ranges, model.laser, poses, view)
+    view = side_view(ranges, model.laser) if view is None else view
+    if found is None or view is None or not rooms or rooms[0] not in names:
+        return prob
+    r = names.index(rooms[0])
+    seen, wall = view
+    with np.errstate(invalid="ignore"):
+        past = seen - wall
+    room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)
+    order = np.argsort(-prob, axis=1, kind="stable")
+    call, second = order[:, 0], order[:, 1]
+    anchor = np.flatnonzero(room & (call == r))
+    if not len(anchor):
+        return prob
+    along = found[2][anchor]
+    i = np.searchsorted(along, found[2])
+    before, after = along[np.clip(i - 1, 0, len(along) - 1)], along[np.clip(i, 0, len(along) - 1)]
+    distance = np.minimum(np.abs(found[2] - before), np.abs(after - found[2]))
+    sources = [k for k, name in enumerate(names) if name not in (*beside, rooms[0], "none")]
+    hit = np.flatnonzero(
+        np.isin(call, sources) & (second == r) & (distance <= model.config.room_margin)
+    )
+    out = prob.copy()
+    out[hit, r] += out[hit, call[hit]]
+    out[hit, call[hit]] = 0.0
     return out
 
 
