@@ -173,16 +173,22 @@ def test_the_rules_places_are_learnt_from_the_taught_scans_not_their_names(
 
 def test_a_window_call_that_sees_a_room_beside_goes_to_the_door() -> None:
     """Random world 3 (development; a door across the path from a window), taught on run a,
-    labelling run b: with `glass_to` ("window", "door"), the default, the 13 scans called window whose
-    square beams see a room 1-5 m past a side's usual wall are called door, every one of them
-    a door scan in truth; every other scan keeps its label and posterior; streaming, nothing
-    changes; a `glass_to` that is not a pair is refused."""
+    labelling run b: by default the glass and room places are learnt from the taught scans
+    (the window: no return at a square beam, never a room; the door: a short opening with a
+    room behind it) and the 13 scans called window whose square beams see a room 1-5 m past
+    a side's usual wall are called door, every one of them a door scan in truth, exactly as
+    with `glass_to` ("window", "door") named; every other scan keeps its label and
+    posterior; streaming, nothing changes; a `glass_to` that is not a pair is refused."""
     model, ranges, their, truth = _taught(3, {})
-    assert model.config.glass_to == ("window", "door")
+    assert model.config.glass_to is None
+    assert model.opening_places["glass"] == ("window",)
+    assert model.opening_places["room"] == ("door",)
     new = classify(model, ranges, their)
+    model.config = replace(model.config, glass_to=("window", "door"))
+    assert np.array_equal(classify(model, ranges, their).prob, new.prob)
     model.config = replace(model.config, glass_to=())
     base = classify(model, ranges, their)
-    model.config = replace(model.config, glass_to=("window", "door"))
+    model.config = replace(model.config, glass_to=None)
     moved = base.label != new.label
     assert moved.sum() == 13
     assert set(base.label[moved]) == {"window"} and set(new.label[moved]) == {"door"}
@@ -197,3 +203,46 @@ def test_a_window_call_that_sees_a_room_beside_goes_to_the_door() -> None:
     assert np.array_equal(streamed.prob, classify(model, ranges, their).prob)
     with pytest.raises(ToolkitError):
         Config(glass_to=("window",))
+
+
+def test_the_glass_and_room_places_are_learnt_whatever_their_names() -> None:
+    """World 3 with the window taught as "glazing" and the door as "doorway": the same
+    places are learnt and run b is labelled alike, name for name; the pair named after
+    session 24's words ("window", "door") does nothing for them."""
+    model, ranges, their, _ = _taught(3, {})
+    original = classify(model, ranges, their)
+    rename = {"window": "glazing", "door": "doorway"}
+    renamed, _, _, _ = _taught(3, rename)
+    assert renamed.opening_places["glass"] == ("glazing",)
+    assert renamed.opening_places["room"] == ("doorway",)
+    labels = classify(renamed, ranges, their)
+    back = {v: k for k, v in rename.items()}
+    assert np.array_equal(np.array([back.get(x, x) for x in labels.label]), original.label)
+    renamed.config = replace(renamed.config, glass_to=("window", "door"))
+    keyed = classify(renamed, ranges, their)
+    assert (keyed.label != labels.label).sum() == 13
+
+
+def test_a_corridor_call_by_a_found_door_goes_to_the_door_with_room_margin() -> None:
+    """Random world 3 (development), taught on run a, labelling run b: with `room_margin`
+    0.4 (off by default) the 5 scans called corridor, with the door the runner-up, within
+    0.4 m of path of a door call that sees a room beside the laser are called door, every
+    one a door scan in truth (the door zone past its opening); every other scan keeps its
+    posterior; streaming, nothing changes; a negative margin is refused."""
+    model, ranges, their, truth = _taught(3, {})
+    assert model.config.room_margin == 0.0
+    base = classify(model, ranges, their)
+    model.config = replace(model.config, room_margin=0.4)
+    new = classify(model, ranges, their)
+    moved = base.label != new.label
+    assert moved.sum() == 5
+    assert set(base.label[moved]) == {"corridor"} and set(new.label[moved]) == {"door"}
+    assert set(truth[moved]) == {"door"}
+    assert np.array_equal(base.prob[~moved], new.prob[~moved])
+    np.testing.assert_allclose(new.prob.sum(axis=1), 1.0)
+    model.config = replace(model.config, smoothing="forward")
+    streamed = classify(model, ranges, their)
+    model.config = replace(model.config, room_margin=0.0)
+    assert np.array_equal(streamed.prob, classify(model, ranges, their).prob)
+    with pytest.raises(ToolkitError):
+        Config(room_margin=-0.1)

@@ -294,7 +294,10 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     assert Config.from_dict(unglazed).across_of == () and Config().across_of == ("door",)
     # before session 24 (glass24), a window call kept where a room was seen beside the laser
     roomless = {k: v for k, v in now.items() if k != "glass_to"}
-    assert Config.from_dict(roomless).glass_to == () and Config().glass_to == ("window", "door")
+    assert Config.from_dict(roomless).glass_to == () and Config().glass_to is None
+    # session 24's saved pair is kept: a model saved then applies as it did
+    named = {**now, "glass_to": ["window", "door"]}
+    assert Config.from_dict(named).glass_to == ("window", "door")
 
 
 def test_background_density_integrates_to_one() -> None:

@@ -226,12 +226,15 @@ def classify(
         prob = smooth(prob, eps, cfg.smoothing, cfg.dwell_stages)
     # the rules beside the laser look ahead and at the whole log's usual wall: not streaming
     opening_rules = cfg.beside_reach > 0 or cfg.narrow_opening > 0
-    if (opening_rules or len(cfg.glass_to) == 2) and cfg.smoothing != "forward":
+    glass = cfg.glass_to is None or len(cfg.glass_to) == 2
+    if (opening_rules or glass or cfg.room_margin > 0) and cfg.smoothing != "forward":
         view = side_view(ranges, model.laser)
         if opening_rules:
             prob = beside_only(prob, model, ranges, poses, view)
-        if len(cfg.glass_to) == 2:
+        if glass:
             prob = glass_room(prob, model, ranges, view)
+        if cfg.room_margin > 0:
+            prob = room_margin(prob, model, ranges, poses, view)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -319,6 +322,13 @@ TAUGHT_NEAR = 0.9
 ROOM_DEPTH = 5.0
 #: m of path: the reach the places are learnt with when `beside_reach` is 0
 LEARN_REACH = 0.5
+#: m along the path: the room places of `glass_room` have all their taught openings this
+#: short (`narrow_opening`'s default; a door's 0.9 m, a hall's 8-14 m)
+LEARN_NARROW = 2.0
+#: a taught place none of whose scans sees a room is glass if at least this share of its
+#: taught scans has a square beam without return (random worlds' windows 0.4-1.0, every
+#: other place 0 where it sees no room; docs/journal/places.md, session 25, door25)
+GLASS_SHARE = 0.25
 
 
 def _dense_openings(
@@ -340,35 +350,61 @@ def learn_opening_places(
     reach: float,
     narrow: float,
 ) -> dict[str, tuple[str, ...]]:
-    """Which taught places the opening rules (`beside_only`) apply to, from the taught scans'
-    own geometry, not their names: "beside" (the reach rule), the places whose taught scans
+    """Which taught places the rules beside the laser apply to, from the taught scans' own
+    geometry, not their names: "beside" (the reach rule), the places whose taught scans
     (at least `TAUGHT_NEAR` of them) lie within `reach` m of path of an opening beside the
     laser and at least one of which sees through it to a wall (returns: not glass, not a
     window); "narrow" (the length rule), those of them whose taught scans' nearest openings
     are all at most `narrow` m long and not seen down deeper than `ROOM_DEPTH` (a door's
     room, not a crossing corridor). Both empty where `beside_only` would not apply (no poses,
-    no square beams, a sparse log)."""
+    no square beams, a sparse log). For `glass_room`: "glass", the places none of whose
+    taught scans sees a room beside the laser and at least `GLASS_SHARE` of which have a
+    square beam without return (a window's pane returns only near normal, and not always);
+    "room", of the "narrow" places learnt with `LEARN_REACH` and `LEARN_NARROW` on any path
+    (a sparse log's too; empty without poses) the one whose room is seen deepest."""
     view = side_view(ranges, laser)
-    found = _dense_openings(ranges, laser, poses, view)
-    if found is None or view is None:
-        return {"beside": (), "narrow": ()}
-    distance, length, _ = found
+    if view is None:
+        return {"beside": (), "narrow": (), "glass": (), "room": ()}
     seen, wall = view
     with np.errstate(invalid="ignore"):
         past = np.max(seen - wall, axis=1)  # the deeper side's reach past its wall
     room = np.isfinite(past) & (past > OPENING_DEPTH)
-    beside, short = [], []
-    for name, idx in training.items():
-        idx = np.asarray(idx, dtype=np.intp)
-        if not len(idx) or name == "none":
-            continue
-        near = np.mean(distance[idx] <= (reach or LEARN_REACH)) >= TAUGHT_NEAR
-        rooms = idx[room[idx]]
-        if near and len(rooms):
-            beside.append(name)
-            if np.all(length[idx] <= narrow) and np.median(past[rooms]) <= ROOM_DEPTH:
-                short.append(name)
-    return {"beside": tuple(beside), "narrow": tuple(short)}
+    square = np.abs(np.sin(laser.angles + laser.yaw)) >= np.cos(SQUARE) - 1e-9
+    pane = (~np.isfinite(np.asarray(ranges)[:, square])).any(axis=1)
+    taught = {
+        name: np.asarray(idx, dtype=np.intp)
+        for name, idx in training.items()
+        if len(idx) and name != "none"
+    }
+    glass = tuple(
+        k for k, i in taught.items() if not room[i].any() and pane[i].mean() >= GLASS_SHARE
+    )
+
+    def picks(
+        found: tuple[np.ndarray, ...] | None, reach: float, narrow: float
+    ) -> tuple[list[str], list[str]]:
+        beside: list[str] = []
+        short: list[str] = []
+        if found is None:
+            return beside, short
+        distance, length = found[0], found[1]
+        for name, idx in taught.items():
+            near = np.mean(distance[idx] <= reach) >= TAUGHT_NEAR
+            rooms = idx[room[idx]]
+            if near and len(rooms):
+                beside.append(name)
+                if np.all(length[idx] <= narrow) and np.median(past[rooms]) <= ROOM_DEPTH:
+                    short.append(name)
+        return beside, short
+
+    beside, short = picks(_dense_openings(ranges, laser, poses, view), reach or LEARN_REACH, narrow)
+    anywhere = openings(ranges, laser, poses, view) if len(ranges) >= 2 else None
+    rooms = picks(anywhere, LEARN_REACH, LEARN_NARROW)[1]
+    if len(rooms) > 1:  # one: the deepest room seen (a corner of 290 worlds, its crossing
+        # seen 2.8 m deep, had the length rule beside the door's room, 3.7 m; a tie-break
+        # chosen on that world: the corner took the window's calls there)
+        rooms = [max(rooms, key=lambda k: float(np.median(past[taught[k]][room[taught[k]]])))]
+    return {"beside": tuple(beside), "narrow": tuple(short), "glass": glass, "room": tuple(rooms)}
 
 
 def beside_only(
@@ -414,27 +450,90 @@ def beside_only(
 def glass_room(
     prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, view: SideView | None = None
 ) -> np.ndarray:
-    """The posteriors with a call of the glass place (`glass_to`'s first) given to the room
-    place (its second: the glass place's share added to it) at the scans whose beams square
-    to the path see, on either side, returns from `OPENING_DEPTH` to `ROOM_DEPTH` m past
-    that side's usual wall (`side_view`; `view` when the caller has it): a room behind an opening, which a window's glass
-    (no return, or the pane at the wall) never shows; a door across the path from a window
-    was called window (docs/journal/places.md, session 24, glass24). Unchanged without
-    beams square to the path or without both places."""
-    glass, room_place = model.config.glass_to
+    """The posteriors with a call of a glass place given to a room place (the glass places'
+    shares added to the room place's likeliest there) at the scans whose beams square to the
+    path see, on either side, returns from `OPENING_DEPTH` to `ROOM_DEPTH` m past that
+    side's usual wall (`side_view`; `view` when the caller has it): a room behind an opening,
+    which a window's glass (no return, or the pane at the wall) never shows; a door across
+    the path from a window was called window (docs/journal/places.md, session 24, glass24).
+    The places: `glass_to`'s pair, or where it is None those learnt when fitting
+    (`model.opening_places` "glass" and "room", `learn_opening_places`). Unchanged without
+    beams square to the path or without places of both kinds."""
     names = list(model.classes)
+    glass_places, room_places, _ = _places_of(model)
+    g = np.array([names.index(k) for k in glass_places if k in names], int)
+    r = np.array([names.index(k) for k in room_places if k in names and k not in glass_places], int)
     view = side_view(ranges, model.laser) if view is None else view
-    if view is None or glass not in names or room_place not in names:
+    if view is None or not len(g) or not len(r):
         return prob
     seen, wall = view
     with np.errstate(invalid="ignore"):
         past = seen - wall
     room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)
-    g, r = names.index(glass), names.index(room_place)
-    hit = room & (prob.argmax(axis=1) == g)
+    hit = np.flatnonzero(room & np.isin(prob.argmax(axis=1), g))
     out = prob.copy()
-    out[hit, r] += out[hit, g]
-    out[hit, g] = 0.0
+    to = r[out[np.ix_(hit, r)].argmax(axis=1)] if len(r) > 1 else np.full(len(hit), r[0])
+    share = out[hit, g[0]] if len(g) == 1 else out[np.ix_(hit, g)].sum(axis=1)
+    out[hit, to] += share
+    out[np.ix_(hit, g)] = 0.0
+    return out
+
+
+def _places_of(model: FeatureModel) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """The glass, room and reach ("beside") places of `model`: its config's names where
+    given, else those learnt when fitting (`learn_opening_places`)."""
+    cfg, learnt = model.config, model.opening_places
+    glass, room = (
+        (learnt.get("glass", ()), learnt.get("room", ()))
+        if cfg.glass_to is None
+        else (cfg.glass_to[:1], cfg.glass_to[1:])
+    )
+    beside = learnt.get("beside", ()) if cfg.beside_places is None else cfg.beside_places
+    return glass, room, beside
+
+
+def room_margin(
+    prob: np.ndarray,
+    model: FeatureModel,
+    ranges: np.ndarray,
+    poses: np.ndarray | None,
+    view: SideView | None = None,
+) -> np.ndarray:
+    """The posteriors with a call of a place that has no opening of its own (not a reach
+    place of `beside_only`, not the room place: the corridor, the window) given to the room
+    place (its share added) where the room place is the runner-up and a scan called the room
+    place whose square beams see a room beside the laser (`glass_room`'s 1-5 m) lies within
+    `room_margin` m of path: a found door's zone runs on past its opening, where the scans
+    see no room and were called corridor (docs/journal/places.md, session 25, door25).
+    Unchanged where `beside_only` does not apply (no poses, a sparse log) or without a
+    room place."""
+    names = list(model.classes)
+    _, rooms, beside = _places_of(model)
+    found = _dense_openings(ranges, model.laser, poses, view)
+    view = side_view(ranges, model.laser) if view is None else view
+    if found is None or view is None or not rooms or rooms[0] not in names:
+        return prob
+    r = names.index(rooms[0])
+    seen, wall = view
+    with np.errstate(invalid="ignore"):
+        past = seen - wall
+    room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)
+    order = np.argsort(-prob, axis=1, kind="stable")
+    call, second = order[:, 0], order[:, 1]
+    anchor = np.flatnonzero(room & (call == r))
+    if not len(anchor):
+        return prob
+    along = found[2][anchor]
+    i = np.searchsorted(along, found[2])
+    before, after = along[np.clip(i - 1, 0, len(along) - 1)], along[np.clip(i, 0, len(along) - 1)]
+    distance = np.minimum(np.abs(found[2] - before), np.abs(after - found[2]))
+    sources = [k for k, name in enumerate(names) if name not in (*beside, rooms[0], "none")]
+    hit = np.flatnonzero(
+        np.isin(call, sources) & (second == r) & (distance <= model.config.room_margin)
+    )
+    out = prob.copy()
+    out[hit, r] += out[hit, call[hit]]
+    out[hit, call[hit]] = 0.0
     return out
 
 

@@ -115,6 +115,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + the taught door's copies with a window across (augment_glass 1: session 24)", dataclasses.replace(FULL, augment_glass=1.0)),
     ("alternative: the opening rules' places named, not learnt (beside_places door and hall, narrow_places door: margin24's, session 24)", dataclasses.replace(FULL, beside_places=("door", "hall"), narrow_places=("door",))),
     ("alternative: without the window call by a room going to the door (glass_to empty: a window call where the square beams see a room beside the laser kept; glass24, session 24)", dataclasses.replace(FULL, glass_to=())),
+    ("alternative: the glass and room places named, not learnt (glass_to window and door: glass24's, session 24)", dataclasses.replace(FULL, glass_to=("window", "door"))),
+    ("alternative: + a corridor or window call with the door runner-up goes to the door within 0.4 m of path of a door call that sees a room beside (room_margin 0.4: door25, session 25)", dataclasses.replace(FULL, room_margin=0.4)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

@@ -205,8 +205,9 @@ def fit(
         )
     model.spans = [s.to_dict() for s in spans or []]
     model.fit_report.update(choice)
-    if None in (config.beside_places, config.narrow_places):  # which places the opening
-        # rules apply to, from the taught scans' geometry (their names are the user's)
+    if None in (config.beside_places, config.narrow_places, config.glass_to):  # which places
+        # the rules beside the laser apply to, from the taught scans' geometry (their names
+        # are the user's)
         taught = {
             name: np.concatenate([i for n, i in components if n == name]) for name, _ in components
         }

@@ -250,14 +250,24 @@ class Config:
     # (empty: the door's) with a window across from their opening (augment.glazed: no
     # return there but near normal): a door met across from a window was called window
     # (session 24; 0: none)
-    glass_to: tuple[str, ...] = ("window", "door")  # (glass place, room place): a call of
-    # the first at a scan whose beams square to the path see, on either side, returns from
-    # 1 to 5 m past that side's usual wall (a room behind an opening) goes to the second
+    glass_to: tuple[str, ...] | None = None  # (glass place, room place): a call of the
+    # first at a scan whose beams square to the path see, on either side, returns from 1 to
+    # 5 m past that side's usual wall (a room behind an opening) goes to the second
     # (classify.glass_room: a window's glass never returns from a room; a door across the
     # path from its own window was called window). Over 290 development worlds balanced
     # accuracy +0.004 / +0.004 / +0.006, the door's recall +0.022 / +0.022 / +0.030, its
     # precision +0.002 to +0.009, the window's +0.007 to +0.010, ECE -0.001 (places journal,
-    # session 24, glass24; empty: off, until then)
+    # session 24, glass24). None (the default): the glass and room places learnt when
+    # fitting from the taught scans' geometry, whatever their names
+    # (classify.learn_opening_places: "glass", "room"; session 25, door25); a pair: those
+    # names (session 24's default: ("window", "door")); empty: off
+    room_margin: float = 0.0  # m of path: a call of a place without an opening of its own
+    # (the corridor, the window) whose runner-up is the room place (`glass_to`'s) goes to
+    # it within this of a scan called the room place that sees a room beside the laser
+    # (classify.room_margin: a found door's zone runs on past its opening, those scans
+    # called corridor). At 0.4 over 290 development worlds balanced accuracy +0.007 to
+    # +0.011, the door's recall +0.035 to +0.055, its precision -0.001 to -0.003, ECE
+    # +0.0002 to +0.0009 (places journal, session 25, door25; 0: off, the default)
     reach_metres: bool = False  # the reach beside the laser (descriptors.ABSOLUTE) also as
     # measured, not rescaled, beside its rescaled form: a door's room and a hall keep their
     # depth in metres whatever the corridor's width (docs/journal/places.md, session 22)
@@ -289,11 +299,12 @@ class Config:
         for name in ("beside_places", "narrow_places"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, tuple(getattr(self, name)))
-        if self.beside_reach < 0 or self.narrow_opening < 0:
-            raise ToolkitError("beside_reach and narrow_opening: 0 or more")
+        if self.beside_reach < 0 or self.narrow_opening < 0 or self.room_margin < 0:
+            raise ToolkitError("beside_reach, narrow_opening and room_margin: 0 or more")
         object.__setattr__(self, "across_of", tuple(self.across_of))
-        object.__setattr__(self, "glass_to", tuple(self.glass_to))
-        if len(self.glass_to) not in (0, 2):
+        if self.glass_to is not None:
+            object.__setattr__(self, "glass_to", tuple(self.glass_to))
+        if self.glass_to is not None and len(self.glass_to) not in (0, 2):
             raise ToolkitError(f"glass_to {self.glass_to!r}: empty or (glass place, room place)")
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
@@ -321,7 +332,8 @@ class Config:
 #: far from an opening beside the laser or beside a long one (and named the places those
 #: rules apply to), and (learnt) a door's closed and opened copies where glass lay across
 #: (the learning-only fields too, so that a loaded model's config says how it was learnt),
-#: and kept a window call where a room was seen beside the laser
+#: and kept a window call where a room was seen beside the laser (one saved after session 24
+#: names its glass and room places, ("window", "door"), in its config: applied as before)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -393,8 +405,9 @@ class FeatureModel:
     spans: list[dict[str, Any]] = field(default_factory=list)
     fit_report: dict[str, Any] = field(default_factory=dict)
     places: PlaceClassifier | None = None  # the classifier on scan descriptors
-    # the places the opening rules apply to, learnt when fitting ("beside", "narrow":
-    # classify.learn_opening_places; used where the config's tuples are None)
+    # the places the opening rules apply to, learnt when fitting ("beside", "narrow"; and
+    # "glass", "room" for `glass_to`: classify.learn_opening_places; used where the config's
+    # tuples are None)
     opening_places: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
