@@ -298,6 +298,9 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     # session 24's saved pair is kept: a model saved then applies as it did
     named = {**now, "glass_to": ["window", "door"]}
     assert Config.from_dict(named).glass_to == ("window", "door")
+    # before session 25, a door's zone past its opening stayed corridor
+    marginless = {k: v for k, v in now.items() if k != "room_margin"}
+    assert Config.from_dict(marginless).room_margin == 0.0 < Config().room_margin
 
 
 def test_background_density_integrates_to_one() -> None:

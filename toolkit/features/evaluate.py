@@ -116,7 +116,8 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: the opening rules' places named, not learnt (beside_places door and hall, narrow_places door: margin24's, session 24)", dataclasses.replace(FULL, beside_places=("door", "hall"), narrow_places=("door",))),
     ("alternative: without the window call by a room going to the door (glass_to empty: a window call where the square beams see a room beside the laser kept; glass24, session 24)", dataclasses.replace(FULL, glass_to=())),
     ("alternative: the glass and room places named, not learnt (glass_to window and door: glass24's, session 24)", dataclasses.replace(FULL, glass_to=("window", "door"))),
-    ("alternative: + a corridor or window call with the door runner-up goes to the door within 0.4 m of path of a door call that sees a room beside (room_margin 0.4: door25, session 25)", dataclasses.replace(FULL, room_margin=0.4)),
+    ("alternative: without the door's zone past its opening (room_margin 0: a corridor or window call with the door runner-up near a door call that sees a room beside kept; door25, session 25)", dataclasses.replace(FULL, room_margin=0.0)),
+    ("alternative: session 24's default (glass_to window and door, room_margin 0)", dataclasses.replace(FULL, glass_to=("window", "door"), room_margin=0.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))
