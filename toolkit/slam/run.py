@@ -129,7 +129,12 @@ def slam_trajectory(
     if slam.front_end == "map" and result.matches is not None:
         step_cov = result.matches.covariance  # scan-to-map: world frame, per scan step
     odometry = odometry_poses(ds) if slam.odometry_along > 0 else None
-    poses, keys, edges, loops, timings, before = close_loops(ds, before, slam, step_cov, odometry)
+    step_fit = None
+    if slam.front_end == "map" and slam.blind_turn > 0 and result.matches is not None:
+        step_fit = result.matches.agreement  # the inlier share of each scan's fit
+    poses, keys, edges, loops, timings, before = close_loops(
+        ds, before, slam, step_cov, odometry, step_fit
+    )
     out = replace(result, stream=PoseStream(result.stream.t, poses))
     run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)
     return out, run

@@ -146,7 +146,7 @@ class MapConfig:
 
 # ---------------------------------------------------------------- the kernel
 
-_SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
+SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
 _SLIDE = (0.2, 0.1)  # a search's fit may move this far (m, rad) beyond the volume searched
@@ -611,7 +611,7 @@ class MapMatcher:
         self._finish(pose, odo, t)
         assert self._key_pose is not None
         since = _between(self._key_pose, pose)
-        unverified = self.stats[4] < cfg.min_inliers and len(pts) < _SEARCH_MIN
+        unverified = self.stats[4] < cfg.min_inliers and len(pts) < SEARCH_MIN
         if not (unverified and cfg.defer_sparse):
             self._anchor = None
         elif self._anchor is None:
@@ -659,7 +659,7 @@ class MapMatcher:
         fit(predicted, info, out, cov)
         if by_odometry and cfg.slip_sigmas > 0 and out[4] >= cfg.min_inliers:
             self._slip_free(fit, predicted, info, out, cov)
-        if out[4] < cfg.min_inliers and len(pts) >= _SEARCH_MIN:
+        if out[4] < cfg.min_inliers and len(pts) >= SEARCH_MIN:
             # after scans too sparse to verify, a slip may lie back at the first of them (its
             # fit failed): the step is taken from its pose (its position is right, its heading
             # may not be), the window widened by how far a turn within the search's moves the
@@ -1090,6 +1090,14 @@ def scan_to_map(
     )
 
 
+def returns(ranges: np.ndarray, max_range: float) -> np.ndarray:
+    """Per scan (S x B ranges): the returns the matcher uses, those in (0, `max_range`]."""
+    r = np.asarray(ranges)
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = (np.isfinite(r) & (r > 0) & (r <= max_range)).sum(axis=1)
+    return out
+
+
 def _heading_free_fit(
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
     start: np.ndarray,
@@ -1103,4 +1111,13 @@ def _heading_free_fit(
     return res, c
 
 
-__all__ = ["MapConfig", "MapMatcher", "scan_to_map", "settings", "slipped", "surfaces"]
+__all__ = [
+    "SEARCH_MIN",
+    "MapConfig",
+    "MapMatcher",
+    "returns",
+    "scan_to_map",
+    "settings",
+    "slipped",
+    "surfaces",
+]
