@@ -157,8 +157,8 @@ def _forward_backward_stages(
 
 def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.ndarray:
     """Per scan, the probability that the place changed since the previous scan: grows with
-    the distance travelled (and turned, 1 rad ~ 1 m) along the trajectory."""
-    step = path_steps(n, poses)
+    the distance travelled (and turned, 1 rad ~ `turn_length` m) along the trajectory."""
+    step = path_steps(n, poses, config.turn_length)
     if step is None:
         return np.full(n, config.switch_per_scan)
     step[:1] = 0.0
@@ -166,16 +166,16 @@ def switch_probability(config: Config, n: int, poses: np.ndarray | None) -> np.n
     return np.asarray(np.clip(np.nan_to_num(eps, nan=config.switch_per_scan), 1e-6, 1.0))
 
 
-def path_steps(n: int, poses: np.ndarray | None) -> np.ndarray | None:
-    """Per scan, the distance travelled since the previous scan (m; turning 1 rad ~ 1 m; the
-    first scan: inf, all it sees is new)."""
+def path_steps(n: int, poses: np.ndarray | None, turn_length: float = 1.0) -> np.ndarray | None:
+    """Per scan, the distance travelled since the previous scan (m; turning 1 rad ~
+    `turn_length` m; the first scan: inf, all it sees is new)."""
     if poses is None or len(poses) != n:
         return None
     step = np.full(n, np.inf)
     if n > 1:
         d = np.diff(poses[:, :2], axis=0)
         turn = np.abs(np.remainder(np.diff(poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
-        step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn
+        step[1:] = np.hypot(d[:, 0], d[:, 1]) + turn_length * turn
     return step
 
 
@@ -183,7 +183,7 @@ def evidence_weights(config: Config, n: int, poses: np.ndarray | None) -> np.nda
     """Per scan, the share of a scan's evidence the HMM gets from it: the path travelled since
     the previous scan over `evidence_length` (at most 1; a robot standing still adds none);
     1 without poses (or where a pose is NaN)."""
-    step = path_steps(n, poses)
+    step = path_steps(n, poses, config.turn_length)
     if step is None or not config.evidence_length:
         return np.ones(n)
     return np.nan_to_num(np.clip(step / config.evidence_length, 0.0, 1.0), nan=1.0)

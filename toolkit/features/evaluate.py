@@ -118,6 +118,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: the glass and room places named, not learnt (glass_to window and door: glass24's, session 24)", dataclasses.replace(FULL, glass_to=("window", "door"))),
     ("alternative: without the door's zone past its opening (room_margin 0: a corridor or window call with the door runner-up near a door call that sees a room beside kept; door25, session 25)", dataclasses.replace(FULL, room_margin=0.0)),
     ("alternative: session 24's default (glass_to window and door, room_margin 0)", dataclasses.replace(FULL, glass_to=("window", "door"), room_margin=0.0)),
+    ("alternative: + on a sparse log, a scan taken turning on the spot neither switches the place nor adds evidence in the HMM (sparse_turn_length 0; turn25, session 25)", dataclasses.replace(FULL, sparse_turn_length=0.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

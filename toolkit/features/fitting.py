@@ -165,12 +165,16 @@ def fit(
     if sparse:  # no context to pool: the local map instead, and no opened copies (their
         # opening's length along the path is not described without it; the fit report says so)
         # and the HMM's dwell of `sparse_dwell_stages`: a place of one scan is unlikely
+        # (and its path's turning counted by `sparse_turn_length`)
         config = replace(
             config,
             context=0.0,
             local_map=config.sparse_local_map,
             augment_open=0.0,
             dwell_stages=config.sparse_dwell_stages or config.dwell_stages,
+            turn_length=config.turn_length
+            if config.sparse_turn_length is None
+            else config.sparse_turn_length,
         )
     if not training:
         raise ToolkitError("no features to learn")

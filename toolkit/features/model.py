@@ -108,6 +108,9 @@ class Config:
     # average: a place lasts this many switching lengths, and a stay much shorter than one
     # (a few scans of a false door) is unlikely (1: the geometric dwell, every length alike)
     evidence_length: float | None = 0.5  # m: in the HMM, one scan's evidence per this distance
+    turn_length: float = 1.0  # m of path per rad turned, in the HMM's path (its switching
+    # and `evidence_length`): 0: a scan taken turning on the spot neither changes the place
+    # nor adds evidence (it takes its neighbours' label)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -173,6 +176,8 @@ class Config:
     sparse_local_map: float = SPARSE_LOCAL_MAP  # the local map's m either side where the
     # scans are too far apart for the context (it is then off): the end points of the
     # neighbouring scans pool what their descriptors cannot (0: each scan alone)
+    sparse_turn_length: float | None = None  # the HMM's `turn_length` where the scans are
+    # too far apart for the context (None: `turn_length`)
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -291,6 +296,8 @@ class Config:
             raise ToolkitError(f"robust {self.robust}: a weight in [0, 1)")
         if self.dwell_stages < 1:
             raise ToolkitError(f"dwell_stages {self.dwell_stages}: at least 1")
+        if self.turn_length < 0 or (self.sparse_turn_length or 0.0) < 0:
+            raise ToolkitError("turn_length, sparse_turn_length: m per rad, 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
