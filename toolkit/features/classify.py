@@ -447,6 +447,18 @@ def beside_only(
     return np.where(total > 0, out / np.where(total > 0, total, 1.0), prob)
 
 
+def room_beside(view: SideView) -> np.ndarray:
+    """(S,) bool: the scans whose beams square to the path see, on either side, returns from
+    `OPENING_DEPTH` to `ROOM_DEPTH` m past that side's usual wall (a room behind an opening)."""
+    seen, wall = view
+    with np.errstate(invalid="ignore"):
+        past = seen - wall
+    out: np.ndarray = np.any(
+        np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1
+    )
+    return out
+
+
 def glass_room(
     prob: np.ndarray, model: FeatureModel, ranges: np.ndarray, view: SideView | None = None
 ) -> np.ndarray:
@@ -466,10 +478,7 @@ def glass_room(
     view = side_view(ranges, model.laser) if view is None else view
     if view is None or not len(g) or not len(r):
         return prob
-    seen, wall = view
-    with np.errstate(invalid="ignore"):
-        past = seen - wall
-    room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)
+    room = room_beside(view)
     hit = np.flatnonzero(room & np.isin(prob.argmax(axis=1), g))
     out = prob.copy()
     to = r[out[np.ix_(hit, r)].argmax(axis=1)] if len(r) > 1 else np.full(len(hit), r[0])
@@ -514,10 +523,7 @@ def room_margin(
     if found is None or view is None or not rooms or rooms[0] not in names:
         return prob
     r = names.index(rooms[0])
-    seen, wall = view
-    with np.errstate(invalid="ignore"):
-        past = seen - wall
-    room = np.any(np.isfinite(past) & (past > OPENING_DEPTH) & (past <= ROOM_DEPTH), axis=1)
+    room = room_beside(view)
     order = np.argsort(-prob, axis=1, kind="stable")
     call, second = order[:, 0], order[:, 1]
     anchor = np.flatnonzero(room & (call == r))
