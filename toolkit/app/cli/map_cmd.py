@@ -88,10 +88,10 @@ def map_command(
         typer.Option(
             "--config",
             metavar="JSON",
-            help="expert settings, a JSON object: a run's config.json (its dataset, created, "
-            "laser, dataset_meta_sha256, method and voxel are ignored: --method and --voxel "
-            'say those) or part of one, e.g. {"slam": {"blind_turn": 0}, "matcher": '
-            '{"edge_grow": 1}}; docs/maps.md',
+            help="expert settings (one dataset), a JSON object: a run's config.json (its "
+            "dataset, created, laser, dataset_meta_sha256, method and voxel are ignored: "
+            '--method and --voxel say those) or part of one, e.g. {"slam": {"blind_turn": '
+            '0}, "matcher": {"edge_grow": 1}}; docs/maps.md',
         ),
     ] = None,
     set_: Annotated[
