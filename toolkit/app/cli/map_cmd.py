@@ -204,8 +204,11 @@ def map_settings(
     match, slam = MatchConfig(), SlamConfig()
     with_loops = loops and method != "odometry"
     for source, data in layers:
-        for key in sorted(set(data) - {"matcher", "slam"}):
-            raise ToolkitError(f"unknown setting {key} (settings: slam.*, matcher.*)", file=source)
+        unknown = sorted(set(data) - {"matcher", "slam"})
+        if unknown:
+            raise ToolkitError(
+                f"unknown setting {unknown[0]} (settings: slam.*, matcher.*)", file=source
+            )
         for key in ("matcher", "slam"):
             if key in data and not isinstance(data[key], dict):
                 raise ToolkitError(f"{key}: expected an object of settings", file=source)
