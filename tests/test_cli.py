@@ -139,6 +139,7 @@ def test_plain_values_are_coerced_as_typer_coerces_them(tmp_path: Path) -> None:
         bool: [True, False],
     }
     values[list[Path]] = [(str(tmp_path), str(tmp_path / "f")), ["a"]]
+    values[list[str]] = [("slam.loops=false", "a=b"), ["x"], ()]
     group = typer.main.get_command(cli.app)
     checked = 0
     for command in [group, *group.commands.values()]:  # type: ignore[attr-defined]

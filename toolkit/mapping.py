@@ -60,6 +60,7 @@ from toolkit.writers import (
 )
 
 if TYPE_CHECKING:
+    from toolkit.slam.pipeline import SlamConfig
     from toolkit.slam.run import SlamRun
 
 # scans per chunk of the cloud writers: ~2.5 MB of vertices at 361 beams, in two buffers
@@ -301,11 +302,13 @@ def map_run(
     matcher: Callable[..., sc.PairMatches] | None = None,
     loops: bool = True,
     outputs: Collection[str] = OUTPUTS,
+    slam_config: SlamConfig | None = None,
 ) -> MapRun:
     """`toolkit map`: align `dataset` (loaded if a path) by `method` and write the run
     directory `out` atomically: `outputs` of OUTPUTS ("cloud.ply" brings cloud.pcd, "map.png"
     the occupancy grid map.pgm + map.yaml). With `loops`, the mapper's loop closure and pose
-    graph (`toolkit.slam.run`: graph.g2o, loops.csv). `matcher`: see `toolkit.poses.build`.
+    graph (`toolkit.slam.run`: graph.g2o, loops.csv), by `slam_config`'s settings
+    (None: the defaults). `matcher`: see `toolkit.poses.build`.
     metrics.json's `seconds` holds the time of every stage: read, the trajectory's (prepare,
     compile, match, compose, and the loops'), and each output's by file name. The CLI, the
     fleet, the bench and the report all map through here."""
@@ -326,7 +329,9 @@ def map_run(
         if loops and method != Method.ODOMETRY:
             # on use: loop closure and the pose graph load GTSAM and scipy.ndimage
             slam_run = importlib.import_module("toolkit.slam.run")
-            result, slam = slam_run.slam_trajectory(ds, method, config, matcher, progress=matched)
+            result, slam = slam_run.slam_trajectory(
+                ds, method, config, matcher, slam_config, progress=matched
+            )
         else:
             result = build(ds, method, config, matcher, progress=matched)
         timed |= result.timings

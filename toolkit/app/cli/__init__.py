@@ -28,12 +28,12 @@ typer.core.TyperArgument.display_type_rich = lambda self, ctx: None  # type: ign
 
 class _PlainValues:
     """Typer's coercion of one parameter (`RuntimeParam.coerce`) for the plain values every
-    command takes: a str for a `str`, a non-empty str (or several, for `list[Path]`) for a
-    `Path` (Path(value), then typer's own checks, `coerce_cli_path`), a default already of
-    its `int`/`float`/`bool` type as it is; anything else, and every other annotation, by
-    typer's own pydantic TypeAdapter (built then). The same values as typer gives, without
-    loading pydantic and building an adapter per parameter in every command's start
-    (0.06-0.08 s of CPU, `toolkit map`'s included)."""
+    command takes: a str for a `str` (several for a `list[str]`), a non-empty str (or
+    several, for `list[Path]`) for a `Path` (Path(value), then typer's own checks,
+    `coerce_cli_path`), a default already of its `int`/`float`/`bool` type as it is;
+    anything else, and every other annotation, by typer's own pydantic TypeAdapter (built
+    then). The same values as typer gives, without loading pydantic and building an adapter
+    per parameter in every command's start (0.06-0.08 s of CPU, `toolkit map`'s included)."""
 
     def __init__(self, descriptor: TypeDescriptor) -> None:
         self.descriptor = descriptor
@@ -51,8 +51,10 @@ class _PlainValues:
         if many and isinstance(value, str):
             return self._own().coerce(value, param, ctx)  # typer's error
         annotation: object = self.descriptor.annotation
-        if get_origin(annotation) is list:
-            if isinstance(value, list | tuple) and all(_plain_path(v) for v in value):
+        if get_origin(annotation) is list and isinstance(value, list | tuple):
+            if get_args(annotation) == (str,) and all(type(v) is str for v in value):
+                return list(value)  # repeated text options (KEY=VALUE)
+            if all(_plain_path(v) for v in value):
                 return [self._path(v, param, ctx) for v in value]
         elif annotation is Path and _plain_path(value):
             return self._path(value, param, ctx)
@@ -74,7 +76,9 @@ def _plain(annotation: object, info: ParameterInfo) -> bool:
     if info.parser is not None or info.min is not None or info.max is not None:
         return False
     if get_origin(annotation) is list:
-        return get_args(annotation) == (Path,) and info.path_type is None
+        return get_args(annotation) == (str,) or (
+            get_args(annotation) == (Path,) and info.path_type is None
+        )
     if annotation is Path:
         return info.path_type is None
     return annotation in (str, int, float, bool)

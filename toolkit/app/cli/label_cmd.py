@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from toolkit.app.cli import app
 from toolkit.errors import ToolkitError
+
+if TYPE_CHECKING:
+    from toolkit.features.model import Config
 
 
 @app.command("label", short_help="Learn places from a few scans, find them along a log.")
@@ -146,6 +149,26 @@ def label_command(
             help="true labels (t, label; e.g. the simulator's truth.parquet) to score",
         ),
     ] = None,
+    config_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--config",
+            metavar="JSON",
+            help="expert: settings of the places' Config, a JSON object of field: value "
+            '(e.g. {"room_margin": 0}; a model.json: its "config"), over the defaults (or '
+            "--paper's, --none-model's); the options above win; docs/places.md; when learning",
+        ),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            metavar="KEY=VALUE",
+            help="expert: a field of the places' Config (toolkit/features/model.py), "
+            "repeatable, over --config's; VALUE is JSON (0.4, true, null, "
+            '["window", "door"]) or else text; when learning',
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="replace earlier label outputs")] = False,
 ) -> None:
     """Learn places from a few scans each and find them along the whole log (Eq. 7-9).
@@ -171,6 +194,10 @@ def label_command(
         if none_model == "world"
         else Config()
     )
+    if config_file is not None or set_:
+        if model is not None:
+            raise ToolkitError("--config and --set are learning settings; a --model keeps its own")
+        base = config_settings(base, config_file, set_)
     if beam_term is not None:
         if beam_term < 0:
             raise ToolkitError(f"--beam-term {beam_term}: a weight >= 0")
@@ -224,6 +251,19 @@ def label_command(
             f"{t['balanced_accuracy']:.3f}, ECE {t['ece']:.3f}"
         )
     typer.echo(f"wrote {out}/ (labels.parquet, model.json, membership.png, labels-cloud.ply)")
+
+
+def config_settings(base: Config, path: Path | None, pairs: list[str] | None) -> Config:
+    """`base` with --config's fields, then --set's (a model.json's "config" as a file)."""
+    from toolkit.app.settings import apply, parse_sets, read_json
+
+    if path is not None:
+        data = read_json(path)
+        saved = data.get("config")
+        if isinstance(saved, dict) and "features" in data:  # a model.json
+            data = saved
+        base = apply(base, data, str(path))
+    return apply(base, parse_sets(pairs), "--set")
 
 
 def lateral_exponent(text: str) -> float | None:

@@ -6,13 +6,23 @@ from __future__ import annotations
 import glob
 import importlib
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from toolkit.app.cli import app
 from toolkit.app.cli.options import report_outcomes
 from toolkit.errors import ToolkitError
+
+if TYPE_CHECKING:
+    from toolkit.align.scan import MatchConfig
+    from toolkit.slam.pipeline import SlamConfig
+
+#: keys of a run's config.json that record the run, not settings: read from --config and
+#: left out (--method and --voxel say the method and the voxel size)
+RECORDED = ("dataset", "created", "laser", "dataset_meta_sha256", "method", "voxel")
+#: ... and of its "matcher": which front end and ICP's fixed parameters
+RECORDED_MATCHER = ("front_end", "icp", "max_distance")
 
 
 @app.command("map", short_help="Align the scans; trajectory, maps and metrics.")
@@ -73,6 +83,28 @@ def map_command(
             "OUT/<name below the tree>; failures by name; current runs are skipped",
         ),
     ] = False,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            "--config",
+            metavar="JSON",
+            help="expert settings (one dataset), a JSON object: a run's config.json (its "
+            "dataset, created, laser, dataset_meta_sha256, method and voxel are ignored: "
+            '--method and --voxel say those) or part of one, e.g. {"slam": {"blind_turn": '
+            '0}, "matcher": {"edge_grow": 1}}; docs/maps.md',
+        ),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            metavar="KEY=VALUE",
+            help="an expert setting, repeatable, over --config's: slam.FIELD (SlamConfig; "
+            "slam.loop.FIELD, slam.scan_map.FIELD), matcher.FIELD (the sequential matcher's: "
+            "scan-to-map's, i.e. slam.scan_map's, with loops and --method gaussian, else "
+            "MatchConfig's); VALUE is JSON (3, true, [0.1, 0.2]) or else text",
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
 ) -> None:
     """Align the scans, build the trajectory and the maps, and measure them against ground truth.
@@ -80,6 +112,8 @@ def map_command(
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply and
     cloud.pcd, map.png, map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with
     loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
+    --config and --set change expert settings (checked before any work; config.json records
+    every setting that ran).
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
@@ -95,6 +129,12 @@ def map_command(
         numba_tables()  # every map run loads kernels (the writers' at least)
     if voxel < 0:
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
+    match_config: MatchConfig | None = None  # the defaults, unless given
+    slam_config: SlamConfig | None = None
+    if config is not None or set_:
+        if each or _many(datasets):
+            raise ToolkitError("--config and --set map one dataset at a time")
+        match_config, slam_config = map_settings(config, set_, method, loops)
     if each or _many(datasets):
         _map_each(datasets, out, method, voxel, force, scheduler, quiet, loops)
         return
@@ -102,7 +142,9 @@ def map_command(
     if scheduler != "none" and method != Method.GAUSSIAN:
         raise ToolkitError(f"--scheduler runs the gaussian matcher; method {method} runs here only")
     if scheduler == "none":
-        run = map_run(dataset, out, method, voxel, force=force, loops=loops)
+        run = map_run(
+            dataset, out, method, voxel, match_config, force, loops=loops, slam_config=slam_config
+        )
     else:
         from toolkit.app.fleet import client_for  # Dask, on use
         from toolkit.app.fleet_map import matcher_for, on_shared_storage
@@ -111,7 +153,17 @@ def map_command(
         with client_for(scheduler) as client:
             scans = dataset / SCANS if on_shared_storage(scheduler) else None
             matcher = matcher_for(client, scans=scans) if client is not None else None
-            run = map_run(dataset, out, method, voxel, force=force, matcher=matcher, loops=loops)
+            run = map_run(
+                dataset,
+                out,
+                method,
+                voxel,
+                match_config,
+                force,
+                matcher,
+                loops,
+                slam_config=slam_config,
+            )
     if quiet:
         return
     metrics = run.metrics
@@ -127,6 +179,53 @@ def map_command(
             f"{rpe['rotation_deg']:.3f}°, {fails['count']} failures"
         )
     typer.echo(line)
+
+
+def map_settings(
+    path: Path | None, pairs: list[str] | None, method: str, loops: bool
+) -> tuple[MatchConfig, SlamConfig | None]:
+    """The matcher's and the mapper's settings: the defaults, then --config's, then --set's;
+    the mapper's None when the run has no loops (a slam setting then is an error)."""
+    from dataclasses import replace
+
+    from toolkit.align.scan import MatchConfig
+    from toolkit.app.settings import apply, parse_sets, read_json
+    from toolkit.slam.pipeline import SlamConfig
+
+    layers: list[tuple[str, dict[str, Any]]] = []
+    if path is not None:
+        data = {k: v for k, v in read_json(path).items() if k not in RECORDED}
+        if isinstance(data.get("matcher"), dict):
+            data["matcher"] = {
+                k: v for k, v in data["matcher"].items() if k not in RECORDED_MATCHER
+            }
+        layers.append((str(path), {k: v for k, v in data.items() if v is not None}))
+    layers.append(("--set", parse_sets(pairs)))
+    match, slam = MatchConfig(), SlamConfig()
+    with_loops = loops and method != "odometry"
+    for source, data in layers:
+        unknown = sorted(set(data) - {"matcher", "slam"})
+        if unknown:
+            raise ToolkitError(
+                f"unknown setting {unknown[0]} (settings: slam.*, matcher.*)", file=source
+            )
+        for key in ("matcher", "slam"):
+            if key in data and not isinstance(data[key], dict):
+                raise ToolkitError(f"{key}: expected an object of settings", file=source)
+        if "slam" in data:
+            if not with_loops:
+                raise ToolkitError(
+                    "slam.*: the mapper's settings need loops (not --no-loops, --method odometry)",
+                    file=source,
+                )
+            slam = apply(slam, data["slam"], source, "slam.")
+        if "matcher" in data:
+            if with_loops and method == "gaussian" and slam.front_end == "map":
+                scan_map = apply(slam.scan_map, data["matcher"], source, "matcher.")
+                slam = replace(slam, scan_map=scan_map)
+            else:
+                match = apply(match, data["matcher"], source, "matcher.")
+    return match, slam if with_loops else None
 
 
 def _many(datasets: list[Path]) -> bool:
