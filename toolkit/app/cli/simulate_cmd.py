@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -22,14 +21,9 @@ def _pairs(pairs: list[str] | None, flag: str) -> dict[str, Any]:
 def _config(path: Path | None) -> dict[str, Any]:
     if path is None:
         return {}
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ToolkitError("no such file", file=path) from None
-    except json.JSONDecodeError as e:
-        raise ToolkitError(f"invalid JSON: {e.msg}", file=path, record=e.lineno) from None
-    if not isinstance(data, dict):
-        raise ToolkitError("expected a JSON object of parameter: value", file=path)
+    from toolkit.app.settings import read_json  # here: settings imports this package
+
+    data = read_json(path)
     params = data.get("params", data)  # a simulation.json works as a config too
     if not isinstance(params, dict):
         raise ToolkitError("'params' must be an object", file=path)
