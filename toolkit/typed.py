@@ -2,7 +2,8 @@
 command line (`-O KEY=VALUE`, `-p KEY=VALUE`) or JSON becomes that type here, once.
 
 A field's annotation is the whole contract: `float`, `int`, `bool`, `str`, `Path`, a
-`Literal[...]` of choices, or a union of those with `None`. Conversion and checking live in one
+`Literal[...]` of choices, a tuple of those (`tuple[float, float]`, `tuple[str, ...]`: from a
+list or tuple), or a union of those with `None`. Conversion and checking live in one
 place so that every format and the simulator reject the same mistakes with the same words.
 """
 
@@ -74,11 +75,20 @@ def words(kind: object) -> str:
 def convert(value: object, kind: object, key: str, owner: str) -> object:
     """`value` (text, or a value from JSON or Python) as the type `kind`; `key` and `owner`
     name it in the one-line error ("range_max=abc for carmen: expected none|number")."""
+    ok, out = coerce(value, kind)
+    if ok:
+        return out
+    raise ToolkitError(f"{key}={_show(value)} for {owner}: expected {words(kind)}")
+
+
+def coerce(value: object, kind: object) -> tuple[bool, object]:
+    """(True, `value` as the type `kind`), or (False, None) if it is not one; for callers that
+    word their own error (`convert` words the command line's)."""
     for m in _members(kind):
         ok, out = _try(value, m)
         if ok:
-            return out
-    raise ToolkitError(f"{key}={_show(value)} for {owner}: expected {words(kind)}")
+            return True, out
+    return False, None
 
 
 def _show(value: object) -> str:
@@ -131,9 +141,25 @@ def _try(value: object, kind: object) -> tuple[bool, object]:
         if isinstance(value, Path):
             return True, value
         return (True, Path(text)) if text else (False, None)
+    if get_origin(kind) is tuple:
+        return _items(value, get_args(kind))
     if isinstance(kind, type):
         return (True, value) if isinstance(value, kind) else (False, None)
     return False, None
+
+
+def _items(value: object, kinds: tuple[Any, ...]) -> tuple[bool, object]:
+    """A list or tuple as a tuple of `kinds` (`tuple[X, ...]`: any length of X)."""
+    if not isinstance(value, list | tuple):
+        return False, None
+    if len(kinds) == 2 and kinds[1] is Ellipsis:
+        kinds = kinds[:1] * len(value)
+    if len(kinds) != len(value):
+        return False, None
+    items = [coerce(v, k) for v, k in zip(value, kinds, strict=True)]
+    if not all(ok for ok, _ in items):
+        return False, None
+    return True, tuple(v for _, v in items)
 
 
 def build(cls: type[T], values: Mapping[str, object], what: str) -> T:

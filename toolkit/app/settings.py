@@ -2,7 +2,8 @@
 frozen dataclass of settings (`SlamConfig`, `MatchConfig`, the places `Config`), checked
 field by field so that a wrong key or value is one line naming it, before any work starts.
 
-Only the standard library here: the commands import it on use, and `toolkit --help` not.
+The types are `toolkit.typed`'s (as the formats' and the simulator's options); only the
+standard library besides: the commands import it on use, and `toolkit --help` not.
 """
 
 from __future__ import annotations
@@ -12,10 +13,11 @@ import difflib
 import json
 import types
 from pathlib import Path
-from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
 from toolkit.app.cli.options import key_values
 from toolkit.errors import ToolkitError
+from toolkit.typed import coerce, field_types
 
 T = TypeVar("T")
 
@@ -64,9 +66,7 @@ def apply(settings: T, changes: dict[str, Any], source: str, prefix: str = "") -
     """`settings` (a frozen dataclass) with the fields `changes` names replaced, nested
     dataclasses from nested objects; an unknown key, a value of the wrong type or one the
     dataclass refuses raises a ToolkitError naming `source` (the file or --set) and the key."""
-    cls = type(settings)
-    hints = get_type_hints(cls)
-    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    fields = field_types(type(settings))
     new: dict[str, Any] = {}
     for name, value in changes.items():
         key = prefix + name
@@ -74,14 +74,13 @@ def apply(settings: T, changes: dict[str, Any], source: str, prefix: str = "") -
             near = difflib.get_close_matches(name, sorted(fields), n=1)
             hint = f" (did you mean {prefix}{near[0]}?)" if near else ""
             raise ToolkitError(f"unknown setting {key}{hint}", file=source)
-        hint_type = hints[name]
         current = getattr(settings, name)
         if dataclasses.is_dataclass(current):
             if not isinstance(value, dict):
                 raise ToolkitError(f"{key}: expected an object of settings", file=source)
             new[name] = apply(current, value, source, key + ".")
         else:
-            new[name] = _typed(value, hint_type, key, source)
+            new[name] = _typed(value, fields[name], key, source)
     try:
         return dataclasses.replace(settings, **new)  # type: ignore[type-var]
     except ToolkitError as e:  # the dataclass's own check (__post_init__)
@@ -93,47 +92,14 @@ def apply(settings: T, changes: dict[str, Any], source: str, prefix: str = "") -
 
 
 def _typed(value: object, hint: object, key: str, source: str) -> object:
-    """`value` as a field of type `hint` takes it (an int for a float, a list for a tuple),
-    or a ToolkitError saying what the field takes."""
-    ok, out = _convert(value, hint)
+    """`value` as a field of type `hint` takes it (`typed.coerce`: an int for a float, a list
+    for a tuple), or a ToolkitError saying, in JSON's words, what the field takes."""
+    ok, out = coerce(value, hint)
     if not ok:
         raise ToolkitError(
             f"{key}: expected {_describe(hint)}, not {json.dumps(value)}", file=source
         )
     return out
-
-
-def _convert(value: object, hint: object) -> tuple[bool, object]:
-    origin, args = get_origin(hint), get_args(hint)
-    if origin in (Union, types.UnionType):
-        for arm in args:
-            ok, out = _convert(value, arm)
-            if ok:
-                return True, out
-        return False, None
-    if hint is type(None):
-        return value is None, None
-    if origin is Literal:
-        return value in args, value
-    if hint is bool:
-        return isinstance(value, bool), value
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool), value
-    if hint is float:
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return True, float(value)
-        return False, None
-    if hint is str:
-        return isinstance(value, str), value
-    if origin is tuple:
-        if not isinstance(value, list | tuple):
-            return False, None
-        items = args[:1] * len(value) if len(args) == 2 and args[1] is Ellipsis else args
-        if len(items) != len(value):
-            return False, None
-        converted = [_convert(v, h) for v, h in zip(value, items, strict=True)]
-        return all(ok for ok, _ in converted), tuple(v for _, v in converted)
-    return True, value  # a type this module does not know: the dataclass checks it
 
 
 def _describe(hint: object) -> str:

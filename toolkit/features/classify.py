@@ -229,12 +229,13 @@ def classify(
     glass = cfg.glass_to is None or len(cfg.glass_to) == 2
     if (opening_rules or glass or cfg.room_margin > 0) and cfg.smoothing != "forward":
         view = side_view(ranges, model.laser)
+        found = _dense_openings(ranges, model.laser, poses, view)
         if opening_rules:
-            prob = beside_only(prob, model, ranges, poses, view)
+            prob = _beside_only(prob, model, found)
         if glass:
             prob = glass_room(prob, model, ranges, view)
         if cfg.room_margin > 0:
-            prob = room_margin(prob, model, ranges, poses, view)
+            prob = room_margin(prob, model, found, view)
     classes = np.array(model.classes)
     return Labels(model.classes, prob, classes[prob.argmax(axis=1)])
 
@@ -254,6 +255,13 @@ OPENING_DEPTH = 1.0
 SideView = tuple[np.ndarray, np.ndarray]
 
 
+def square_beams(laser: LaserGeometry) -> np.ndarray:
+    """Per beam, whether it lies within `SQUARE` of square to the path: what it sees is
+    beside the laser."""
+    out: np.ndarray = np.abs(np.sin(laser.angles + laser.yaw)) >= np.cos(SQUARE) - 1e-9
+    return out
+
+
 def side_view(ranges: np.ndarray, laser: LaserGeometry) -> SideView | None:
     """Per scan and side (S x 2: left, right), the median distance across the path the beams
     square to it see (inf: no return), and per side the usual wall (the log's median; inf
@@ -261,7 +269,7 @@ def side_view(ranges: np.ndarray, laser: LaserGeometry) -> SideView | None:
     log and shared by the rules beside the laser (`openings`, `glass_room`)."""
     across = np.abs(np.sin(laser.angles + laser.yaw))
     side = np.sign(np.sin(laser.angles + laser.yaw))
-    square = across >= np.cos(SQUARE) - 1e-9
+    square = square_beams(laser)
     seen, wall = np.empty((len(ranges), 2)), np.full(2, np.inf)
     for k, sign in enumerate((1.0, -1.0)):
         beams = square & (side == sign)
@@ -301,12 +309,17 @@ def openings(
     new = np.r_[True, np.diff(idx) > 1]  # the first scan of each run
     run = np.cumsum(new) - 1
     length = along[idx[np.r_[new[1:], True]]] - along[idx[new]]
-    at = along[idx]
+    nearest, distance = _nearest(along[idx], along)
+    return distance, length[run[nearest]], along
+
+
+def _nearest(at: np.ndarray, along: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per position of `along`, the index of the nearest position of `at` (sorted, not
+    empty) and the distance to it."""
     i = np.searchsorted(at, along)
-    before, after = np.clip(i - 1, 0, len(idx) - 1), np.clip(i, 0, len(idx) - 1)
+    before, after = np.clip(i - 1, 0, len(at) - 1), np.clip(i, 0, len(at) - 1)
     to_before, to_after = np.abs(along - at[before]), np.abs(at[after] - along)
-    nearest = np.where(to_after < to_before, after, before)
-    return np.minimum(to_before, to_after), length[run[nearest]], along
+    return np.where(to_after < to_before, after, before), np.minimum(to_before, to_after)
 
 
 #: the median path step (m) over which the openings are too coarse to place a door's edge
@@ -336,7 +349,14 @@ def _dense_openings(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """`openings`, or None where the rules do not apply: no poses, no square beams, fewer
     than two scans, or the median scan more than `DENSE_STEP` m from the last."""
-    found = openings(ranges, laser, poses, view) if len(ranges) >= 2 else None
+    return _dense(openings(ranges, laser, poses, view) if len(ranges) >= 2 else None)
+
+
+def _dense(
+    found: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """`found` (`openings`), or None where the median scan lies more than `DENSE_STEP` m of
+    path from the last (the path is too coarse to place an opening's edge)."""
     if found is None or not np.median(np.diff(found[2])) <= DENSE_STEP:
         return None
     return found
@@ -369,8 +389,7 @@ def learn_opening_places(
     with np.errstate(invalid="ignore"):
         past = np.max(seen - wall, axis=1)  # the deeper side's reach past its wall
     room = np.isfinite(past) & (past > OPENING_DEPTH)
-    square = np.abs(np.sin(laser.angles + laser.yaw)) >= np.cos(SQUARE) - 1e-9
-    pane = (~np.isfinite(np.asarray(ranges)[:, square])).any(axis=1)
+    pane = (~np.isfinite(np.asarray(ranges)[:, square_beams(laser)])).any(axis=1)
     taught = {
         name: np.asarray(idx, dtype=np.intp)
         for name, idx in training.items()
@@ -397,8 +416,8 @@ def learn_opening_places(
                     short.append(name)
         return beside, short
 
-    beside, short = picks(_dense_openings(ranges, laser, poses, view), reach or LEARN_REACH, narrow)
     anywhere = openings(ranges, laser, poses, view) if len(ranges) >= 2 else None
+    beside, short = picks(_dense(anywhere), reach or LEARN_REACH, narrow)
     rooms = picks(anywhere, LEARN_REACH, LEARN_NARROW)[1]
     if len(rooms) > 1:  # one: the deepest room seen (a corner of 290 worlds, its crossing
         # seen 2.8 m deep, had the length rule beside the door's room, 3.7 m; a tie-break
@@ -426,11 +445,17 @@ def beside_only(
     lies more than `DENSE_STEP` m from the last (the path is then too coarse); `classify`
     leaves it out when streaming (`smoothing` "forward": it looks at the scans ahead).
     `view`: `side_view(ranges, model.laser)` when the caller has it."""
-    cfg = model.config
-    names = list(model.classes)
-    found = _dense_openings(ranges, model.laser, poses, view)
+    return _beside_only(prob, model, _dense_openings(ranges, model.laser, poses, view))
+
+
+def _beside_only(
+    prob: np.ndarray, model: FeatureModel, found: tuple[np.ndarray, ...] | None
+) -> np.ndarray:
+    """`beside_only` with the log's openings found (`_dense_openings`; None: unchanged)."""
     if found is None:
         return prob
+    cfg = model.config
+    names = list(model.classes)
     distance, length, _ = found
     out = prob.copy()
     learnt = model.opening_places
@@ -504,9 +529,8 @@ def _places_of(model: FeatureModel) -> tuple[tuple[str, ...], tuple[str, ...], t
 def room_margin(
     prob: np.ndarray,
     model: FeatureModel,
-    ranges: np.ndarray,
-    poses: np.ndarray | None,
-    view: SideView | None = None,
+    found: tuple[np.ndarray, ...] | None,
+    view: SideView | None,
 ) -> np.ndarray:
     """The posteriors with a call of a place that has no opening of its own (not a reach
     place of `beside_only`, not the room place: the corridor, the window) given to the room
@@ -514,12 +538,10 @@ def room_margin(
     place whose square beams see a room beside the laser (`glass_room`'s 1-5 m) lies within
     `room_margin` m of path: a found door's zone runs on past its opening, where the scans
     see no room and were called corridor (docs/journal/places.md, session 25, door25).
-    Unchanged where `beside_only` does not apply (no poses, a sparse log) or without a
-    room place."""
+    Unchanged where `beside_only` does not apply (`found`, the log's `_dense_openings`, is
+    None: no poses, a sparse log) or without a room place; `view`: the log's `side_view`."""
     names = list(model.classes)
     _, rooms, beside = _places_of(model)
-    found = _dense_openings(ranges, model.laser, poses, view)
-    view = side_view(ranges, model.laser) if view is None else view
     if found is None or view is None or not rooms or rooms[0] not in names:
         return prob
     r = names.index(rooms[0])
@@ -529,10 +551,7 @@ def room_margin(
     anchor = np.flatnonzero(room & (call == r))
     if not len(anchor):
         return prob
-    along = found[2][anchor]
-    i = np.searchsorted(along, found[2])
-    before, after = along[np.clip(i - 1, 0, len(along) - 1)], along[np.clip(i, 0, len(along) - 1)]
-    distance = np.minimum(np.abs(found[2] - before), np.abs(after - found[2]))
+    distance = _nearest(found[2][anchor], found[2])[1]
     sources = [k for k, name in enumerate(names) if name not in (*beside, rooms[0], "none")]
     hit = np.flatnonzero(
         np.isin(call, sources) & (second == r) & (distance <= model.config.room_margin)

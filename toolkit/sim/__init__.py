@@ -187,11 +187,7 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     used = {
         **{k: getattr(scn, k) for k in PATH_PARAMS},
         **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
-        **(
-            {"entered": True}
-            if params.get("entered") not in (None, False) and _yes(params["entered"])
-            else {}
-        ),
+        **({"entered": True} if _yes(params.get("entered") or False) else {}),
         **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
         **laser.to_dict(),
         **odometry.to_dict(),

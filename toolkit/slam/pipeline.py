@@ -542,10 +542,15 @@ def close_loops(
         poses = solve()
     if odo_edges and config.odometry_reach > 0:
         # the stretches no loop reaches: their keyframe edges get the odometry's, solved again
-        ends = np.array([along[e] for lp in found.values() if lp.accepted for e in (lp.a, lp.b)])
-        if len(ends):
+        ends = np.sort([along[e] for lp in found.values() if lp.accepted for e in (lp.a, lp.b)])
+        if len(ends):  # each edge's middle against the nearest loop end (sorted: no K x L)
             mid = 0.5 * (along[keys[:-1]] + along[keys[1:]])
-            far = np.abs(mid[:, None] - ends[None, :]).min(axis=1) > config.odometry_reach
+            i = np.searchsorted(ends, mid)
+            lower, upper = (
+                ends[np.clip(i - 1, 0, len(ends) - 1)],
+                ends[np.clip(i, 0, len(ends) - 1)],
+            )
+            far = np.minimum(np.abs(mid - lower), np.abs(upper - mid)) > config.odometry_reach
         else:
             far = np.ones(len(odo_edges), dtype=bool)
         extra = [e for e, f in zip(odo_edges, far, strict=True) if f]
