@@ -80,7 +80,8 @@ def map_command(
         typer.Option(
             "--each",
             help="many datasets (implied by several DATASETs, a tree or a glob): one run each, "
-            "OUT/<name below the tree>; failures by name; current runs are skipped",
+            "OUT/<name below the tree>; failures by name; current runs (of the same inputs and "
+            "settings) are skipped",
         ),
     ] = False,
     config: Annotated[
