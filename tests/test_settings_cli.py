@@ -1,11 +1,14 @@
 """Expert settings from the command line (`toolkit map` / `toolkit label` with --config FILE
 and --set KEY=VALUE): the value reaches the run (config.json, model.json) and the poses; a
 run's config.json read back maps the same; a bad key, value or file is one line, exit 1 and
-no run."""
+no run. A fleet (`toolkit map` of several datasets) maps every dataset by the same settings,
+here or on Dask workers, and its re-run keeps only the runs of these settings
+(`run_is_current`, by what `recorded_settings` says config.json records)."""
 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +29,14 @@ def small(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("settings") / "corridor"
     write_simulation(simulate("corridor", seed=3, scans=300), out, "dataset")
     return out
+
+
+@pytest.fixture
+def fleet(small: Path, tmp_path: Path) -> Path:
+    """Two datasets (copies of `small`) in a tree: a fleet for `toolkit map FLEET --out RUNS`."""
+    for name in ("a", "b"):
+        shutil.copytree(small, tmp_path / "fleet" / name)
+    return tmp_path / "fleet"
 
 
 def poses(run: Path) -> np.ndarray:
@@ -168,3 +179,137 @@ def test_label_bad_settings_are_one_line(
     assert code == 1
     assert len(err.strip().splitlines()) == 1 and needle in err, err
     assert not (tmp_path / "run").exists()
+
+
+#: settings that move the poses: the mapper's (the blind-step loosening off, as before
+#: session 25) and the scan-to-map matcher's
+OTHER = ["--set", "slam.blind_turn=0", "--set", "matcher.gate=0.3"]
+
+
+@pytest.mark.slow
+def test_fleet_maps_every_dataset_by_the_settings_and_reruns_other_ones(
+    fleet: Path, tmp_path: Path, cli: Cli
+) -> None:
+    runs = tmp_path / "runs"
+
+    def fleet_map(*args: object) -> str:
+        code, out, err = cli("map", fleet, "--out", runs, *args)
+        assert code == 0, err
+        return out
+
+    assert "2 written, 0 skipped" in fleet_map()
+    default = poses(runs / "a")
+    assert "0 written, 2 skipped" in fleet_map()
+    # other settings: every run re-mapped, by them; the same again: current
+    assert "2 written, 0 skipped" in fleet_map(*OTHER)
+    assert not np.array_equal(poses(runs / "a"), default)
+    for name in ("a", "b"):
+        config = json.loads((runs / name / "config.json").read_text())
+        assert config["slam"]["blind_turn"] == 0 and config["matcher"]["gate"] == 0.3
+    assert "0 written, 2 skipped" in fleet_map(*OTHER)
+    # the same settings from a run's config.json: current too
+    assert "0 written, 2 skipped" in fleet_map("--config", runs / "a" / "config.json")
+    # each fleet run is the single-dataset run of the same settings
+    code, _, err = cli("map", fleet / "b", "--out", tmp_path / "one", "-q", *OTHER)
+    assert code == 0, err
+    assert np.array_equal(poses(runs / "b"), poses(tmp_path / "one"))
+    # back to the defaults: re-mapped
+    assert "2 written, 0 skipped" in fleet_map()
+    # a run that records an older slam default (blind_turn 0, before session 25), or none of a
+    # newer setting: re-mapped, the other run kept
+    config_b = runs / "b" / "config.json"
+    config = json.loads(config_b.read_text())
+    config_b.write_text(json.dumps({**config, "slam": {**config["slam"], "blind_turn": 0.0}}))
+    assert "1 written, 1 skipped" in fleet_map()
+    config = json.loads(config_b.read_text())
+    del config["slam"]["blind_min_turn"]
+    config_b.write_text(json.dumps(config))
+    assert "1 written, 1 skipped" in fleet_map()
+    assert "0 written, 2 skipped" in fleet_map()
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("dask")
+def test_fleet_settings_travel_to_the_dask_workers(fleet: Path, tmp_path: Path, cli: Cli) -> None:
+    """On a LocalCluster (one task per dataset) the runs are the in-process runs of the same
+    settings, to the bit, and current for an in-process re-run of them."""
+    runs = tmp_path / "runs"
+    code, out, err = cli("map", fleet, "--out", runs, "--scheduler", "local:2", *OTHER)
+    assert code == 0 and "2 written" in out, err
+    code, _, err = cli("map", fleet / "a", "--out", tmp_path / "one", "-q", *OTHER)
+    assert code == 0, err
+    assert np.array_equal(poses(runs / "a"), poses(tmp_path / "one"))
+    assert json.loads((runs / "a" / "config.json").read_text())["slam"]["blind_turn"] == 0
+    code, out, err = cli("map", fleet, "--out", runs, *OTHER)
+    assert code == 0 and "0 written, 2 skipped" in out, err
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--set", "slam.nosuch=1"], "unknown setting slam.nosuch"),
+        (["--set", "slam.blind_turn=abc"], 'slam.blind_turn: expected a number, not "abc"'),
+        (["--no-loops", "--set", "slam.blind_turn=0"], "need loops"),
+        (["--config", "missing.json"], "missing.json: no such file"),
+    ],
+)
+def test_fleet_bad_settings_are_one_line_before_any_run(
+    fleet: Path, tmp_path: Path, cli: Cli, args: list[str], needle: str
+) -> None:
+    args = [str(tmp_path / a) if a.endswith(".json") else a for a in args]
+    code, _, err = cli("map", fleet, "--out", tmp_path / "runs", *args)
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and needle in err, err
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_recorded_settings_are_what_a_run_records(small: Path, tmp_path: Path) -> None:
+    """`recorded_settings` predicts config.json's matcher and slam for each kind of run (the
+    front end by the method, loops and odometry), and `run_is_current` takes the run as
+    current for its own settings only."""
+    from dataclasses import replace
+
+    from toolkit.align.scan import MatchConfig
+    from toolkit.app.fleet_map import run_is_current
+    from toolkit.mapping import map_run, recorded_settings
+    from toolkit.slam.pipeline import SlamConfig
+
+    blind = tmp_path / "blind"  # the same scans without odometry
+    shutil.copytree(small, blind)
+    (blind / "odometry.parquet").unlink()
+    pairs = MatchConfig(gate=0.3)
+    slam = SlamConfig(blind_turn=0.0)
+    cases = [
+        (small, "gaussian", True, None, None),
+        (small, "gaussian", True, pairs, replace(slam, front_end="keyframe")),
+        (small, "gaussian", False, pairs, None),
+        (small, "icp", True, pairs, slam),
+        (small, "icp", False, None, None),
+        (small, "odometry", False, None, None),
+        (blind, "gaussian", True, pairs, slam),
+    ]
+    for i, (dataset, method, loops, config, slam_config) in enumerate(cases):
+        run = tmp_path / f"run{i}"
+        outputs = ("config.json", "metrics.json")
+        map_run(dataset, run, method, 0.0, config, loops=loops, outputs=outputs,
+                slam_config=slam_config)  # fmt: skip
+        written = json.loads((run / "config.json").read_text())
+        expected = recorded_settings(method, loops, config, slam_config, dataset == small)
+        assert {k: written[k] for k in ("matcher", "slam")} == expected, (method, loops)
+        assert run_is_current(run, dataset, method, 0.0, loops, config, slam_config)
+        if method == "odometry":  # nothing matched: neither loops nor settings matter
+            assert run_is_current(run, dataset, method, 0.0, not loops, pairs, slam)
+            continue
+        assert not run_is_current(run, dataset, method, 0.0, not loops, config, slam_config)
+        # other pair-matcher settings matter unless the scan-to-map front end ran (loops,
+        # gaussian, odometry); other mapper settings (scan-to-map's gate) with loops only
+        other = replace(config or MatchConfig(), keyframe_distance=0.7)
+        mapper = slam_config or SlamConfig()
+        other_slam = replace(mapper, scan_map=replace(mapper.scan_map, gate=0.1))
+        scan_to_map = written["matcher"].get("front_end") == "scan-to-map"
+        assert scan_to_map == (method == "gaussian" and loops and mapper.front_end == "map"
+                               and dataset == small)  # fmt: skip
+        assert run_is_current(run, dataset, method, 0.0, loops, other, slam_config) == scan_to_map
+        assert run_is_current(run, dataset, method, 0.0, loops, config, other_slam) == (not loops)
+        assert not run_is_current(run, dataset, "icp-point", 0.0, loops, config, slam_config)

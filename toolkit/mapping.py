@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Collection
 from concurrent.futures import Future
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,7 +43,15 @@ from toolkit.atomic import atomic_dir, check_output, writer_threads
 from toolkit.dataset import META, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
-from toolkit.poses import Method, TrajectoryResult, build, odometry_poses, truth_poses
+from toolkit.poses import (
+    ICP_METHODS,
+    Method,
+    TrajectoryResult,
+    build,
+    icp_settings,
+    odometry_poses,
+    truth_poses,
+)
 from toolkit.progress import counted
 from toolkit.raster import BeamFrame, beam_frame, return_xy, scan_chunks, write_map_png
 from toolkit.raster import world_points as world_points  # re-exported: the cloud's arithmetic
@@ -263,6 +271,41 @@ def _meta_digest(ds: Dataset) -> str | None:
     re-run can tell an unchanged dataset (`toolkit.app.fleet_map.run_is_current`)."""
     meta = ds.path / META if ds.path else None
     return sha256(meta) if meta is not None and meta.is_file() else None
+
+
+def recorded_settings(
+    method: Method | str,
+    loops: bool = True,
+    config: sc.MatchConfig | None = None,
+    slam_config: SlamConfig | None = None,
+    odometry: bool = True,
+) -> dict[str, Any]:
+    """config.json's "matcher" and "slam" as `map_run` records them for these settings on a
+    dataset with `odometry` or not, JSON-shaped (tuples as lists): what a run of them reads
+    back, so that a fleet's re-run can tell a run of other settings (`run_is_current`).
+
+    As `slam_trajectory` and `build` record them: the scan-to-map matcher's (`slam.scan_map`)
+    with loops, gaussian, the "map" front end and odometry; else the pair matcher's
+    (`config`; ICP's own), and then the mapper's front end is the keyframe one; nothing by
+    odometry. (A dataset of fewer than two scans records no matcher: never current.)"""
+    method = Method.parse(method)
+    config = config or sc.MatchConfig()
+    pairs = icp_settings(method, config) if method in ICP_METHODS else config.to_dict()
+    matcher: dict[str, object] = {} if method == Method.ODOMETRY else pairs
+    slam: dict[str, Any] | None = None
+    if loops and method != Method.ODOMETRY:
+        # on use, as map_run loads the mapper: with loops only
+        from toolkit.slam.pipeline import SlamConfig  # noqa: PLC0415
+        from toolkit.slam.scanmap import settings as scan_map_settings  # noqa: PLC0415
+
+        mapper = slam_config or SlamConfig()
+        if method == Method.GAUSSIAN and mapper.front_end == "map" and odometry:
+            matcher = scan_map_settings(mapper.scan_map)
+        else:
+            mapper = replace(mapper, front_end="keyframe")
+        slam = mapper.to_dict()
+    recorded: dict[str, Any] = json.loads(json.dumps({"matcher": matcher, "slam": slam}))
+    return recorded
 
 
 #: `toolkit map`'s bars: the scan pairs matched, and these steps: loops and pose graph (or

@@ -137,6 +137,18 @@ def truth_poses(ds: Dataset) -> np.ndarray | None:
 PAIRS_PER_STEP = 4096
 
 
+#: The methods matched by ICP (`toolkit.align`), which records its own parameters.
+ICP_METHODS = (Method.ICP, Method.ICP_POINT)
+
+
+def icp_settings(method: Method, config: sc.MatchConfig) -> dict[str, object]:
+    """What an ICP run records as its matcher's parameters (config.json's `matcher`): the
+    variant, its fixed distance and iterations, and the keyframes of `config` it used."""
+    icp = "point_to_line" if method == Method.ICP else "point_to_point"
+    used: dict[str, object] = {"icp": icp, "max_distance": 0.5, "iterations": 30}
+    return used | {k: getattr(config, k) for k in ("keyframe_distance", "keyframe_angle")}
+
+
 def build(
     ds: Dataset,
     method: Method | str = Method.GAUSSIAN,
@@ -195,8 +207,7 @@ def build(
         matches = align.match_pairs_icp(
             ds.ranges, seeds, ds.laser, icp_method, ref=ref, progress=progress
         )
-        used = {"icp": icp_method, "max_distance": 0.5, "iterations": 30}
-        used |= {k: getattr(config, k) for k in ("keyframe_distance", "keyframe_angle")}
+        used = icp_settings(method, config)
     seconds = time.perf_counter() - t0
     poses = compose_refs(start, ref, se2.robot_motion(matches.pose, ds.laser))
     timings = {

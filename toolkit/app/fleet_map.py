@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
@@ -39,10 +39,20 @@ from toolkit.app.fleet import (
     is_toolkit_run,
     parse_scheduler,
 )
-from toolkit.dataset import META, ROW_GROUP_SCANS, SCANS, LaserGeometry, read_scan_rows, sha256
+from toolkit.dataset import (
+    META,
+    ODOMETRY,
+    ROW_GROUP_SCANS,
+    SCANS,
+    LaserGeometry,
+    read_scan_rows,
+    sha256,
+)
 from toolkit.errors import ToolkitError
-from toolkit.mapping import map_run
-from toolkit.slam.scanmap import settings as scan_map_settings
+from toolkit.mapping import map_run, recorded_settings
+
+if TYPE_CHECKING:
+    from toolkit.slam.pipeline import SlamConfig
 
 CHUNK_PAIRS = ROW_GROUP_SCANS  # pairs per task: ~0.1 s of work, 3 MB of scans to ship or read
 
@@ -205,26 +215,42 @@ def matcher_for(
     return match
 
 
-def run_is_current(run: Path, dataset: Path, method: str, voxel: float, loops: bool = True) -> bool:
+def run_is_current(
+    run: Path,
+    dataset: Path,
+    method: str,
+    voxel: float,
+    loops: bool = True,
+    config: sc.MatchConfig | None = None,
+    slam_config: SlamConfig | None = None,
+) -> bool:
     """True when `run` is a finished run (metrics.json is written last; the run directory is
-    renamed into place whole) of the same inputs: the dataset's meta.json (written last by an
-    import: its sources' sha256 and creation time), the method, the voxel size, with loops
-    or not and, for gaussian, the matcher's parameters."""
+    renamed into place whole) of the same inputs and settings: the dataset's meta.json
+    (written last by an import: its sources' sha256 and creation time), the method, the voxel
+    size, and the matcher's and the mapper's settings as config.json records them
+    (`recorded_settings`: `config` and `slam_config`, None for the defaults; the mapper's
+    null without loops). A run of other settings (a --set, an older default) is not."""
     try:
-        config = json.loads((run / "config.json").read_text())
+        recorded = json.loads((run / "config.json").read_text())
         if not (run / "metrics.json").is_file():
             return False
-        same = (
-            config.get("dataset_meta_sha256") == sha256(dataset / META)
-            and config.get("method") == method
-            and config.get("voxel") == voxel
-            and (config.get("slam") is not None) == (loops and method != "odometry")
+        expected = recorded_settings(method, loops, config, slam_config, has_odometry(dataset))
+        return bool(
+            recorded.get("dataset_meta_sha256") == sha256(dataset / META)
+            and recorded.get("method") == method
+            and recorded.get("voxel") == voxel
+            and recorded.get("matcher") == expected["matcher"]
+            and recorded.get("slam") == expected["slam"]
         )
-        matcher = json.loads(json.dumps(sc.MatchConfig().to_dict()))
-        to_map = json.loads(json.dumps(scan_map_settings()))  # the mapper's front end
-        return same and (method != "gaussian" or config.get("matcher") in (matcher, to_map))
     except (OSError, ValueError):
         return False
+
+
+def has_odometry(dataset: Path) -> bool:
+    """Whether the dataset has odometry (rows in odometry.parquet; its footer only), which
+    decides the mapper's front end and so what its run records."""
+    path = dataset / ODOMETRY
+    return path.is_file() and pq.ParquetFile(path).metadata.num_rows > 0
 
 
 def _map_one(
@@ -236,16 +262,29 @@ def _map_one(
     threads: int | None,
     matcher: Callable[..., sc.PairMatches] | None = None,
     loops: bool = True,
+    config: sc.MatchConfig | None = None,
+    slam_config: SlamConfig | None = None,
 ) -> Outcome:
-    """One dataset into one run directory (on a worker: `threads` numba threads)."""
+    """One dataset into one run directory (on a worker: `threads` numba threads), by
+    `config` and `slam_config` (None: the defaults)."""
 
     def work() -> str:
-        if not force and run_is_current(run, dataset, method, voxel, loops):
+        if not force and run_is_current(run, dataset, method, voxel, loops, config, slam_config):
             return "skipped"
         if threads:
             _cap_threads(threads)
         replace = _may_replace(run, force, is_toolkit_run)
-        map_run(dataset, run, method, voxel, force=replace, matcher=matcher, loops=loops)
+        map_run(
+            dataset,
+            run,
+            method,
+            voxel,
+            config,
+            force=replace,
+            matcher=matcher,
+            loops=loops,
+            slam_config=slam_config,
+        )
         return "written"
 
     return _attempt(dataset, run, work)
@@ -260,26 +299,31 @@ def map_many(
     force: bool = False,
     shared_storage: bool = False,
     loops: bool = True,
+    config: sc.MatchConfig | None = None,
+    slam_config: SlamConfig | None = None,
 ) -> list[Outcome]:
     """Map every (dataset, name) into out/name, mirroring the names (a fleet's
     dataset=<name> directories stay so). On `client`: one task per dataset (its whole map
     on a worker, one thread); a single gaussian dataset instead has its pairs matched in
     chunks on the cluster and its map drawn here (one long log), its workers reading their
     scans from the dataset when `shared_storage` (else the scans are shipped). Failures
-    are returned by dataset and do not stop the others; current runs are skipped unless
-    `force`. `loops`: each map with loop closure and the pose graph (`toolkit map`'s
-    default) or the sequential estimate alone."""
+    are returned by dataset and do not stop the others; current runs (of these settings
+    too) are skipped unless `force`. `loops`: each map with loop closure and the pose graph
+    (`toolkit map`'s default) or the sequential estimate alone. `config` and `slam_config`
+    (frozen dataclasses, pickled to the workers as they are; None: the defaults): the
+    matcher's and the mapper's settings, the same for every dataset."""
     jobs = [(dataset.resolve(), out / name) for dataset, name in datasets]
+    settings = (loops, config, slam_config)
     if client is not None and len(jobs) == 1 and method == "gaussian":
         dataset, run = jobs[0]
         matcher = matcher_for(client, scans=dataset / SCANS if shared_storage else None)
-        return [_map_one(dataset, run, method, voxel, force, None, matcher, loops)]
+        return [_map_one(dataset, run, method, voxel, force, None, matcher, *settings)]
     threads = 1 if client is not None else None
     return _each(
         client,
         "map datasets",
         _map_one,
-        [(*job, method, voxel, force, threads, None, loops) for job in jobs],
+        [(*job, method, voxel, force, threads, None, *settings) for job in jobs],
     )
 
 

@@ -80,7 +80,8 @@ def map_command(
         typer.Option(
             "--each",
             help="many datasets (implied by several DATASETs, a tree or a glob): one run each, "
-            "OUT/<name below the tree>; failures by name; current runs are skipped",
+            "OUT/<name below the tree>; failures by name; current runs (of the same inputs and "
+            "settings) are skipped",
         ),
     ] = False,
     config: Annotated[
@@ -88,7 +89,7 @@ def map_command(
         typer.Option(
             "--config",
             metavar="JSON",
-            help="expert settings (one dataset), a JSON object: a run's config.json (its "
+            help="expert settings (of every dataset), a JSON object: a run's config.json (its "
             "dataset, created, laser, dataset_meta_sha256, method and voxel are ignored: "
             '--method and --voxel say those) or part of one, e.g. {"slam": {"blind_turn": '
             '0}, "matcher": {"edge_grow": 1}}; docs/maps.md',
@@ -112,8 +113,9 @@ def map_command(
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply and
     cloud.pcd, map.png, map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with
     loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
-    --config and --set change expert settings (checked before any work; config.json records
-    every setting that ran).
+    --config and --set change expert settings, every dataset's alike (checked once, before any
+    work); config.json records every setting that ran, and a fleet's re-run redoes the runs
+    of other settings.
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
@@ -131,12 +133,12 @@ def map_command(
         raise ToolkitError(f"--voxel must be 0 or positive, not {voxel}")
     match_config: MatchConfig | None = None  # the defaults, unless given
     slam_config: SlamConfig | None = None
-    if config is not None or set_:
-        if each or _many(datasets):
-            raise ToolkitError("--config and --set map one dataset at a time")
+    if config is not None or set_:  # checked once, before any work (a fleet's too)
         match_config, slam_config = map_settings(config, set_, method, loops)
     if each or _many(datasets):
-        _map_each(datasets, out, method, voxel, force, scheduler, quiet, loops)
+        _map_each(
+            datasets, out, method, voxel, force, scheduler, quiet, loops, match_config, slam_config
+        )
         return
     dataset = datasets[0]
     if scheduler != "none" and method != Method.GAUSSIAN:
@@ -249,8 +251,11 @@ def _map_each(
     scheduler: str,
     quiet: bool,
     loops: bool = True,
+    match_config: MatchConfig | None = None,
+    slam_config: SlamConfig | None = None,
 ) -> None:
-    """One run per dataset (with loops or not, as one dataset's run); a line per failure on stderr and exit 1 if any failed."""
+    """One run per dataset (with loops or not and the settings, as one dataset's run); a line
+    per failure on stderr and exit 1 if any failed."""
     from toolkit.app.fleet import client_for, find_datasets  # Dask, on use
     from toolkit.app.fleet_map import map_many, on_shared_storage
 
@@ -259,5 +264,7 @@ def _map_each(
         raise ToolkitError("no dataset found in the inputs (a dataset directory has meta.json)")
     with client_for(scheduler) as client:
         shared = on_shared_storage(scheduler)
-        outcomes = map_many(client, found, out, method, voxel, force, shared, loops)
+        outcomes = map_many(
+            client, found, out, method, voxel, force, shared, loops, match_config, slam_config
+        )
     report_outcomes(outcomes, out, "datasets", quiet)
