@@ -189,6 +189,51 @@ def evidence_weights(config: Config, n: int, poses: np.ndarray | None) -> np.nda
     return np.nan_to_num(np.clip(step / config.evidence_length, 0.0, 1.0), nan=1.0)
 
 
+@numba.njit(cache=True)
+def _turn_starts(xy: np.ndarray, radius: float) -> np.ndarray:  # pragma: no cover - numba
+    """Per scan, whether it starts a turn: it lies `radius` or more from the current turn's
+    first scan (or its position is NaN)."""
+    start = np.zeros(len(xy), dtype=np.bool_)
+    first = 0
+    for i in range(len(xy)):
+        d = np.hypot(xy[i, 0] - xy[first, 0], xy[i, 1] - xy[first, 1])
+        if i == 0 or not d < radius:
+            start[i] = True
+            first = i
+    return start
+
+
+def turn_groups(poses: np.ndarray, radius: float) -> np.ndarray:
+    """Per scan, the index of its turn: consecutive scans within `radius` (m) of the turn's
+    first scan, taken while the robot turns on one spot (a scan driven past is a turn of
+    one)."""
+    xy = np.ascontiguousarray(poses[:, :2], dtype=np.float64)
+    return np.cumsum(_turn_starts(xy, float(radius))) - 1
+
+
+def pool_turns(config: Config, scores: np.ndarray, poses: np.ndarray | None) -> np.ndarray:
+    """The HMM's evidence (S x K log-probabilities) with each turn on the spot
+    (`turn_groups` over `turn_pool` m) pooled: every scan of a turn gets the turn's mean (or,
+    `turn_pool_rule` "max", per place the largest) log-probability, and the turn weighs
+    together what its path without turning weighs (`evidence_weights` with no turn), spread
+    evenly. A spot seen from several headings is one view of one place: a junction's four
+    headings one vote, not four for the room they look like across; a room's turn still its
+    room's. Without poses: `evidence_weights` alone."""
+    n = len(scores)
+    if poses is None or len(poses) != n or n == 0 or not config.turn_pool:
+        return np.asarray(scores * evidence_weights(config, n, poses)[:, None])
+    group = turn_groups(poses, config.turn_pool)
+    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    size = np.diff(np.r_[first, n])
+    if config.turn_pool_rule == "max":
+        pooled = np.maximum.reduceat(scores, first, axis=0)
+    else:
+        pooled = np.add.reduceat(scores, first, axis=0) / size[:, None]
+    weight = evidence_weights(replace(config, turn_length=0.0), n, poses)
+    share = np.add.reduceat(weight, first) / size
+    return np.asarray(pooled[group] * share[group, None])
+
+
 def smooth(emit: np.ndarray, eps: np.ndarray, how: str, stages: int = 1) -> np.ndarray:
     """HMM over places: forward filter (the map so far) or forward-backward; with `stages`
     > 1, each place a chain of that many states (`_forward_backward_stages`)."""
@@ -218,7 +263,9 @@ def classify(
     model.check_laser(_laser_like(model, ranges))
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
-    if cfg.smoothing != "none" and cfg.evidence_length:
+    if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
+        scores = pool_turns(cfg, scores, poses)
+    elif cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)
     if cfg.smoothing != "none":

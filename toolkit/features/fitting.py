@@ -165,7 +165,8 @@ def fit(
     if sparse:  # no context to pool: the local map instead, and no opened copies (their
         # opening's length along the path is not described without it; the fit report says so)
         # and the HMM's dwell of `sparse_dwell_stages`: a place of one scan is unlikely
-        # (and its path's turning counted by `sparse_turn_length`)
+        # (and its path's turning counted by `sparse_turn_length`, its turns pooled over
+        # `sparse_turn_pool`)
         config = replace(
             config,
             context=0.0,
@@ -175,6 +176,9 @@ def fit(
             turn_length=config.turn_length
             if config.sparse_turn_length is None
             else config.sparse_turn_length,
+            turn_pool=config.turn_pool
+            if config.sparse_turn_pool is None
+            else config.sparse_turn_pool,
         )
     if not training:
         raise ToolkitError("no features to learn")

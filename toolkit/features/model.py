@@ -84,6 +84,7 @@ Temperature = Literal["loo", "none"]
 Classifier = Literal["trees", "logistic"]
 OpenSet = Literal["auto", "always", "never"]
 CanonicalHow = Literal["rescale", "stretch"]
+TurnPool = Literal["mean", "max"]
 
 
 @dataclass(frozen=True)
@@ -111,6 +112,12 @@ class Config:
     turn_length: float = 1.0  # m of path per rad turned, in the HMM's path (its switching
     # and `evidence_length`): 0: a scan taken turning on the spot neither changes the place
     # nor adds evidence (it takes its neighbours' label)
+    turn_pool: float = 0.0  # m: in the HMM, the scans taken within this of a turn's first
+    # scan (turning on the spot) all get the turn's pooled evidence (`turn_pool_rule` over
+    # their log-probabilities), weighing together what their path without turning weighs:
+    # one view of the spot from every heading, one vote (classify.pool_turns; 0: each scan
+    # its own)
+    turn_pool_rule: TurnPool = "mean"  # "max": per place the largest over the turn's scans
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -178,6 +185,8 @@ class Config:
     # neighbouring scans pool what their descriptors cannot (0: each scan alone)
     sparse_turn_length: float | None = None  # the HMM's `turn_length` where the scans are
     # too far apart for the context (None: `turn_length`)
+    sparse_turn_pool: float | None = None  # the HMM's `turn_pool` where the scans are too
+    # far apart for the context (None: `turn_pool`)
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -288,6 +297,7 @@ class Config:
             ("classifier", Classifier),
             ("open_set", OpenSet),
             ("canonical_how", CanonicalHow),
+            ("turn_pool_rule", TurnPool),
         ):
             value, allowed = getattr(self, name), get_args(kind)
             if value not in allowed:
@@ -298,6 +308,8 @@ class Config:
             raise ToolkitError(f"dwell_stages {self.dwell_stages}: at least 1")
         if self.turn_length < 0 or (self.sparse_turn_length or 0.0) < 0:
             raise ToolkitError("turn_length, sparse_turn_length: m per rad, 0 or more")
+        if self.turn_pool < 0 or (self.sparse_turn_pool or 0.0) < 0:
+            raise ToolkitError("turn_pool, sparse_turn_pool: m, 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
