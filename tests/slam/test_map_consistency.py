@@ -17,10 +17,7 @@ from toolkit.slam import render
 
 
 def _figure(ds: toolkit.Dataset, robot: np.ndarray) -> dict[str, float | int | None]:
-    hits, seen, _ = render.occupancy(ds, robot)
-    img = np.full(hits.shape, 205, np.uint8)
-    render._classify(hits, seen, 0.25, 0.1, img)
-    return render.grid_consistency(hits, img)
+    return render.map_consistency(ds, robot)
 
 
 def _kinked(poses: np.ndarray, degrees: float) -> np.ndarray:
@@ -83,10 +80,11 @@ def test_metrics_json_carries_the_grids_consistency(tmp_path: Path) -> None:
     run = mapping.map_run(ds, tmp_path / "run", loops=False)
     written = json.loads((run.path / "metrics.json").read_text())
     figure = written["consistency"]
-    assert figure == _figure(ds, run.result.poses)  # the figure of map.pgm's grid
+    assert figure == _figure(ds, run.result.poses)
     assert figure["returns"] > 0 and 0.0 <= figure["conflict"] < 0.5
-    pgm = render.read_pgm(run.path / "map.pgm")
-    assert (pgm == 0).any()
+    hits, _, _ = render.occupancy(ds, run.result.poses)
+    pgm = render.read_pgm(run.path / "map.pgm")[::-1]  # rows as the grid's: y upward
+    assert render.grid_consistency(hits, pgm) == figure  # read off map.pgm itself
 
 
 def test_no_grid_no_figure(tmp_path: Path) -> None:

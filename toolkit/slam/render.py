@@ -215,6 +215,17 @@ def grid_consistency(hits: np.ndarray, img: np.ndarray) -> dict[str, float | int
     }
 
 
+def map_consistency(
+    ds: Dataset, robot: np.ndarray, resolution: float = 0.05, occupied: float = 0.25
+) -> dict[str, float | int | None]:
+    """`grid_consistency` of the scans of `ds` at `robot` (poses of any source: another
+    mapper's, the odometry, a truth), on the grid `write_occupancy` would write."""
+    hits, seen, _ = occupancy(ds, robot, resolution)
+    img = np.full(hits.shape, 205, dtype=np.uint8)
+    _classify(hits, seen, occupied, 0.0, img)  # free cells play no part
+    return grid_consistency(hits, img)
+
+
 def write_occupancy(
     out: Path,
     ds: Dataset,
