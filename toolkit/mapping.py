@@ -387,6 +387,7 @@ def map_run(
             # kernel, which release the GIL); metrics are computed here meanwhile. Every writer
             # has ended before atomic_dir commits or cleans up, even if a stop lands in the wait.
             writers: dict[str, Future[float]] = {}
+            grid: dict[str, Any] = {}  # the occupancy grid's consistency, once it is written
             t_outputs = time.perf_counter()
 
             def timing(name: str, write: Callable[[Path], object]) -> None:
@@ -427,7 +428,7 @@ def map_run(
                     timing("map.png", lambda p: write_side_by_side(p, ds, panels, truth, title))
                 else:
                     timing("map.png", lambda p: write_map_png(p, ds, robot, truth, title))
-                timing("map.pgm+yaml", lambda _: write_occupancy(tmp, ds, robot))
+                timing("map.pgm+yaml", lambda _: grid.update(write_occupancy(tmp, ds, robot)[1]))
             if slam is not None:  # the graph and the loops always
                 timing("graph.g2o+loops.csv", lambda _: slam.write(tmp, ds, robot, "", False))
             if "trajectory.parquet" in outputs:
@@ -449,6 +450,8 @@ def map_run(
             finish(["trajectory.parquet", "trajectory.tum", "groundtruth.tum", "cloud.ply+pcd"])
             step()
             finish(["map.png", "map.pgm+yaml", "graph.g2o+loops.csv"])
+            if grid:
+                metrics["consistency"] = grid
             step()
             timed["metrics"] = measuring
             timed["outputs"] = time.perf_counter() - t_outputs  # the writers' and metrics' wall

@@ -143,6 +143,7 @@ def test_run_directory_graph_grid_and_metrics(building: toolkit.Dataset, tmp_pat
     assert origin[0] < truth[:, 0].min() and origin[1] < truth[:, 1].min()
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["relation_error"]["source"] == "groundtruth"
+    assert metrics["consistency"]["returns"] > 0 and metrics["consistency"]["conflict"] < 0.05
     assert metrics["relation_error"]["relations"] > 100
     assert set(metrics["seconds"]) >= {"compile", "matching", "loops", "optimisation", "total"}
     # compilation kept out of the matching's speed: pairs/s is the matching's own

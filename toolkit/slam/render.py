@@ -7,6 +7,12 @@ return a hit (a beam without return counts misses up to `free_range`). A cell se
 least `occupied` of its observations is occupied (0, black), one observed and below `free`
 is free (254, white), the rest unknown (205), as map_server's trinary mode reads them with
 the yaml's thresholds.
+
+Consistency (`grid_consistency`, without a truth), from the same grid: the share of the
+returns that land where the grid shows no obstacle within one cell (other beams crossed those
+cells more often than they ended there: the ray conflicts of Mazuran et al. 2014, counted on
+the grid), and the cells holding a return per 1000 returns (a doubled or blurred wall takes
+more cells: the grid's analogue of Razlaw et al. 2015's mean map entropy).
 """
 
 from __future__ import annotations
@@ -149,6 +155,77 @@ def occupancy(
     return hits, seen, lo
 
 
+@nb.njit(cache=True, nogil=True)
+def _classify(
+    hits: np.ndarray, seen: np.ndarray, occupied: float, free: float, img: np.ndarray
+) -> None:
+    """map.pgm's value per cell into `img` (filled with 205, unknown): 0 where the hit ratio
+    is at least `occupied`, else 254 where it is under `free` (one pass, no ratio array)."""
+    h, w = hits.shape
+    for j in range(h):
+        for i in range(w):
+            s = seen[j, i]
+            if s > 0:
+                ratio = hits[j, i] / s
+                if ratio >= occupied:
+                    img[j, i] = 0
+                elif ratio < free:
+                    img[j, i] = 254
+
+
+@nb.njit(cache=True, nogil=True)
+def _conflicts(hits: np.ndarray, img: np.ndarray) -> tuple[int, int, int]:
+    """The returns, those with no 0 (occupied) in `img` among the 3 x 3 cells around theirs,
+    and the cells holding a return."""
+    h, w = hits.shape
+    total = conflict = cells = 0
+    for j in range(h):
+        for i in range(w):
+            n = hits[j, i]
+            if n == 0:
+                continue
+            total += n
+            cells += 1
+            near = False
+            for jj in range(max(j - 1, 0), min(j + 2, h)):
+                for ii in range(max(i - 1, 0), min(i + 2, w)):
+                    near |= img[jj, ii] == 0
+            if not near:
+                conflict += n
+    return total, conflict, cells
+
+
+def grid_consistency(hits: np.ndarray, img: np.ndarray) -> dict[str, float | int | None]:
+    """How well the scans agree with each other at these poses, from the occupancy grid alone
+    (no truth): `conflict`, the share of the returns with no occupied cell (0 in `img`, H x W:
+    map.pgm's values, rows as `hits`) among the 3 x 3 cells around theirs: returns that other
+    beams crossed more often than they ended there; `cells`, the cells that hold a return per
+    1000 returns (a doubled or blurred wall spreads its returns over more cells); `returns`,
+    how many. Lower is more consistent; comparable only between poses of one log (docs/maps.md).
+    None without returns. The neighbourhood makes the figure nearly blind to how the walls lie
+    on the grid; a cell's own hit ratio is not (beams grazing a wall that runs along a row of
+    cells cross the wall's cells)."""
+    total, conflict, cells = _conflicts(hits, img)
+    if total == 0:
+        return {"conflict": None, "cells": None, "returns": 0}
+    return {
+        "conflict": round(conflict / total, 5),
+        "cells": round(1000.0 * cells / total, 3),
+        "returns": int(total),
+    }
+
+
+def map_consistency(
+    ds: Dataset, robot: np.ndarray, resolution: float = 0.05, occupied: float = 0.25
+) -> dict[str, float | int | None]:
+    """`grid_consistency` of the scans of `ds` at `robot` (poses of any source: another
+    mapper's, the odometry, a truth), on the grid `write_occupancy` would write."""
+    hits, seen, _ = occupancy(ds, robot, resolution)
+    img = np.full(hits.shape, 205, dtype=np.uint8)
+    _classify(hits, seen, occupied, 0.0, img)  # free cells play no part
+    return grid_consistency(hits, img)
+
+
 def write_occupancy(
     out: Path,
     ds: Dataset,
@@ -156,14 +233,14 @@ def write_occupancy(
     resolution: float = 0.05,
     occupied: float = 0.25,
     free: float = 0.1,
-) -> dict[str, object]:
+) -> tuple[dict[str, object], dict[str, float | int | None]]:
     """`map.pgm` (binary P5, 0 occupied, 254 free, 205 unknown; top row = largest y) and
-    `map.yaml` for ROS map_server in `out`; returns the yaml's fields."""
+    `map.yaml` for ROS map_server in `out`; returns the yaml's fields and the grid's
+    `grid_consistency` (from the same counts: no second trace)."""
     hits, seen, lo = occupancy(ds, robot, resolution)
-    ratio = np.divide(hits, seen, out=np.zeros(hits.shape), where=seen > 0)
     img = np.full(hits.shape, 205, dtype=np.uint8)
-    img[(seen > 0) & (ratio < free)] = 254
-    img[(seen > 0) & (ratio >= occupied)] = 0
+    _classify(hits, seen, occupied, free, img)
+    figure = grid_consistency(hits, img)
     img = np.ascontiguousarray(img[::-1])  # PGM's first row is the top: the largest y
     h, w = hits.shape
     with open(out / "map.pgm", "wb") as f:
@@ -180,7 +257,7 @@ def write_occupancy(
     }
     text = "".join(f"{k}: {_yaml(v)}\n" for k, v in meta.items())
     (out / "map.yaml").write_text(text)
-    return meta
+    return meta, figure
 
 
 def _yaml(v: object) -> str:

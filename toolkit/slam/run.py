@@ -9,7 +9,7 @@ RUN/ gains:
     map.png       odometry / before loops / after loops side by side
     map.pgm/.yaml the occupancy grid (ROS map_server)
 and metrics.json the loops, the time of each stage, the sequential estimate's errors and the
-relation error (Kümmerle et al.).
+relation error (Kümmerle et al.); `toolkit.mapping` adds the grid's consistency.
 """
 
 from __future__ import annotations
