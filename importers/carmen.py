@@ -938,6 +938,9 @@ class _Reader:
             if abs(offset - dx) > 0.01 and ok.any():
                 self.report.note(f"{s.name}: PARAM {param_name} {offset:g} m differs from the "
                                  f"laser-robot pose difference {dx:.3f} m; PARAM used")  # fmt: skip
+        elif s.name == DPSLAM_LASER:
+            # its lines repeat the Odometry pose: they say nothing of the mounting
+            x, source = dx, "DP-SLAM lines carry no laser pose; its README's robot: -O laser_x=0.40"
         else:
             x, source = dx, "laser pose - robot pose in the laser lines"
         if rear and max(abs(dx), abs(dy), abs(dyaw)) < 1e-6:

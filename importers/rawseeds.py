@@ -638,6 +638,16 @@ def find_session(sources: Sequence[Path]) -> Session:
     return Session(next(iter(sessions)), files, where)
 
 
+def _what_is_there(session: Session) -> str:
+    """What a session without the wanted laser holds, for its error: the other lasers (name
+    one with --laser), or that it is ground truth alone (the Bicocca folders of
+    ../shared/data/real hold only that: a user reads why nothing can be mapped)."""
+    lasers = [spec.name for spec in LASERS.values() if spec.stream in session.files]
+    if lasers:
+        return f"; it has {', '.join(lasers)} (--laser NAME)"
+    return f"; it has {', '.join(session.files)} only: no laser scans to import"
+
+
 def strip_name(path: Path) -> str:
     name = path.name
     for suffix in (".bz2", ".gz", ".csv"):
@@ -705,7 +715,7 @@ class Rawseeds(Importer[RawseedsOptions, RawseedsWriteOptions]):
         gt_choice = options.groundtruth
         spec = LASERS[options.laser]
         if spec.stream not in session.files:
-            raise FormatError(f"no {spec.stream} csv in {session.where}")
+            raise FormatError(f"no {spec.stream} csv in {session.where}{_what_is_there(session)}")
         with atomic_dir(out, force=force) as tmp:
             meta = self._import(session, spec, gt_choice, tmp)
             (tmp / META).write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")

@@ -41,3 +41,24 @@ def test_info_loads_neither_pandas_nor_numba(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     assert "scans      50 x 181 beams" in out.stdout
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_info_prints_the_range_limit_as_the_sensor_gives_it(real: Path, tmp_path: Path) -> None:
+    """The real Mines log (5600 mm x 0.001) and the CCNY bag (float32 5.6) both read 5.6 m;
+    before, `toolkit info` printed 5.6000000000000005 and 5.599999904632568."""
+    import importers
+    from importers.base import ImportOptions
+
+    mines = real / "breezyslam_mines_urg04lx" / "exp1.dat"
+    bag = real / "ccny_scan_tools_bags" / "laser_scan_matcher" / "demo.bag"
+    options = ImportOptions(extra={"preset": "mines"})
+    for name, source, opts in (("mines", mines, options), ("bag", bag, None)):
+        importers.import_log("auto", [source], tmp_path / name, opts)
+        assert summary_of(tmp_path / name)["range_max"] == 5.6
+        out = subprocess.run(
+            [sys.executable, "-m", "toolkit", "info", str(tmp_path / name)],
+            capture_output=True,
+            text=True,
+        )
+        assert out.returncode == 0, out.stderr
+        assert ", range_max 5.6 m, " in out.stdout, out.stdout

@@ -120,7 +120,9 @@ def _summary(
         "fov_deg": round(float(np.rad2deg(laser.fov)), 3),
         "angle_min_deg": round(float(np.rad2deg(laser.angle_min)), 3),
         "angle_increment_deg": round(float(np.rad2deg(laser.angle_increment)), 4),
-        "range_max": laser.range_max,
+        # 6 significant digits: a limit converted from mm (5600 x 0.001) or stored as float32
+        # (a ROS bag's 5.6) is 5.6, not 5.6000000000000005 or 5.599999904632568
+        "range_max": float(f"{laser.range_max:.6g}"),
         "returns_fraction": round(float(finite.mean()), 4) if finite.size else 0.0,
         "t_start": float(t[0]) if n else None,
         "duration_s": round(duration, 3),

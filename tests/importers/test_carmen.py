@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import importers
+from importers.base import ImportOptions
 from importers.carmen import (
     CODE_BAND,
     Carmen,
@@ -683,3 +684,24 @@ def test_cli_subprocess_auto_on_dpslam(real: Path, tmp_path: Path) -> None:
     np.testing.assert_array_equal(
         ds.odometry.iloc[0][["x", "y", "theta"]].to_numpy(float), [float(v) for v in first[1:]]
     )
+
+
+def test_dpslam_mounting_note_says_the_lines_carry_no_laser_pose(
+    real: Path, tmp_path: Path
+) -> None:
+    """loop5's Laser lines repeat the Odometry pose: the note does not claim a mounting read
+    from them (it said 'laser pose - robot pose in the laser lines') and names the README's
+    0.40 m; -O laser_x=0.40 gives that mounting."""
+    log = real / "dpslam_loop5" / "loop5.log"
+    ds = load(importers.import_log("auto", [log], tmp_path / "a"))
+    assert ds.laser.x == 0.0
+    assert "Laser: mounting x 0 m (DP-SLAM lines carry no laser pose; its README's robot: " \
+        "-O laser_x=0.40), y 0 m, yaw 0 rad" in ds.report.notes  # fmt: skip
+    moved = load(
+        importers.import_log(
+            "auto", [log], tmp_path / "b", ImportOptions(extra={"laser_x": "0.40"})
+        )
+    )
+    assert moved.laser.x == 0.4
+    assert "Laser: mounting x 0.4 m (-O laser_x), y 0 m, yaw 0 rad" in moved.report.notes
+    np.testing.assert_array_equal(moved.ranges, ds.ranges)

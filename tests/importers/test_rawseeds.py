@@ -229,7 +229,10 @@ def test_other_lasers_and_laser_option(session: tuple[Path, Dataset], tmp_path: 
     swapped = run_import(d, tmp_path / "swapped", laser="sick_rear")
     assert swapped.n_scans == 150 and swapped.laser.yaw == math.pi
     assert set(swapped.lasers) == {"sick_front"}
-    with pytest.raises(FormatError, match="no HOKUYO_FRONT csv in session dir"):
+    with pytest.raises(
+        FormatError,
+        match=r"no HOKUYO_FRONT csv in session dir .*; it has sick_front, sick_rear \(--laser NAME\)$",
+    ):
         run_import(d, tmp_path / "h", laser="hokuyo_front")
 
 
@@ -470,6 +473,21 @@ def test_cli_import_success_and_one_line_failure(
     assert res.returncode == 1
     assert res.stderr.splitlines() == [f"error: {bad}:8: non-numeric value 'x0' in field 3"]
     assert not out.exists() and not list(tmp_path.glob(".bad.*"))
+
+
+def test_a_real_session_of_ground_truth_alone_says_so(real: Path, tmp_path: Path) -> None:
+    """The real Bicocca folders hold ground truth only: `toolkit import auto` says what is
+    there and that there are no scans, in one line, and writes nothing."""
+    for name in SESSIONS:
+        out = tmp_path / name
+        res = toolkit_cli("import", "auto", str(real_dir(real, name)), "--out", str(out))
+        assert res.returncode == 1
+        assert res.stderr.splitlines() == [
+            f"error: no SICK_FRONT csv in session dir {real_dir(real, name)}; it has "
+            "GROUNDTRUTH-CARTOGRAPHER, GROUNDTRUTH, GT-extended, relations only: no laser "
+            "scans to import"
+        ]
+        assert not out.exists()
 
 
 def test_hokuyo_stream_geometry_and_error_codes(
