@@ -3,6 +3,8 @@ stays inside the building, a seed gives one world and each route its own path th
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -153,3 +155,9 @@ def test_brief_needs_entered(cli: Cli, tmp_path: Path) -> None:
         "simulate", "random", "-p", "brief=true", "--out", str(tmp_path / "r"), "-f", "dataset"
     )
     assert code == 1 and "entered" in err
+    done = subprocess.run(
+        [sys.executable, "-m", "toolkit.features.evaluate", "--seeds", "0", "--brief"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2 and "--brief needs --entered" in done.stderr
