@@ -3,6 +3,8 @@ stays inside the building, a seed gives one world and each route its own path th
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -108,3 +110,54 @@ def test_entered_paths_enter_rooms_labelled_room(seed: int) -> None:
     back = simulate("random", seed=seed, route=1, entered=True)
     assert sum(label == "room" for label, _, _ in runs(back.labels)) == len(visits)
     assert set(sim.labels) == set(PLACES) | {"room"}
+
+
+def test_entered_worlds_without_brief_are_as_before() -> None:
+    """`brief` is off by default: seed 5's entered paths as before the option (session 26)."""
+    for route, scans, total in ((0, 2015, [891.32154913, -349.23877884]), (1, 2277, [892.99333079, -345.0593247])):  # fmt: skip
+        world = random_world(5, route, entered=True)
+        assert (world.scans, len(world.zones), len(world.waypoints)) == (scans, 11, 18)
+        assert np.allclose(world.waypoints.sum(axis=0), total, atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_brief_visits_enter_small_rooms_for_a_few_scans(seed: int) -> None:
+    """With `brief` two rooms are large and entered fully, every other open door leads to a
+    small room entered briefly: thinned as the Intel log (1 m or 0.5 rad), 6-10 scans turning
+    3-4 rad, as the Intel rooms' short visits; the full visits longer than ten scans (taught)."""
+    from toolkit.features.evaluate import thinned
+
+    world = random_world(seed, entered=True, brief=True)
+    sizes = sorted(
+        min(z.x1 - z.x0, z.y1 - z.y0) for z in world.zones if z.label == "room"
+    )  # the smaller side of each room
+    assert len(sizes) >= 4 and sum(s >= 4.5 for s in sizes) == 2
+    assert all(2.2 <= s <= 3.2 for s in sizes[:-2])
+    sim = thinned(simulate("random", seed=seed, entered=True, brief=True), 1.0, 0.5)
+    assert sim.params["brief"] is True and "brief" not in simulate("random", seed=seed).params
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    heading = np.unwrap(gt.theta.to_numpy())
+    visits = [(a, b) for label, a, b in runs(sim.labels) if label == "room"]
+    scans = np.array([b - a + 1 for a, b in visits])
+    turned = np.array([np.abs(np.diff(heading[a : b + 1])).sum() for a, b in visits])
+    short = scans <= 10
+    assert short.sum() == len(sizes) - 2 and (~short).sum() == 2
+    assert np.all((scans[short] >= 6) & (turned[short] > 2.8) & (turned[short] < 4.0))
+    assert np.all(turned[~short] > 2 * np.pi)
+    assert np.nanmin(sim.dataset.ranges) > 0.1  # nothing hit
+
+
+def test_brief_needs_entered(cli: Cli, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="entered"):
+        random_world(0, brief=True)
+    code, _, err = cli(
+        "simulate", "random", "-p", "brief=true", "--out", str(tmp_path / "r"), "-f", "dataset"
+    )
+    assert code == 1 and "entered" in err
+    done = subprocess.run(
+        [sys.executable, "-m", "toolkit.features.evaluate", "--seeds", "0", "--brief"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2 and "--brief needs --entered" in done.stderr

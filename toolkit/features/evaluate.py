@@ -27,7 +27,9 @@ of that much, as the Intel log's does (0.5 rad) on its turns on the spot.
 
 With `--entered` the paths also enter rooms (`random_world(..., entered=True)`) and every run
 is labelled and taught as the Intel log is (`as_intel`): corridor (its doorways, windows and
-crossings included) and room, two spans of ten scans each; only those are scored.
+crossings included) and room, two spans of ten scans each; only those are scored. `--brief`
+(with `--entered`) makes the rooms but two small and entered briefly, as the Intel lab's
+short visits (`random_world(..., brief=True)`).
 
 The default seeds, 100-119, were the first held-out set. Each session since has held out a
 fresh set, run only to measure and then spent for development (300-319, 400-419, 500-519,
@@ -177,13 +179,16 @@ def score(
 
 
 def worlds(
-    seed: int, spacing: float = 0.0, turn: float = 0.0, entered: bool = False
+    seed: int, spacing: float = 0.0, turn: float = 0.0, entered: bool = False, brief: bool = False
 ) -> dict[str, Any]:
     """The three runs of the protocol for one seed: a (teach and score), b (same world,
     other route), c (another world); with `spacing` > 0 each thinned (`thinned`, also at
     every `turn` rad turned when > 0); with `entered` the paths enter rooms and the runs are
-    labelled and taught as the Intel log is (`as_intel`)."""
-    more = {"entered": True} if entered else {}
+    labelled and taught as the Intel log is (`as_intel`); with `brief` too, small rooms
+    entered briefly beside two entered fully (`random_world`)."""
+    more: dict[str, bool] = {"entered": True} if entered else {}
+    if brief:
+        more["brief"] = True
     runs = {
         "a": simulate("random", seed=seed, **more),
         "b": simulate("random", seed=seed, route=1, **more),
@@ -304,6 +309,7 @@ def protocol(
     spacing: float = 0.0,
     turn: float = 0.0,
     entered: bool = False,
+    brief: bool = False,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The protocol's table (a row per configuration) and, for the first configuration
     marked default (else the first), precision and recall per place and run. With `spacing`
@@ -313,7 +319,7 @@ def protocol(
     results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
     partial = spacing > 0 or entered
     for seed in seeds:
-        runs = worlds(seed, spacing, turn, entered)
+        runs = worlds(seed, spacing, turn, entered, brief)
         if partial and not teaches_two(runs):
             continue
         for name, config in configs:
@@ -425,17 +431,25 @@ def main() -> None:
         action="store_true",
         help="paths that enter rooms, labelled and taught as the Intel log (corridor and room)",
     )
+    parser.add_argument(
+        "--brief",
+        action="store_true",
+        help="with --entered: small rooms entered briefly, as the Intel lab's (a step in, a look, out)",
+    )
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
+    if args.brief and not args.entered:
+        parser.error("--brief needs --entered")
     wrong = [i for i in args.rows or () if not 0 <= i < len(ABLATION)]
     if wrong:
         parser.error(f"--rows: no ablation row {wrong[0]} (rows 0-{len(ABLATION) - 1})")
     configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
     started = time.perf_counter()
-    table, places = protocol(configs, args.seeds, args.spacing, args.turn, args.entered)
+    table, places = protocol(configs, args.seeds, args.spacing, args.turn, args.entered, args.brief)
     text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)})"
     if args.entered:
         text += ", paths entering rooms, taught as the Intel log"
+        text += " (small rooms entered briefly)" if args.brief else ""
     if args.spacing > 0:
         text += f", scans {args.spacing:g} m apart"
         text += f" or {args.turn:g} rad of turning" if args.turn > 0 else ""

@@ -130,6 +130,12 @@ def parameters(
     if entered is not None and scenario != "random":
         raise ToolkitError("entered is a parameter of the random scenario only")
     enter = _yes(entered) if entered is not None else False
+    brief = params.pop("brief", None)
+    if brief is not None and scenario != "random":
+        raise ToolkitError("brief is a parameter of the random scenario only")
+    short = _yes(brief, "brief") if brief is not None else False
+    if short and not enter:
+        raise ToolkitError("brief (short room visits) needs entered")
     laps = params.pop("laps", None)
     if laps is not None and scenario != "building":
         raise ToolkitError("laps is a parameter of the building scenario only")
@@ -137,7 +143,7 @@ def parameters(
     if rounds < 1:
         raise ToolkitError(f"laps must be at least 1, not {rounds}")
     if scenario == "random":
-        scn = random_world(seed, way, enter)
+        scn = random_world(seed, way, enter, short)
     elif scenario == "building":
         scn = building(rounds)
     else:
@@ -164,15 +170,15 @@ def parameters(
     return scn, LaserModel(**laser_args), OdometryModel(**odo_args)
 
 
-def _yes(value: Param) -> bool:
-    return bool(convert(value, bool, "entered", "the simulator"))
+def _yes(value: Param, name: str = "entered") -> bool:
+    return bool(convert(value, bool, name, "the simulator"))
 
 
 def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
     `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`, and
-    `entered`: true for a path that also enters rooms; for "building", `laps`: times round
-    the ring)."""
+    `entered`: true for a path that also enters rooms, and `brief`: with it, small rooms
+    entered briefly; for "building", `laps`: times round the ring)."""
     scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
@@ -188,6 +194,7 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
         **{k: getattr(scn, k) for k in PATH_PARAMS},
         **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
         **({"entered": True} if _yes(params.get("entered") or False) else {}),
+        **({"brief": True} if _yes(params.get("brief") or False, "brief") else {}),
         **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
         **laser.to_dict(),
         **odometry.to_dict(),

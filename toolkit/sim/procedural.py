@@ -26,6 +26,14 @@ with probability 0.6, the same doors on both routes) the robot turns on the spot
 door, drives to the room's middle, turns to look left and right along it, and comes back out
 and turns to go on. The laser inside a room is labelled "room" (a zone per room, entered or
 not); the turns in front of a door are in the door's zone. The world itself is unchanged.
+
+With `brief` as well (off by default; session 26, issue 16), the rooms are entered as the
+Intel lab's are: the building has four open doors or more where they fit; two large rooms
+(4.5-6.5 m wide, 4.5-6 m deep; drawn from their own generator) are entered as above, and
+every other open door leads to a small room (2.2-3.2 m wide, 2.2-3 m deep) that the robot
+enters briefly: it turns to the door, drives 1-1.8 m in, turns a quarter to look one way
+along the room, and turns back out through the door (about 8-10 scans at 1 m or 0.5 rad,
+3-4 rad turned: the Intel rooms' short visits, which are lost to the corridor).
 """
 
 from __future__ import annotations
@@ -44,6 +52,8 @@ DOOR_WIDTH = 0.9  # m
 DOOR_MARGIN = 0.4  # m either side of an open door: the zone "door"
 CORNER_MARGIN = 0.3  # m either side of the crossing: the zone "corner"
 ENTER_SHARE = 0.6  # with `entered`: the share of the open doors whose room the path enters
+BRIEF_DOORS = 4  # with `brief`: open doors drawn until at least this many (where they fit)
+BRIEF_WIDER = 1.5  # with `brief`: m added to every room's width (the rooms entered fully)
 
 
 @dataclass
@@ -119,9 +129,14 @@ class _Sides:
         return None
 
 
-def random_world(seed: int = 0, route: int = 0, entered: bool = False) -> Scenario:
+def random_world(
+    seed: int = 0, route: int = 0, entered: bool = False, brief: bool = False
+) -> Scenario:
     """A random building (see the module docstring), and a path through it by `route`; with
-    `entered`, one that also enters rooms through their doors (labelled "room")."""
+    `entered`, one that also enters rooms through their doors (labelled "room"); with `brief`
+    too, small rooms entered briefly beside two entered fully."""
+    if brief and not entered:
+        raise ValueError("brief room visits need entered")
     rng = np.random.default_rng([seed, 16])
     width = float(rng.uniform(1.6, 4.0))
     h = width / 2
@@ -169,11 +184,11 @@ def random_world(seed: int = 0, route: int = 0, entered: bool = False) -> Scenar
     # open doors: 2-5, on horizontal legs, rooms behind them
     doors = 0
     for _ in range(int(rng.integers(3, 6)) * 4):
-        if doors >= 2 and rng.random() < 0.3:
+        if doors >= (BRIEF_DOORS if brief else 2) and rng.random() < 0.3:
             break
         k = int(rng.choice(horizontal))
         s = int(rng.choice([1, -1]))
-        room_w = float(rng.uniform(3.0, 5.0))
+        room_w = float(rng.uniform(3.0, 5.0)) + (BRIEF_WIDER if brief else 0.0)
         u = sides[k].place(rng, room_w, s, room_margin)
         if u is None:
             continue
@@ -185,6 +200,12 @@ def random_world(seed: int = 0, route: int = 0, entered: bool = False) -> Scenar
         doors += 1
         if doors >= 5:
             break
+
+    visits = _brief_rooms(placed, seed) if brief else None
+    if visits is not None:  # the small rooms, around their doors
+        rooms = {}
+        for k, s, _, w, depth in placed:
+            rooms.setdefault((k, s), []).append((w, depth))
 
     # windows: 1-3, any leg
     wanted, windows = int(rng.integers(1, 4)), 0
@@ -268,7 +289,7 @@ def random_world(seed: int = 0, route: int = 0, entered: bool = False) -> Scenar
     way[0] += legs[0].direction * 1.0
     way[-1] -= legs[-1].direction * 1.0
     if entered:
-        way = _entering(way, legs, placed, offset, h, seed)
+        way = _entering(way, legs, placed, offset, h, seed, visits)
         zones += [_room_zone(legs[k], s, d0, w, depth, h) for k, s, d0, w, depth in placed]
     if route % 2 == 1:
         way = way[::-1]
@@ -298,6 +319,28 @@ def random_world(seed: int = 0, route: int = 0, entered: bool = False) -> Scenar
     )
 
 
+def _brief_rooms(
+    placed: list[tuple[int, int, float, float, float]], seed: int
+) -> dict[int, tuple[float, int]]:
+    """With `brief`: two rooms of `placed` (drawn from their own generator) made deep (4.5-6
+    m; their width is already 4.5-6.5 m) and every other made small around its door, in
+    place (the Intel lab's taught rooms are large, its rooms lost on short visits small);
+    per small room its visit: how far in (m) and which way it looks (+-1 along the leg)."""
+    rng = np.random.default_rng([seed, 16, 26])
+    full = rng.permutation(len(placed))[:2]
+    visits = {}
+    for i, (k, s, d0, wide, _) in enumerate(placed):
+        w, depth = float(rng.uniform(2.2, 3.2)), float(rng.uniform(2.2, 3.0))
+        step_in, way = float(rng.uniform(1.0, 1.8)), int(rng.choice([1, -1]))
+        deep = float(rng.uniform(4.5, 6.0))
+        if i in full:
+            placed[i] = (k, s, d0, wide, deep)
+        else:
+            placed[i] = (k, s, d0, w, depth)
+            visits[i] = (min(step_in, depth - 0.6), way)
+    return visits
+
+
 def _entering(
     way: np.ndarray,
     legs: list[_Leg],
@@ -305,23 +348,34 @@ def _entering(
     offset: float,
     h: float,
     seed: int,
+    visits: dict[int, tuple[float, int]] | None = None,
 ) -> np.ndarray:
     """The waypoints `way` (route 0) with detours into rooms: at least two of the `placed`
     rooms (leg, side, door start, width, depth), each with probability `ENTER_SHARE`, drawn
-    from their own generator so that the world's draws are unchanged."""
-    rng = np.random.default_rng([seed, 16, 25])
-    pick = rng.random(len(placed)) < ENTER_SHARE
-    if pick.sum() < 2:
-        pick[rng.permutation(len(placed))[:2]] = True
+    from their own generator so that the world's draws are unchanged; with `visits` (`brief`),
+    the rooms not in it entered fully and those in it briefly (in, a look one way, out)."""
+    if visits is None:
+        rng = np.random.default_rng([seed, 16, 25])
+        pick = rng.random(len(placed)) < ENTER_SHARE
+        if pick.sum() < 2:
+            pick[rng.permutation(len(placed))[:2]] = True
+    else:
+        pick = np.ones(len(placed), dtype=bool)
     out: list[np.ndarray] = [way[0]]
     for k, leg in enumerate(legs):
         here = sorted(
-            (placed[i] for i in np.flatnonzero(pick) if placed[i][0] == k), key=lambda r: r[2]
+            (int(i) for i in np.flatnonzero(pick) if placed[i][0] == k), key=lambda i: placed[i][2]
         )
-        for _, s, d0, w, depth in here:
+        for i in here:
+            _, s, d0, w, depth = placed[i]
             u = d0 + DOOR_WIDTH / 2
             n = _normal(leg.direction) * s
             front = leg.start + leg.direction * u + _normal(leg.direction) * offset
+            if visits is not None and i in visits:  # a step or two in, a look one way, out
+                step_in, side = visits[i]
+                inside = leg.start + leg.direction * u + n * (h + step_in)
+                out += [front, inside, inside + leg.direction * (0.3 * side), front]
+                continue
             middle = leg.start + leg.direction * u + n * (h + depth / 2)
             look = leg.direction * (w / 4)
             out += [front, middle, middle + look, middle - look, middle, front]
