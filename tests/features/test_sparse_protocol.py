@@ -4,6 +4,8 @@ taught and the scored logs; ten taught scans per place among the kept ones."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from toolkit.features import Config, classify
@@ -13,6 +15,7 @@ from toolkit.features.classify import (
     pool_turns,
     switch_probability,
     turn_groups,
+    turn_reach,
 )
 from toolkit.features.descriptors import path_length
 from toolkit.features.evaluate import protocol, protocol_scores, teaches_two, thinned, worlds
@@ -290,3 +293,63 @@ def test_a_turn_on_the_spot_pooled_into_one_view() -> None:
             found[pool] = np.mean(label[(run.labels == "corridor") & test & turning] == "corridor")
             assert np.mean(label[(run.labels == "room") & test] == "room") > 0.95
         assert found[None] < 0.2 and found[0.3] > 0.6
+
+
+def test_a_turn_pooled_only_where_it_sees_far() -> None:
+    """`turn_pool_reach` (session 26, junction26; off by default). A turn is pooled only if a
+    tenth of some scan's beams reach past the threshold (a junction, a way seen across); an
+    enclosed turn keeps each scan's own evidence and weight. On seed 10's brief worlds (max
+    over the turn, 0.3 m, reach 6 m) the small rooms' short stays keep what the default finds
+    while the corridor's turning scans are found as with every turn pooled (seed 10,
+    measured, runs a / b: short stays 1.00 / 1.00 by default, 0.74 / 0.88 every turn pooled,
+    1.00 / 0.96 only the far-seeing ones; the corridor's turning scans 0.41 / 0.52, 0.85 /
+    0.85 and 0.85 / 0.81)."""
+    poses = np.array([[0, 0, 0], [0.05, 0, 0.5], [0.1, 0, 1.0], [1.1, 0, 1.0], [2.1, 0, 1.0]])
+    scores = np.log([[0.8, 0.2], [0.3, 0.7], [0.4, 0.6], [0.5, 0.5], [0.9, 0.1]])
+    close = np.full((5, 20), 2.0)
+    far = close.copy()
+    far[1, :3] = np.inf  # a tenth of one heading's beams without return: the turn sees far
+    assert turn_reach(close, np.array([0, 3, 4])).tolist() == [2.0, 2.0, 2.0]
+    assert turn_reach(far, np.array([0, 3, 4])).tolist() == [np.inf, 2.0, 2.0]
+    far[1, 2] = 2.0  # two beams in twenty: under a tenth
+    assert turn_reach(far, np.array([0, 3, 4]))[0] == 2.0
+    far[1, 2] = 7.0
+    cfg = Config(turn_pool=0.3, turn_pool_rule="max", turn_pool_reach=6.0)
+    pooled = pool_turns(Config(turn_pool=0.3, turn_pool_rule="max"), scores, poses)
+    own = scores * evidence_weights(cfg, 5, poses)[:, None]
+    assert np.array_equal(pool_turns(cfg, scores, poses, close), own)  # enclosed: not pooled
+    assert np.array_equal(pool_turns(cfg, scores, poses, far)[:3], pooled[:3])
+    assert np.array_equal(pool_turns(cfg, scores, poses, far)[3:], own[3:])
+    assert np.array_equal(
+        pool_turns(replace(cfg, turn_pool_reach=0.0), scores, poses, close), pooled
+    )
+    assert np.array_equal(pool_turns(cfg, scores, poses), pooled)  # no ranges: every turn
+    runs = worlds(10, 1.0, 0.5, entered=True, brief=True)
+    a = runs["a"]
+    spans = spans_from_frame(a.regions, a.dataset.t)
+    taught = training_indices(spans)
+    model = fit(a.dataset.ranges, a.dataset.laser, taught, cfg, spans, gt_poses(a))
+    assert model.config.turn_pool == 0.3 and model.config.turn_pool_reach == 6.0
+    models = {
+        "default": replace(model, config=replace(model.config, turn_pool=0.0)),
+        "every turn": replace(model, config=replace(model.config, turn_pool_reach=0.0)),
+        "far": model,
+    }
+    for key in "ab":
+        run = runs[key]
+        poses = gt_poses(run)
+        turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
+        test = np.ones(len(turning), dtype=bool)
+        if key == "a":
+            test[np.concatenate(list(taught.values()))] = False
+        short = np.zeros(len(test), dtype=bool)
+        for place, first, last in label_runs(run.labels):
+            if place == "room" and last - first < 10:
+                short[first : last + 1] = True
+        stays, turns = {}, {}
+        for name, m in models.items():
+            label = classify(m, run.dataset.ranges, poses).label
+            stays[name] = np.mean(label[(run.labels == "room") & short & test] == "room")
+            turns[name] = np.mean(label[(run.labels == "corridor") & turning & test] == "corridor")
+        assert stays["far"] > 0.95 and stays["every turn"] < 0.9 and stays["default"] > 0.95
+        assert turns["far"] > turns["default"] + 0.25

@@ -211,17 +211,39 @@ def turn_groups(poses: np.ndarray, radius: float) -> np.ndarray:
     return np.cumsum(_turn_starts(xy, float(radius))) - 1
 
 
-def pool_turns(config: Config, scores: np.ndarray, poses: np.ndarray | None) -> np.ndarray:
+#: quantile of a scan's ranges whose largest over a turn tells a turn that sees far (a tenth
+#: of the beams: a few headings along a way out, not one beam through a gap)
+REACH_QUANTILE = 0.9
+
+
+def turn_reach(ranges: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Per turn (its scans from `first`), the largest over its scans of the range a tenth of
+    the beams reach past (`REACH_QUANTILE`; no return: inf), in m."""
+    r = np.asarray(ranges, dtype=np.float64)
+    r = np.where(np.isfinite(r), r, np.inf)
+    reach = np.quantile(r, REACH_QUANTILE, axis=1, method="lower")  # a beam's own range
+    return np.asarray(np.maximum.reduceat(reach, first))
+
+
+def pool_turns(
+    config: Config,
+    scores: np.ndarray,
+    poses: np.ndarray | None,
+    ranges: np.ndarray | None = None,
+) -> np.ndarray:
     """The HMM's evidence (S x K log-probabilities) with each turn on the spot
     (`turn_groups` over `turn_pool` m) pooled: every scan of a turn gets the turn's mean (or,
     `turn_pool_rule` "max", per place the largest) log-probability, and the turn weighs
     together what its path without turning weighs (`evidence_weights` with no turn), spread
     evenly. A spot seen from several headings is one view of one place: a junction's four
     headings one vote, not four for the room they look like across; a room's turn still its
-    room's. Without poses: `evidence_weights` alone."""
+    room's. With `turn_pool_reach` (and `ranges`), a turn that does not see that far
+    (`turn_reach`) is left as without pooling: an enclosed spot's few headings are all the
+    evidence of a short stay. Without poses: `evidence_weights` alone."""
     n = len(scores)
+    own = np.asarray(scores * evidence_weights(config, n, poses)[:, None])
     if poses is None or len(poses) != n or n == 0 or not config.turn_pool:
-        return np.asarray(scores * evidence_weights(config, n, poses)[:, None])
+        return own
     group = turn_groups(poses, config.turn_pool)
     first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
     size = np.diff(np.r_[first, n])
@@ -231,7 +253,11 @@ def pool_turns(config: Config, scores: np.ndarray, poses: np.ndarray | None) -> 
         pooled = np.add.reduceat(scores, first, axis=0) / size[:, None]
     weight = evidence_weights(replace(config, turn_length=0.0), n, poses)
     share = np.add.reduceat(weight, first) / size
-    return np.asarray(pooled[group] * share[group, None])
+    out = np.asarray(pooled[group] * share[group, None])
+    if config.turn_pool_reach and ranges is not None and len(ranges) == n:
+        far = turn_reach(ranges, first) > config.turn_pool_reach
+        out = np.where(far[group, None], out, own)
+    return out
 
 
 def smooth(emit: np.ndarray, eps: np.ndarray, how: str, stages: int = 1) -> np.ndarray:
@@ -264,7 +290,7 @@ def classify(
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
-        scores = pool_turns(cfg, scores, poses)
+        scores = pool_turns(cfg, scores, poses, ranges)
     elif cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)

@@ -122,6 +122,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: session 24's default (glass_to window and door, room_margin 0)", dataclasses.replace(FULL, glass_to=("window", "door"), room_margin=0.0)),
     ("alternative: + on a sparse log, a scan taken turning on the spot neither switches the place nor adds evidence in the HMM (sparse_turn_length 0; turn25, session 25)", dataclasses.replace(FULL, sparse_turn_length=0.0)),
     ("alternative: + on a sparse log, each turn on the spot (the scans within 0.3 m of its first) pooled in the HMM: per place the largest log-probability over the turn, the turn weighing what its translation weighs (sparse_turn_pool 0.3, turn_pool_rule max; pool26, session 26)", dataclasses.replace(FULL, sparse_turn_pool=0.3, turn_pool_rule="max")),
+    ("alternative: + on a sparse log, pool26's pooled turn (sparse_turn_pool 0.3, turn_pool_rule max) only where the turn sees far, a tenth of some scan's beams past 6 m; an enclosed turn as without pooling (turn_pool_reach 6; junction26, session 26)", dataclasses.replace(FULL, sparse_turn_pool=0.3, turn_pool_rule="max", turn_pool_reach=6.0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

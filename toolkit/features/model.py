@@ -118,6 +118,10 @@ class Config:
     # one view of the spot from every heading, one vote (classify.pool_turns; 0: each scan
     # its own)
     turn_pool_rule: TurnPool = "mean"  # "max": per place the largest over the turn's scans
+    turn_pool_reach: float = 0.0  # m: only a turn that sees far is pooled, one in which some
+    # scan has a tenth of its beams reaching past this (a junction, a way seen across); an
+    # enclosed turn keeps each scan's own evidence and weight, as without pooling (its few
+    # headings are all there is of a small place). classify.pool_turns; 0: every turn pooled
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -310,6 +314,8 @@ class Config:
             raise ToolkitError("turn_length, sparse_turn_length: m per rad, 0 or more")
         if self.turn_pool < 0 or (self.sparse_turn_pool or 0.0) < 0:
             raise ToolkitError("turn_pool, sparse_turn_pool: m, 0 or more")
+        if self.turn_pool_reach < 0:
+            raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
