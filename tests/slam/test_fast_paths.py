@@ -460,3 +460,24 @@ def test_local_returns_in_one_pass_equal_the_numpy_form(drifted: Dataset) -> Non
             [(rel[:, :1] + c * x - s * y)[ok], (rel[:, 1:2] + s * x + c * y)[ok]]
         )
         assert np.array_equal(closer.local_points(centre, scans, odo), want)
+
+
+def test_box_selections_in_one_pass_equal_the_numpy_forms() -> None:
+    """`inside` (a search's reference points within reach) and `_cells_within` (a fine
+    window's cells) keep the rows numpy's broadcast compares keep, in their order, points on
+    the box's edges included (their coordinates drawn from the edges themselves)."""
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 7, 3000):
+        lo, hi = rng.normal(size=2) - 3.0, rng.normal(size=2) + 3.0
+        pts = rng.normal(size=(n, 2)) * 5.0
+        on_edge = rng.random(size=(n, 2)) < 0.1
+        pts[on_edge] = np.where(rng.random(size=(n, 2)) < 0.5, lo, hi)[on_edge]
+        want = pts[((pts >= lo) & (pts <= hi)).all(axis=1)]
+        got = grid_mod.inside(pts, lo, hi)
+        assert got.shape == want.shape and np.array_equal(got, want)
+        assert 0 < len(got) < n or n < 10
+        ij = np.floor(pts / 0.04).astype(np.int64)
+        i0, i1 = np.floor(lo / 0.04).astype(np.int64), np.ceil(hi / 0.04).astype(np.int64)
+        cells = grid_mod._cells_within(ij, i0, i1)
+        keep = ((ij >= i0) & (ij < i1)).all(axis=1)
+        assert cells.flags.c_contiguous and np.array_equal(cells, ij[keep] - i0)

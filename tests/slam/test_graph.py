@@ -5,6 +5,7 @@ edge at a time."""
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from toolkit.se2 import between, compose
@@ -57,3 +58,21 @@ def test_base_graph_and_batched_residuals_give_the_plain_numbers() -> None:
         assert np.array_equal(row, one)
     assert out[3, 2] > 16 > np.delete(out[:, 2], 3).max()  # the wrong loop stands out
     assert pg.residuals(whole, nodes, []).shape == (0, 3)
+
+
+def test_the_optimum_read_in_one_call_equals_node_by_node() -> None:
+    """`optimise` reads the optimum with `extractPose2` when the values are the nodes in
+    order: the same doubles as `atPose2` node by node (the path it replaces, still taken for
+    nodes out of order)."""
+    rng = np.random.default_rng(11)
+    nodes, start, sequential, loops = _loop_graph(rng)
+    graph, values = pg.factor_graph(nodes, start, sequential + loops)
+    got = pg.optimise(graph, values, nodes)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(100)
+    params.setRelativeErrorTol(1e-6)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    one = np.array([[p.x(), p.y(), p.theta()] for p in map(result.atPose2, nodes.tolist())])
+    assert got.tobytes() == one.tobytes() and np.abs(got - start).max() > 0.05
+    shuffled = rng.permutation(len(nodes))  # out of order: node by node, in the asked order
+    assert np.array_equal(pg.optimise(graph, values, nodes[shuffled]), one[shuffled])

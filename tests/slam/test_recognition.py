@@ -143,6 +143,13 @@ def test_held_spectra_and_blocked_gate_give_the_plain_answers() -> None:
         assert np.array_equal(
             plain, rc.shift_distances(places[q], None, (held[0][near], held[1][near]))
         )
+        # the query's own spectra taken from the stack (session 26): the same as its own
+        alone = rc.spectra(places[q])
+        assert np.array_equal(alone[0], held[0][q]) and np.array_equal(alone[1], held[1][q])
+        from_held = rc.shift_distances(
+            places[q], None, (held[0][near], held[1][near]), (held[0][q], held[1][q])
+        )
+        assert np.array_equal(plain, from_held)
     keys = np.arange(2 * n)
     along = 2.0 * keys
     place = np.concatenate([np.arange(n), np.arange(n)[::-1]])

@@ -76,11 +76,18 @@ def _add_edges(graph: gtsam.NonlinearFactorGraph, edges: list[Edge], robust: flo
 def optimise(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, nodes: np.ndarray
 ) -> np.ndarray:
-    """Levenberg-Marquardt from `values`; the optimised poses of `nodes` (K x 3)."""
+    """Levenberg-Marquardt from `values`; the optimised poses of `nodes` (K x 3): read in
+    one call (`extractPose2`, the same doubles as `atPose2` node by node) when `values`
+    holds exactly the nodes, ascending (the keys' order)."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(100)
     params.setRelativeErrorTol(1e-6)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    ordered = len(nodes) == result.size() and bool(np.all(np.diff(nodes) > 0))
+    if ordered:  # the values are the nodes: GTSAM's (x, y, theta) of each, in key order
+        got: np.ndarray = np.ascontiguousarray(gtsam.utilities.extractPose2(result))
+        if got.shape == (len(nodes), 3):
+            return got
     out = np.empty((len(nodes), 3))
     for k, node in enumerate(nodes):
         p = result.atPose2(int(node))

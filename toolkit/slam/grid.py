@@ -12,6 +12,7 @@ window, then a fine grid around the coarse maxima. It needs no good seed, only t
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -106,8 +107,7 @@ class LikelihoodGrid:
             np.ceil((np.asarray(hi) - full_lo) / resolution).astype(np.int64) + n_pad + 1, shape
         )
         i1 = np.maximum(i1, i0 + 1)
-        keep = ((ij >= i0) & (ij < i1)).all(axis=1)
-        cells = np.ascontiguousarray(ij[keep] - i0)
+        cells = _cells_within(ij, i0, i1)
         r = math.floor(pad / resolution)
         # the values a distance transform gives at r^2 = 0 .. r*r cells squared, and beyond
         dist_of = np.minimum(np.sqrt(np.arange(r * r + 2, dtype=np.float64)) * resolution, cap)
@@ -250,6 +250,46 @@ def _raster(
     ij = np.empty((len(pts), 2), dtype=np.int64)
     _raster_cells(pts, resolution, margin, lo, shape, ij)
     return lo, shape, ij
+
+
+@nb.njit(cache=True, nogil=True)
+def _cells_within(ij: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> np.ndarray:
+    """The cells `ij` (N x 2) with i0 <= cell < i1 in both columns, moved by -i0, in their
+    order: `ij[((ij >= i0) & (ij < i1)).all(axis=1)] - i0` in one pass (numpy's broadcast
+    compares cost 0.1 ms over a reference map's few thousand points, at every search)."""
+    out = np.empty_like(ij)
+    m = 0
+    for k in range(ij.shape[0]):
+        i, j = ij[k, 0], ij[k, 1]
+        if i0[0] <= i < i1[0] and i0[1] <= j < i1[1]:
+            out[m, 0] = i - i0[0]
+            out[m, 1] = j - i0[1]
+            m += 1
+    return out[:m].copy()
+
+
+@nb.njit(cache=True, nogil=True)
+def _inside(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """`points[((points >= lo) & (points <= hi)).all(axis=1)]` (N x 2 float64, the box's
+    edges included) in one pass: the same rows in their order (a copy)."""
+    out = np.empty_like(points)
+    m = 0
+    for k in range(points.shape[0]):
+        x, y = points[k, 0], points[k, 1]
+        if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]:
+            out[m, 0] = x
+            out[m, 1] = y
+            m += 1
+    return out[:m].copy()
+
+
+def inside(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The rows of `points` (N x 2) within the box `lo`-`hi` (edges included), in order."""
+    return _inside(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.asarray(lo, dtype=np.float64),
+        np.asarray(hi, dtype=np.float64),
+    )
 
 
 def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1011,6 +1051,18 @@ def _coarse_level(
     return starts, float(vol[best_a, best_i, best_j]), runner_up, offsets, thetas
 
 
+@functools.lru_cache(maxsize=8)
+def _linspace7(turn_step: float) -> np.ndarray:
+    """`np.linspace(-turn_step, turn_step, 7)`, made once per step (`_fine_thetas`)."""
+    return np.linspace(-turn_step, turn_step, 7)
+
+
+def _fine_thetas(turn_step: float) -> np.ndarray:
+    """The fine level's 7 headings over +-`turn_step`: `np.linspace`'s, copied from a cache
+    (a copy costs a third of making them, and the caller's array stays its own)."""
+    return _linspace7(turn_step).copy()
+
+
 def correlative_search(
     coarse: LikelihoodGrid,
     fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
@@ -1061,7 +1113,7 @@ def correlative_search(
         fine = fine(box[:, :2].min(axis=0) - reach, box[:, 2:].max(axis=0) + reach)
     fine_step = fine.resolution
     fine_half = math.ceil(coarse_step / fine_step)
-    fine_thetas = np.linspace(-turn_step, turn_step, 7)
+    fine_thetas = _fine_thetas(turn_step)
     best = (-1.0, prediction)
     for p in tops:
         centre = np.array([prediction[0] + p[0], prediction[1] + p[1], prediction[2] + p[2]])

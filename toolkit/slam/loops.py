@@ -48,6 +48,7 @@ from toolkit.slam.grid import (
     coarse_ambiguity,
     coarse_scores,
     correlative_search,
+    inside,
     voxel_subsample,
 )
 
@@ -293,7 +294,7 @@ def _search(
     reach = np.hypot(*query.T).max() * turn + window + 0.5
     lo, hi = bounds(landed)
     lo, hi = lo - reach, hi + reach
-    ref = ref[((ref >= lo) & (ref <= hi)).all(axis=1)]
+    ref = inside(ref, lo, hi)
     if len(ref) < cfg.min_points:
         return None
     coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)

@@ -119,6 +119,7 @@ def shift_distances(
     query: np.ndarray,
     refs: np.ndarray | None,
     ref_spectra: tuple[np.ndarray, np.ndarray] | None = None,
+    query_spectra: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Scan Context distance of `query` (R x S counts) to each of `refs` (M x R x S) at every
     circular shift s of the sectors (M x S): 1 - the mean cosine similarity (of the counts'
@@ -126,8 +127,9 @@ def shift_distances(
     both hold points in, with ref's column j - s against query's column j (1 where none
     is shared); the query's heading in the ref's frame at shift s is -s sectors. One FFT
     per ring for all shifts. `ref_spectra`: the refs' `spectra`, computed once for many
-    queries (the same numbers: each ring's transform is its own), instead of `refs`."""
-    q, qa = spectra(query)
+    queries (the same numbers: each ring's transform is its own), instead of `refs`;
+    `query_spectra` likewise the query's (a row of those held for the log)."""
+    q, qa = query_spectra if query_spectra is not None else spectra(query)
     c, ca = ref_spectra if ref_spectra is not None else spectra(np.asarray(refs))
     sectors = query.shape[-1]
     # corr[m, s] = sum_j sum_r q[r, j] c[m, r, j - s]
@@ -302,7 +304,8 @@ def candidates(
             continue
         if held is not None:
             at = np.searchsorted(idx, near)
-            d = shift_distances(desc[q], None, (held[0][at], held[1][at]))
+            # the query is a described keyframe too: its spectra are held as well
+            d = shift_distances(desc[q], None, (held[0][at], held[1][at]), (held[0][m], held[1][m]))
         else:
             d = shift_distances(desc[q], desc[near])
         best = d.argmin(axis=1)
