@@ -101,9 +101,10 @@ def map_command(
             "--set",
             metavar="KEY=VALUE",
             help="an expert setting, repeatable, over --config's: slam.FIELD (SlamConfig; "
-            "slam.loop.FIELD, slam.scan_map.FIELD), matcher.FIELD (the sequential matcher's: "
-            "scan-to-map's, i.e. slam.scan_map's, with loops and --method gaussian, else "
-            "MatchConfig's); VALUE is JSON (3, true, [0.1, 0.2]) or else text",
+            "slam.loop.FIELD, slam.scan_map.FIELD), matcher.FIELD (of the matcher each dataset "
+            "runs: scan-to-map's, i.e. slam.scan_map's, with loops, gaussian and odometry, else "
+            "MatchConfig's; a key none uses is an error); VALUE is JSON (3, true, [0.1, 0.2]) "
+            "or else text",
         ),
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no summary")] = False,
@@ -113,9 +114,9 @@ def map_command(
     Writes RUN/: config.json, trajectory.parquet, trajectory.tum (evo), cloud.ply and
     cloud.pcd, map.png, map.pgm + map.yaml (ROS map_server), graph.g2o and loops.csv (with
     loops), metrics.json (with each stage's seconds); atomically. With many datasets, OUT/<name>/ for each.
-    --config and --set change expert settings, every dataset's alike (checked once, before any
-    work); config.json records every setting that ran, and a fleet's re-run redoes the runs
-    of other settings.
+    --config and --set change expert settings, every dataset's alike, matcher.* those of the
+    matcher each dataset runs (checked once, before any work); config.json records every
+    setting that ran, and a fleet's re-run redoes the runs of other settings.
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
