@@ -31,6 +31,16 @@ def small(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def blind(small: Path) -> Path:
+    """`small` without odometry (as a log of an LMS-200 capture or a bag without it): the
+    mapper's keyframe front end and the pair matcher (`MatchConfig`) map it."""
+    out = small.parent / "blind"
+    shutil.copytree(small, out)
+    (out / "odometry.parquet").unlink()
+    return out
+
+
 @pytest.fixture
 def fleet(small: Path, tmp_path: Path) -> Path:
     """Two datasets (copies of `small`) in a tree: a fleet for `toolkit map FLEET --out RUNS`."""
@@ -251,6 +261,7 @@ def test_fleet_settings_travel_to_the_dask_workers(fleet: Path, tmp_path: Path, 
         (["--set", "slam.blind_turn=abc"], 'slam.blind_turn: expected a number, not "abc"'),
         (["--no-loops", "--set", "slam.blind_turn=0"], "need loops"),
         (["--config", "missing.json"], "missing.json: no such file"),
+        (["--set", "matcher.max_correction=0.3"], "a setting of the pair matcher"),
     ],
 )
 def test_fleet_bad_settings_are_one_line_before_any_run(
@@ -313,3 +324,101 @@ def test_recorded_settings_are_what_a_run_records(small: Path, tmp_path: Path) -
         assert run_is_current(run, dataset, method, 0.0, loops, other, slam_config) == scan_to_map
         assert run_is_current(run, dataset, method, 0.0, loops, config, other_slam) == (not loops)
         assert not run_is_current(run, dataset, "icp-point", 0.0, loops, config, slam_config)
+
+
+@pytest.mark.slow
+def test_matcher_settings_reach_the_matcher_without_odometry(
+    blind: Path, tmp_path: Path, cli: Cli
+) -> None:
+    """Without odometry the keyframe front end runs the pair matcher: matcher.* is its
+    settings (before session 26 they went to the unused slam.scan_map, the poses unmoved)."""
+    code, _, err = cli("map", blind, "--out", tmp_path / "default", "-q")
+    assert code == 0, err
+    code, _, err = cli(
+        "map", blind, "--out", tmp_path / "gate", "-q", "--set", "matcher.gate=0.3",
+        "--set", "matcher.max_correction=0.3",
+    )  # fmt: skip
+    assert code == 0, err
+    config = json.loads((tmp_path / "gate/config.json").read_text())
+    assert config["matcher"]["gate"] == 0.3 and config["matcher"]["max_correction"] == 0.3
+    assert config["slam"]["front_end"] == "keyframe"
+    default = json.loads((tmp_path / "default/config.json").read_text())
+    assert config["slam"] == default["slam"]  # slam.scan_map untouched: it did not run
+    assert np.abs(poses(tmp_path / "gate") - poses(tmp_path / "default")).max() > 0.01
+    # the run's config.json as --config: the same poses to the bit
+    code, _, err = cli(
+        "map", blind, "--out", tmp_path / "again", "-q", "--config", tmp_path / "gate/config.json"
+    )
+    assert code == 0, err
+    assert np.array_equal(poses(tmp_path / "gate"), poses(tmp_path / "again"))
+
+
+@pytest.mark.parametrize(
+    ("odometry", "args", "needle"),
+    [
+        (
+            False,
+            ["--set", "matcher.edge_grow=1"],
+            "matcher.edge_grow: a setting of the scan-to-map",
+        ),
+        (True, ["--set", "matcher.max_correction=0.3"], "a setting of the pair matcher"),
+        (True, ["--set", "slam.front_end=keyframe", "--set", "matcher.edge_grow=1"], "scan-to-map"),
+        (True, ["--method", "icp", "--set", "matcher.gate=0.3"], "it runs ICP"),
+        (True, ["--method", "odometry", "--set", "matcher.gate=0.3"], "matches no scans"),
+        (False, ["--set", "matcher.gat=0.3"], "did you mean matcher.gate?"),
+        (False, ["--config", "scan-to-map.json"], "a scan-to-map run's"),
+    ],
+)
+def test_a_matcher_setting_no_matcher_uses_is_one_line(
+    small: Path, blind: Path, tmp_path: Path, cli: Cli, odometry: bool, args: list[str],
+    needle: str,
+) -> None:  # fmt: skip
+    """matcher.KEY that the matcher of this dataset does not have (the other matcher's, or
+    none's), or a scan-to-map run's matcher on a log without odometry: exit 1, no run."""
+    recorded = {"front_end": "scan-to-map", "gate": 0.3, "edge_grow": 1.0}
+    (tmp_path / "scan-to-map.json").write_text(json.dumps({"matcher": recorded}))
+    args = [str(tmp_path / a) if a.endswith(".json") else a for a in args]
+    code, _, err = cli("map", small if odometry else blind, "--out", tmp_path / "run", *args)
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and needle in err, err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+def test_mixed_fleet_maps_each_dataset_by_its_own_matcher(
+    small: Path, blind: Path, tmp_path: Path, cli: Cli
+) -> None:
+    """A fleet of a log with odometry (scan-to-map) and one without (the pair matcher):
+    matcher.* reaches each dataset's own matcher, and a re-run redoes only the runs whose
+    matcher's settings changed."""
+    fleet, runs = tmp_path / "fleet", tmp_path / "runs"
+    shutil.copytree(small, fleet / "odo")
+    shutil.copytree(blind, fleet / "blind")
+
+    def fleet_map(*args: object) -> str:
+        code, out, err = cli("map", fleet, "--out", runs, *args)
+        assert code == 0, err
+        return out
+
+    assert "2 written, 0 skipped" in fleet_map()
+    default = {name: poses(runs / name) for name in ("odo", "blind")}
+    # a key of the pair matcher alone: the log with odometry (scan-to-map) stays current
+    assert "1 written, 1 skipped" in fleet_map("--set", "matcher.max_correction=0.3")
+    assert np.array_equal(poses(runs / "odo"), default["odo"])
+    both = ["--set", "matcher.gate=0.3", "--set", "matcher.edge_grow=1"]
+    pair = ["--set", "matcher.max_correction=0.3"]
+    assert "2 written, 0 skipped" in fleet_map(*both, *pair)
+    odo = json.loads((runs / "odo/config.json").read_text())
+    assert odo["matcher"]["front_end"] == "scan-to-map" and odo["matcher"]["edge_grow"] == 1
+    assert odo["matcher"]["gate"] == 0.3 == odo["slam"]["scan_map"]["gate"]
+    no_odo = json.loads((runs / "blind/config.json").read_text())
+    assert no_odo["matcher"]["gate"] == 0.3 and no_odo["matcher"]["max_correction"] == 0.3
+    assert no_odo["slam"]["scan_map"]["gate"] == 0.5  # the default: scan-to-map did not run
+    for name in ("odo", "blind"):
+        assert not np.array_equal(poses(runs / name), default[name]), name
+    assert "0 written, 2 skipped" in fleet_map(*both, *pair)
+    # each is the single-dataset run of its own matcher's settings, to the bit
+    for name, args in (("odo", both), ("blind", [*both[:2], *pair])):
+        code, _, err = cli("map", fleet / name, "--out", tmp_path / name, "-q", *args)
+        assert code == 0, err
+        assert np.array_equal(poses(runs / name), poses(tmp_path / name)), name

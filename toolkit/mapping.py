@@ -33,14 +33,15 @@ from concurrent.futures import Future
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numba as nb
 import numpy as np
+import pyarrow.parquet as pq
 
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output, writer_threads
-from toolkit.dataset import META, Dataset, load, sha256, write_described
+from toolkit.dataset import META, ODOMETRY, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import (
@@ -273,6 +274,41 @@ def _meta_digest(ds: Dataset) -> str | None:
     return sha256(meta) if meta is not None and meta.is_file() else None
 
 
+#: The sequential matcher a run uses (`matcher_of`): scan-to-map's (`slam.scan_map`,
+#: `MapConfig`), the pair matcher's (`MatchConfig`), ICP's (of `MatchConfig` only its
+#: keyframes) or none (odometry).
+SCAN_TO_MAP, PAIRS, ICP = "scan-to-map", "pairs", "icp"
+
+
+#: A run's expert settings: the pair matcher's and the mapper's (None: the defaults).
+Settings: TypeAlias = tuple["sc.MatchConfig | None", "SlamConfig | None"]
+
+
+def matcher_of(
+    method: Method | str,
+    loops: bool = True,
+    slam_config: SlamConfig | None = None,
+    odometry: bool = True,
+) -> str | None:
+    """Which sequential matcher maps a dataset with `odometry` or not by these settings, as
+    `slam_trajectory` and `build` decide it: scan-to-map with loops, gaussian, the "map" front
+    end and odometry; else the pair matcher (ICP's for icp); None by odometry."""
+    method = Method.parse(method)
+    if method == Method.ODOMETRY:
+        return None
+    if method in ICP_METHODS:
+        return ICP
+    front_end = slam_config.front_end if slam_config is not None else "map"  # SlamConfig's
+    return SCAN_TO_MAP if loops and front_end == "map" and odometry else PAIRS
+
+
+def has_odometry(dataset: Path) -> bool:
+    """Whether the dataset directory has odometry (rows in odometry.parquet; its footer only),
+    which decides the mapper's front end and so its matcher (`matcher_of`)."""
+    path = dataset / ODOMETRY
+    return path.is_file() and pq.ParquetFile(path).metadata.num_rows > 0
+
+
 def recorded_settings(
     method: Method | str,
     loops: bool = True,
@@ -284,10 +320,10 @@ def recorded_settings(
     dataset with `odometry` or not, JSON-shaped (tuples as lists): what a run of them reads
     back, so that a fleet's re-run can tell a run of other settings (`run_is_current`).
 
-    As `slam_trajectory` and `build` record them: the scan-to-map matcher's (`slam.scan_map`)
-    with loops, gaussian, the "map" front end and odometry; else the pair matcher's
-    (`config`; ICP's own), and then the mapper's front end is the keyframe one; nothing by
-    odometry. (A dataset of fewer than two scans records no matcher: never current.)"""
+    As `slam_trajectory` and `build` record them (`matcher_of`): the scan-to-map matcher's
+    (`slam.scan_map`) with loops, gaussian, the "map" front end and odometry; else the pair
+    matcher's (`config`; ICP's own), and then the mapper's front end is the keyframe one;
+    nothing by odometry. (A dataset of fewer than two scans records no matcher: never current.)"""
     method = Method.parse(method)
     config = config or sc.MatchConfig()
     pairs = icp_settings(method, config) if method in ICP_METHODS else config.to_dict()
@@ -299,7 +335,7 @@ def recorded_settings(
         from toolkit.slam.scanmap import settings as scan_map_settings  # noqa: PLC0415
 
         mapper = slam_config or SlamConfig()
-        if method == Method.GAUSSIAN and mapper.front_end == "map" and odometry:
+        if matcher_of(method, loops, mapper, odometry) == SCAN_TO_MAP:
             matcher = scan_map_settings(mapper.scan_map)
         else:
             mapper = replace(mapper, front_end="keyframe")

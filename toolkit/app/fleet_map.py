@@ -20,7 +20,7 @@ from __future__ import annotations
 import itertools
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -41,7 +41,6 @@ from toolkit.app.fleet import (
 )
 from toolkit.dataset import (
     META,
-    ODOMETRY,
     ROW_GROUP_SCANS,
     SCANS,
     LaserGeometry,
@@ -49,7 +48,7 @@ from toolkit.dataset import (
     sha256,
 )
 from toolkit.errors import ToolkitError
-from toolkit.mapping import map_run, recorded_settings
+from toolkit.mapping import Settings, has_odometry, map_run, recorded_settings
 
 if TYPE_CHECKING:
     from toolkit.slam.pipeline import SlamConfig
@@ -246,13 +245,6 @@ def run_is_current(
         return False
 
 
-def has_odometry(dataset: Path) -> bool:
-    """Whether the dataset has odometry (rows in odometry.parquet; its footer only), which
-    decides the mapper's front end and so what its run records."""
-    path = dataset / ODOMETRY
-    return path.is_file() and pq.ParquetFile(path).metadata.num_rows > 0
-
-
 def _map_one(
     dataset: Path,
     run: Path,
@@ -299,8 +291,7 @@ def map_many(
     force: bool = False,
     shared_storage: bool = False,
     loops: bool = True,
-    config: sc.MatchConfig | None = None,
-    slam_config: SlamConfig | None = None,
+    settings: Mapping[bool, Settings] | None = None,
 ) -> list[Outcome]:
     """Map every (dataset, name) into out/name, mirroring the names (a fleet's
     dataset=<name> directories stay so). On `client`: one task per dataset (its whole map
@@ -309,21 +300,27 @@ def map_many(
     scans from the dataset when `shared_storage` (else the scans are shipped). Failures
     are returned by dataset and do not stop the others; current runs (of these settings
     too) are skipped unless `force`. `loops`: each map with loop closure and the pose graph
-    (`toolkit map`'s default) or the sequential estimate alone. `config` and `slam_config`
-    (frozen dataclasses, pickled to the workers as they are; None: the defaults): the
-    matcher's and the mapper's settings, the same for every dataset."""
+    (`toolkit map`'s default) or the sequential estimate alone. `settings`: the matcher's and
+    the mapper's settings (frozen dataclasses, pickled to the workers as they are; None: the
+    defaults) for a dataset with odometry (True) and one without (False), whose front ends
+    run different matchers (`toolkit.mapping.matcher_of`); None: the defaults for all."""
     jobs = [(dataset.resolve(), out / name) for dataset, name in datasets]
-    settings = (loops, config, slam_config)
+
+    def settings_of(dataset: Path) -> tuple[bool, sc.MatchConfig | None, SlamConfig | None]:
+        if settings is None:
+            return (loops, None, None)
+        return (loops, *settings[has_odometry(dataset)])
+
     if client is not None and len(jobs) == 1 and method == "gaussian":
         dataset, run = jobs[0]
         matcher = matcher_for(client, scans=dataset / SCANS if shared_storage else None)
-        return [_map_one(dataset, run, method, voxel, force, None, matcher, *settings)]
+        return [_map_one(dataset, run, method, voxel, force, None, matcher, *settings_of(dataset))]
     threads = 1 if client is not None else None
     return _each(
         client,
         "map datasets",
         _map_one,
-        [(*job, method, voxel, force, threads, None, *settings) for job in jobs],
+        [(*job, method, voxel, force, threads, None, *settings_of(job[0])) for job in jobs],
     )
 
 
