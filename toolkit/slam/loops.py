@@ -30,7 +30,7 @@ last one up to `SlamConfig.wide_window` where no loop closed yet).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Container
+from collections.abc import Container
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -141,14 +141,6 @@ class LoopConfig:
     # by default since session 19: infinite-corridor seeds 5-14 x 2 draws mean ATE 1.21 ->
     # 0.38 m (worst 5.23 -> 0.51), no false loop on development seeds 0-14; False: off
     recognition: bool = True
-    # > 0: a query keyframe with no earlier keyframe within the uncertainty above gets the
-    # nearest one within this distance (m) that its scan sees (the earlier keyframe's position
-    # in the scan's field of view, not behind the return of the beams pointing there),
-    # searched over the same uncertainty around the trajectory's prediction: a revisit seen
-    # from a distance along a corridor (DP-SLAM's loop5 ends 4-6 m behind its start, facing
-    # it), not a return to the same place. 0: off (the default; docs/journal/maps.md,
-    # session 26)
-    view: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -203,20 +195,13 @@ class KeyIndex:
     of the log's length (a 1,000,000-scan log has some 100,000 keyframes)."""
 
     def __init__(
-        self,
-        keys: np.ndarray,
-        poses: np.ndarray,
-        along: np.ndarray,
-        config: LoopConfig,
-        sees: Callable[[int, np.ndarray], np.ndarray] | None = None,
+        self, keys: np.ndarray, poses: np.ndarray, along: np.ndarray, config: LoopConfig
     ) -> None:
         self.config = config
         self.kp = poses[keys, :2]
         self.ka = along[keys]
         self.keys = keys
-        # `view` candidates: `sees(scan, points)`, which world points the scan sees
-        self.sees = sees if config.view > 0 else None
-        self.cell = max(config.window, config.radius, config.view if self.sees else 0.0, 1e-3)
+        self.cell = max(config.window, config.radius, 1e-3)
         ij = np.floor(self.kp / self.cell).astype(np.int64)
         order = np.lexsort((np.arange(len(keys)), ij[:, 1], ij[:, 0]))
         cells, first = np.unique(ij[order], axis=0, return_index=True)
@@ -227,8 +212,7 @@ class KeyIndex:
     def candidate(self, q: int) -> tuple[int, int, float] | None:
         """The candidate of key number `q` (earlier scan, its scan, search radius), or None:
         the nearest earlier keyframe more than `gap` back along the path within the
-        uncertainty (`radius` + `growth` per metre of path between, at most `window`); with
-        `view` (and `sees`), else the nearest within `view` that the query's scan sees."""
+        uncertainty (`radius` + `growth` per metre of path between, at most `window`)."""
         cfg = self.config
         ci, cj = self._ij[q]
         near = [
@@ -246,9 +230,6 @@ class KeyIndex:
         d = np.hypot(*(self.kp[idx] - self.kp[q]).T)
         reach = np.minimum(cfg.radius + cfg.growth * (self.ka[q] - self.ka[idx]), cfg.window)
         ok = np.nonzero(d < reach)[0]
-        if len(ok) == 0 and self.sees is not None:
-            ok = np.nonzero(d < cfg.view)[0]
-            ok = ok[self.sees(int(self.keys[q]), self.kp[idx[ok]])]
         if len(ok) == 0:
             return None
         best = ok[np.argmin(d[ok])]
@@ -261,14 +242,13 @@ def candidates(
     along: np.ndarray,
     config: LoopConfig,
     skip: np.ndarray | None = None,
-    sees: Callable[[int, np.ndarray], np.ndarray] | None = None,
 ) -> list[tuple[int, int, float]]:
     """(earlier key, later key, search radius) pairs, as scan indices, a query every
     `config.every` of path that has a candidate; no query within `config.every` of path of a
-    scan in `skip` (already closed); `sees`: `KeyIndex`'s, for `config.view`."""
+    scan in `skip` (already closed)."""
     ka = along[keys]
     closed = np.sort(along[skip]) if skip is not None and len(skip) else np.zeros(0)
-    index = KeyIndex(keys, poses, along, config, sees)
+    index = KeyIndex(keys, poses, along, config)
     out: list[tuple[int, int, float]] = []
     next_at = 0.0
     for q in range(len(keys)):
@@ -724,29 +704,6 @@ class LoopCloser:
         out: np.ndarray = (inside & (np.hypot(dx, dy) <= reach)).any(axis=1)
         return out
 
-    def sight(self, poses: np.ndarray) -> Callable[[int, np.ndarray], np.ndarray]:
-        """`KeyIndex`'s `sees` for the trajectory `poses`: which world points (N x 2) scan `k`
-        sees: within its field of view and `max_range`, and no farther than 0.1 m behind the
-        farthest return of the beam pointing there and its two neighbours (no return: seen
-        to `max_range`)."""
-
-        def sees(k: int, points: np.ndarray) -> np.ndarray:
-            laser = compose(poses[k], self._mount)
-            dx, dy = points[:, 0] - laser[0], points[:, 1] - laser[1]
-            bearing = wrap(np.arctan2(dy, dx) - laser[2])
-            inside = (bearing >= self._fov[0]) & (bearing <= self._fov[1])
-            r = self.ranges[k].astype(np.float64)
-            r = np.where(
-                np.isfinite(r), np.minimum(r, self.config.max_range), self.config.max_range
-            )
-            pad = np.pad(r, 1, mode="edge")
-            far = np.maximum(np.maximum(pad[:-2], pad[1:-1]), pad[2:])
-            beam = np.clip(np.rint((bearing - self._beam0) / self._step), 0, len(r) - 1)
-            out: np.ndarray = inside & (np.hypot(dx, dy) <= far[beam.astype(np.int64)] + 0.1)
-            return out
-
-        return sees
-
     def find(
         self,
         keys: np.ndarray,
@@ -760,7 +717,7 @@ class LoopCloser:
         cfg = config or self.config
         along = path_length(poses)
         out = []
-        for a, b, radius in candidates(keys, poses, along, cfg, skip, self.sight(poses)):
+        for a, b, radius in candidates(keys, poses, along, cfg, skip):
             if (a, b) in known:
                 continue
             loop = self.verify(a, b, radius, poses, along, keys, cfg)

@@ -485,7 +485,7 @@ def close_loops(
     # (measured: no better on fhw seeds 0-1, intel, seattle seed 0, and slower: off)
     poses = before
     loop_cfg = config.loop
-    index = KeyIndex(keys, poses, along, loop_cfg, closer.sight(poses))
+    index = KeyIndex(keys, poses, along, loop_cfg)
     next_at = 0.0
     for q in range(len(keys)):
         if along[keys[q]] < next_at:
@@ -504,7 +504,7 @@ def close_loops(
             moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
             if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
                 poses = solve()
-                index = KeyIndex(keys, poses, along, loop_cfg, closer.sight(poses))
+                index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
     if loop_cfg.recognition:
         # candidates by appearance, where no loop closed yet, whatever the drift (a revisit
