@@ -9,12 +9,14 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.slam.conftest import drifted_carmen
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses
 from toolkit.slam.loops import (
     Loop,
+    LoopCloser,
     is_false_loop,
 )
 from toolkit.slam.pipeline import SlamConfig, close_loops
@@ -245,3 +247,34 @@ def test_real_infinite_corridor_loop_matched_on_another_stretch_slides(real: Pat
     assert not [lp for lp in on.values() if lp.accepted and is_false_loop(lp, truth)]
     accepted = {k for k, lp in on.items() if lp.accepted}
     assert len({k for k, lp in off.items() if lp.accepted} - accepted) <= 3  # 38 -> 764 too
+
+
+def test_real_pairs_refused_at_the_coarse_level_get_the_full_verifications_verdict(
+    real: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """infinite-corridor, drift seed 0 (development), every round: a pair whose coarse level
+    alone refuses it (its ambiguity over `max_ambiguity` and no corridor axis:
+    `LoopCloser.coarse_refusal`) is not searched at the fine level, and gets the verdict the
+    full verification gives it, for the same reason (the ambiguity); every other pair's Loop,
+    the accepted loops and the poses are the full verification's to the bit (session 26)."""
+    ds = drifted_carmen(real, "infinite-corridor", seed=0)
+    before = scan_to_map(ds).poses
+
+    def run(early: bool) -> tuple[np.ndarray, list[Loop]]:
+        monkeypatch.setattr(LoopCloser, "refuse_at_coarse", early)
+        poses, _, _, loops, _, _ = close_loops(ds, before, SlamConfig())
+        return poses, loops
+
+    full_poses, full = run(False)
+    poses, loops = run(True)
+    assert np.array_equal(poses, full_poses)
+    assert [(lp.a, lp.b, lp.accepted) for lp in loops] == [(lp.a, lp.b, lp.accepted) for lp in full]
+    coarse = [(lp, f) for lp, f in zip(loops, full, strict=True) if "(coarse level" in lp.reason]
+    assert len(coarse) >= 100 and any(lp.recognised for lp, _ in coarse)
+    for lp, f in coarse:
+        assert not f.accepted and f"ambiguity {f.ambiguity:.2f} >" in f.reason
+        assert np.isnan(lp.inliers) and lp.reason.startswith(f"ambiguity {lp.ambiguity:.2f} >")
+    for lp, f in zip(loops, full, strict=True):
+        if "(coarse level" not in lp.reason:
+            assert np.array_equal(lp.pose, f.pose) and lp.reason == f.reason
+            assert (lp.score, lp.inliers, lp.ambiguity) == (f.score, f.inliers, f.ambiguity)

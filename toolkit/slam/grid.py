@@ -1088,17 +1088,84 @@ def correlative_search(
 
     The coarse level is searched by branch and bound (`_bounded_starts`: the same starts,
     winner's score and runner-up, to the bit, from a fraction of the lookups); `exhaustive`
-    scores every coarse pose instead (what the bounding is checked against)."""
+    scores every coarse pose instead (what the bounding is checked against). The two levels
+    are `coarse_search` and `fine_search` (a caller may stop after the first)."""
+    level = coarse_search(
+        coarse, points, prediction, window, turn, turn_step, coarse_voxel, away, away_turn,
+        candidates, exhaustive,
+    )  # fmt: skip
+    return fine_search(level, fine, inlier_distance, fine_resolution)
+
+
+@dataclass(frozen=True)
+class CoarseLevel:
+    """`correlative_search`'s coarse level: what its fine level starts from, and the winner's
+    and runner-up's coarse scores (all the ambiguity test needs)."""
+
+    coarse: LikelihoodGrid
+    points: np.ndarray  # the query points (N x 2, float64, contiguous)
+    prediction: np.ndarray
+    turn_step: float
+    starts: list[tuple[int, int, int]]  # (heading, x, y) cells, the winner first
+    offsets: np.ndarray
+    thetas: np.ndarray
+    coarse_score: float
+    runner_up: float
+
+    @property
+    def ambiguity(self) -> float:
+        """`SearchResult.ambiguity` (the same formula on the same two scores)."""
+        return self.runner_up / max(self.coarse_score, 1e-9)
+
+    def winner(self) -> np.ndarray:
+        """The coarse winner's pose (heading wrapped): where a search stopped here puts the
+        query."""
+        a, i, j = self.starts[0]
+        pose: np.ndarray = self.prediction + np.array(
+            [self.offsets[i], self.offsets[j], self.thetas[a]]
+        )
+        pose[2] = math.atan2(math.sin(pose[2]), math.cos(pose[2]))
+        return pose
+
+
+def coarse_search(
+    coarse: LikelihoodGrid,
+    points: np.ndarray,
+    prediction: np.ndarray,
+    window: float,
+    turn: float,
+    turn_step: float,
+    coarse_voxel: float = 0.0,
+    away: float = 0.6,
+    away_turn: float = 0.15,
+    candidates: int = 3,
+    exhaustive: bool = False,
+) -> CoarseLevel:
+    """`correlative_search`'s coarse level alone (its arguments of the same names)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     coarse_pts = (
         np.ascontiguousarray(voxel_subsample(pts, coarse_voxel)) if coarse_voxel > 0 else pts
     )
-    coarse_step = coarse.resolution
     starts, coarse_score, runner_up, offsets, thetas = _coarse_level(
         coarse, coarse_pts, prediction, window, turn, turn_step, candidates, away, away_turn,
         exhaustive,
     )  # fmt: skip
-    tops = [np.array([offsets[i], offsets[j], thetas[a]]) for a, i, j in starts]
+    return CoarseLevel(
+        coarse, pts, prediction, turn_step, starts, offsets, thetas, coarse_score, runner_up
+    )
+
+
+def fine_search(
+    level: CoarseLevel,
+    fine: LikelihoodGrid | Callable[[np.ndarray, np.ndarray], LikelihoodGrid],
+    inlier_distance: float = 0.1,
+    fine_resolution: float = 0.0,
+) -> SearchResult:
+    """`correlative_search`'s fine level from its coarse level `level`."""
+    pts, prediction, turn_step = level.points, level.prediction, level.turn_step
+    offsets, thetas = level.offsets, level.thetas
+    coarse_step = level.coarse.resolution
+    tops = [np.array([offsets[i], offsets[j], thetas[a]]) for a, i, j in level.starts]
     if callable(fine):
         fine_res = fine_resolution
         fine_half = math.ceil(coarse_step / fine_res)
@@ -1129,7 +1196,7 @@ def correlative_search(
     pose = best[1].copy()
     pose[2] = math.atan2(math.sin(pose[2]), math.cos(pose[2]))
     inliers = float(np.mean(fine.distances(pts, pose) <= inlier_distance))
-    return SearchResult(pose, best[0], coarse_score, runner_up, inliers)
+    return SearchResult(pose, best[0], level.coarse_score, level.runner_up, inliers)
 
 
 def coarse_ambiguity(

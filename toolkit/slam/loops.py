@@ -41,13 +41,15 @@ from toolkit.dataset import LaserGeometry
 from toolkit.se2 import between, compose, mount_pose, wrap
 from toolkit.slam.grid import (
     _VOXEL_TABLE,
+    CoarseLevel,
     LikelihoodGrid,
     SearchResult,
     _first_in_cell,
     bounds,
     coarse_ambiguity,
     coarse_scores,
-    correlative_search,
+    coarse_search,
+    fine_search,
     inside,
     voxel_subsample,
 )
@@ -276,6 +278,61 @@ def _capped(points: np.ndarray, config: LoopConfig) -> np.ndarray | None:
     return points
 
 
+@dataclass
+class Staged:
+    """A loop search stopped after its coarse level (`_coarse`): the level, its coarse grid,
+    the reference points within reach (what the fine level needs) and, once asked, the
+    corridor test's answer on it (`LoopCloser.coarse_refusal`)."""
+
+    level: CoarseLevel
+    grid: LikelihoodGrid
+    ref: np.ndarray
+    config: LoopConfig
+    axis: np.ndarray | None = None
+    axis_known: bool = False
+
+
+def _coarse(
+    ref: np.ndarray,
+    query: np.ndarray,
+    pose: np.ndarray,
+    window: float,
+    turn: float,
+    config: LoopConfig,
+) -> Staged | None:
+    """`_search`'s coarse level: None when fewer than `min_points` reference points are within
+    reach of `query` placed at `pose`."""
+    cfg = config
+    c, sn = np.cos(pose[2]), np.sin(pose[2])
+    landed = pose[:2] + query @ np.array([[c, sn], [-sn, c]])
+    reach = np.hypot(*query.T).max() * turn + window + 0.5
+    lo, hi = bounds(landed)
+    lo, hi = lo - reach, hi + reach
+    ref = inside(ref, lo, hi)
+    if len(ref) < cfg.min_points:
+        return None
+    coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
+    level = coarse_search(
+        coarse, query, pose, window, turn, cfg.turn_step, coarse_voxel=cfg.coarse_voxel
+    )
+    return Staged(level, coarse, ref, cfg)
+
+
+def _fine(staged: Staged) -> tuple[SearchResult, LikelihoodGrid, LikelihoodGrid]:
+    """`_search`'s fine level from its coarse level `staged`."""
+    cfg, ref = staged.config, staged.ref
+    grids: list[LikelihoodGrid] = []
+
+    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
+        grids.append(
+            LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
+        )
+        return grids[-1]
+
+    found = fine_search(staged.level, fine_over, fine_resolution=cfg.fine)
+    return found, staged.grid, grids[0]
+
+
 def _search(
     ref: np.ndarray,
     query: np.ndarray,
@@ -287,37 +344,10 @@ def _search(
     """`query` matched against `ref` (the reference points within reach of the query placed at
     `pose`) by the coarse-to-fine correlative search over +-`window` m, +-`turn` rad: the
     result, the coarse grid and the first fine grid; None when fewer than `min_points`
-    reference points are within reach."""
-    cfg = config
-    c, sn = np.cos(pose[2]), np.sin(pose[2])
-    landed = pose[:2] + query @ np.array([[c, sn], [-sn, c]])
-    reach = np.hypot(*query.T).max() * turn + window + 0.5
-    lo, hi = bounds(landed)
-    lo, hi = lo - reach, hi + reach
-    ref = inside(ref, lo, hi)
-    if len(ref) < cfg.min_points:
-        return None
-    coarse = LikelihoodGrid.build(ref, cfg.coarse, cfg.coarse_sigma, margin=1.0)
-    grids: list[LikelihoodGrid] = []
-
-    def fine_over(box_lo: np.ndarray, box_hi: np.ndarray) -> LikelihoodGrid:
-        grids.append(
-            LikelihoodGrid.window(ref, cfg.fine, cfg.fine_sigma, box_lo, box_hi, margin=0.5)
-        )
-        return grids[-1]
-
-    found = correlative_search(
-        coarse,
-        fine_over,
-        query,
-        pose,
-        window=window,
-        turn=turn,
-        turn_step=cfg.turn_step,
-        coarse_voxel=cfg.coarse_voxel,
-        fine_resolution=cfg.fine,
-    )
-    return found, coarse, grids[0]
+    reference points are within reach (`_coarse`, then `_fine`: `correlative_search`'s two
+    levels)."""
+    staged = _coarse(ref, query, pose, window, turn, config)
+    return None if staged is None else _fine(staged)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -409,6 +439,11 @@ def _placed_voxelled(
 class LoopCloser:
     """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
     scans a test needs are computed when it needs them, so memory does not grow with S)."""
+
+    # a pair the coarse level alone refuses is not searched at the fine level
+    # (`coarse_refusal`; the same verdict, its Loop the coarse winner's); False: every
+    # verification in full, as before session 26 (what the shortcut is checked against)
+    refuse_at_coarse: bool = True
 
     def __init__(
         self, ranges: np.ndarray, laser: LaserGeometry, config: LoopConfig | None = None
@@ -522,10 +557,60 @@ class LoopCloser:
             points = got
         if prediction is None:
             prediction = between(poses[a], poses[b])
-        searched = self.search(radius, cfg, prediction, points)
-        if searched is None:
+        staged = self.search_coarse(radius, cfg, prediction, points)
+        if staged is None:
             return None
-        return self.judge(a, b, radius, poses, along, keys, cfg, prediction, points, searched)
+        early = self.coarse_refusal(a, b, radius, prediction, points, staged)
+        if early is not None:  # refused whatever the fine level finds: not searched
+            return early
+        searched = self.search_fine(staged)
+        return self.judge(
+            a, b, radius, poses, along, keys, cfg, prediction, points, searched, staged
+        )
+
+    def search_coarse(
+        self,
+        radius: float,
+        config: LoopConfig,
+        prediction: np.ndarray,
+        points: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> Staged | None:
+        """`search`'s coarse level alone (`_coarse`); `_fine` of it is `search`'s answer."""
+        query, _, ref = points
+        return _coarse(ref, query, prediction, radius, config.turn, config)
+
+    def search_fine(self, staged: Staged) -> tuple[SearchResult, LikelihoodGrid, LikelihoodGrid]:
+        """`search`'s fine level from its coarse level (`search_coarse`): `search`'s answer."""
+        return _fine(staged)
+
+    def coarse_refusal(
+        self,
+        a: int,
+        b: int,
+        radius: float,
+        prediction: np.ndarray,
+        points: tuple[np.ndarray, np.ndarray, np.ndarray],
+        staged: Staged,
+    ) -> Loop | None:
+        """The refused Loop when the coarse level alone decides `judge`'s verdict, else None.
+        `judge` refuses every match whose coarse ambiguity exceeds `max_ambiguity` unless the
+        corridor test (`corridor_axis`, on the coarse grid alone) finds an axis: both are the
+        coarse level's, so the fine level cannot change that verdict (not so with
+        `seen_ambiguity`, whose ambiguity is of the points seen from the fine pose). The Loop
+        is the coarse winner's (pose, coarse score; inliers NaN: not measured) and its reason
+        says so; the axis found, if any, is kept in `staged` for `judge`."""
+        cfg, level = staged.config, staged.level
+        ambiguity = level.ambiguity
+        if not self.refuse_at_coarse or cfg.seen_ambiguity or not ambiguity > cfg.max_ambiguity:
+            return None
+        if cfg.corridor:
+            staged.axis = corridor_axis(staged.grid, points[0], prediction, radius, cfg)
+            staged.axis_known = True
+            if staged.axis is not None:
+                return None
+        why = f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity} (coarse level)"
+        pose = level.winner()
+        return Loop(a, b, pose, level.coarse_score, math.nan, ambiguity, False, False, why)
 
     def search(
         self,
@@ -551,9 +636,12 @@ class LoopCloser:
         prediction: np.ndarray,
         points: tuple[np.ndarray, np.ndarray, np.ndarray],
         searched: tuple[SearchResult, LikelihoodGrid, LikelihoodGrid],
+        staged: Staged | None = None,
     ) -> Loop:
         """`verify`'s tests (overlap, inliers, ambiguity, corridor, anchors) on the search
-        `searched` of the pair (`search` with the same arguments): the Loop `verify` gives."""
+        `searched` of the pair (`search` with the same arguments): the Loop `verify` gives.
+        `staged`: its coarse level, with the corridor test's answer if `coarse_refusal` ran it
+        (the same call on the same grid: not run again)."""
         cfg = config
         query, near_a, _ = points
         found, coarse, fine = searched
@@ -581,7 +669,10 @@ class LoopCloser:
         pose, axis = found.pose, None
         if ambiguity > cfg.max_ambiguity:
             if not why and cfg.corridor:
-                axis = corridor_axis(coarse, query, prediction, radius, cfg)
+                if staged is not None and staged.axis_known:
+                    axis = staged.axis
+                else:
+                    axis = corridor_axis(coarse, query, prediction, radius, cfg)
             if axis is None:
                 why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
             else:  # along the axis the match says nothing: keep the trajectory's position

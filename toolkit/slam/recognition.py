@@ -350,9 +350,28 @@ def find(
         points = closer.pair_points(a, b, poses, along, keys, verify_cfg)
         if points is None:
             continue
-        searched = closer.search(cfg.window, verify_cfg, prediction, points)
-        if searched is None:
+        staged = closer.search_coarse(cfg.window, verify_cfg, prediction, points)
+        if staged is None:
             continue
+        both = cfg.turn < np.pi / 2 and not cfg.opposite_if_passed
+        flipped = np.array([0.0, 0.0, wrap(heading + np.pi)])
+        other_staged = None
+        early = closer.coarse_refusal(a, b, cfg.window, prediction, points, staged)
+        if early is not None and both:
+            # refused whatever the fine levels find only when the opposite heading's winner
+            # would be refused too (or there is none): it wins when it scores higher
+            other_staged = closer.search_coarse(cfg.window, verify_cfg, flipped, points)
+            if other_staged is not None and (
+                closer.coarse_refusal(a, b, cfg.window, flipped, points, other_staged) is None
+            ):
+                early = None
+            else:
+                early.reason += ", both headings"
+        if early is not None:
+            early.recognised = True
+            out.append(early)
+            continue
+        searched = closer.search_fine(staged)
         other, loop = None, None
         if cfg.turn < np.pi / 2 and cfg.opposite_if_passed:
             # the descriptor's heading tested first: refused, the pair is refused without
@@ -369,8 +388,9 @@ def find(
             # symmetric room looks alike turned round); the better wins, and the other
             # scoring within `max_ambiguity` of it is an ambiguity. Only the winner is
             # tested (`judge`): the other's score is all that is used of it
-            flipped = np.array([0.0, 0.0, wrap(heading + np.pi)])
-            other = closer.search(cfg.window, verify_cfg, flipped, points)
+            if other_staged is None:
+                other_staged = closer.search_coarse(cfg.window, verify_cfg, flipped, points)
+            other = None if other_staged is None else closer.search_fine(other_staged)
             if other is not None and other[0].score > searched[0].score:
                 prediction, searched, other = flipped, other, searched
                 loop = None

@@ -4,8 +4,9 @@ RUN/ gains:
     graph.g2o     the pose graph (VERTEX_SE2 per keyframe, its scan index as id; EDGE_SE2
                   sequential and loop edges with their information), optimised poses
     loops.csv     every verified loop candidate: scans a, b, relative pose, score, inliers,
-                  ambiguity, accepted, reason (why not kept; with ground truth, its
-                  residual and `false`)
+                  ambiguity, accepted, reason (why not kept; "(coarse level)": refused
+                  as ambiguous by the coarse search alone, its pose and score the coarse
+                  winner's, no inliers; with ground truth, its residual and `false`)
     map.png       odometry / before loops / after loops side by side
     map.pgm/.yaml the occupancy grid (ROS map_server)
 and metrics.json the loops, the time of each stage, the sequential estimate's errors and the
