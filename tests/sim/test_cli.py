@@ -124,3 +124,30 @@ def test_building_laps_drive_the_ring_again_with_the_scans_growing(
     )
     assert code == 1 and "laps" in err and "Traceback" not in err
     assert not (tmp_path / "c").exists()
+
+
+def test_a_swaying_scanner_from_the_command_line_and_again_from_its_record(
+    tmp_path: Path, cli: Cli
+) -> None:
+    out = tmp_path / "sway"
+    code, stdout, _ = cli(
+        "simulate", "building", "-p", "sway=0.3", "-p", "sway_period=2", "--scans", "300",
+        "--out", str(out), "-f", "dataset",
+    )  # fmt: skip
+    assert code == 0, stdout
+    record = json.loads((out / "simulation.json").read_text())["params"]
+    assert (record["sway"], record["sway_period"]) == (0.3, 2.0)
+    again = tmp_path / "again"
+    code, _, _ = cli(
+        "simulate", "building", "--out", str(again), "-f", "dataset",
+        "--config", str(out / "simulation.json"),
+    )  # fmt: skip
+    assert code == 0
+    pd.testing.assert_frame_equal(
+        pd.read_parquet(again / "truth.parquet"), pd.read_parquet(out / "truth.parquet")
+    )
+    code, _, err = cli(
+        "simulate", "corridor", "-p", "sway=-1", "--out", str(tmp_path / "c"), "-f", "dataset"
+    )
+    assert code == 1 and "sway must be" in err and "Traceback" not in err
+    assert not (tmp_path / "c").exists()

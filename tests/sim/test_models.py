@@ -253,3 +253,24 @@ def test_unknown_parameter_is_a_clear_error() -> None:
         simulate("corridor", units="inch")
     with pytest.raises(ToolkitError, match="scans=many for the simulator: expected integer"):
         simulate("corridor", scans="many")
+
+
+def test_sway_swings_the_heading_about_the_path_and_leaves_the_default_log_as_it_was() -> None:
+    plain = simulate("building", seed=5, scans=300)
+    zero = simulate("building", seed=5, scans=300, sway=0)
+    np.testing.assert_array_equal(plain.dataset.ranges, zero.dataset.ranges)
+    assert plain.params == zero.params and "sway" not in plain.params
+    held = simulate("building", seed=5, scans=300, sway="0.5", sway_period=2)
+    assert held.params["sway"] == 0.5 and held.params["sway_period"] == 2.0
+    a, b = plain.dataset.groundtruth, held.dataset.groundtruth
+    assert a is not None and b is not None
+    np.testing.assert_array_equal(a[["x", "y"]].to_numpy(), b[["x", "y"]].to_numpy())
+    t = plain.dataset.t - plain.dataset.t[0]
+    swing = b["theta"].to_numpy() - a["theta"].to_numpy()
+    # t is kept to the ms, the swing drawn at the exact times: 1.6 rad/s x 0.5 ms at most
+    np.testing.assert_allclose(swing, 0.5 * np.sin(np.pi * t), atol=1e-3)
+    assert not np.array_equal(plain.dataset.ranges, held.dataset.ranges, equal_nan=True)
+    with pytest.raises(ToolkitError, match="sway must be at least 0"):
+        simulate("corridor", sway=-0.1)
+    with pytest.raises(ToolkitError, match="sway_period=soon for the simulator"):
+        simulate("corridor", sway=0.1, sway_period="soon")

@@ -45,6 +45,7 @@ P = ParamSpec("P")
 R = TypeVar("R")
 
 Variant = Literal["text", "paper"]
+ProbeAxis = Literal["heading", "motion"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,9 @@ class MatchConfig:
     settle_turn: float = 1e-4  # ... and turns it less than this
     restart_turn: float = 0.01  # estimate this far from odometry (rad; < 0: never) ...
     restart_shift: float = 0.05  # ... or this far (m): refine again, started from it
+    probe_axis: ProbeAxis = "heading"  # without odometry, the forward probe (whether the fit
+    # observes the motion) along the heading (a vehicle) or along the predicted motion
+    # (motion: a hand-held scanner whose heading sways off its path; expert)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -7,7 +7,8 @@
     sim.labels, sim.regions, sim.sections     # true place per scan, training regions, sections
 
 Parameters (keyword arguments of `simulate`, options of `toolkit simulate`): the scenario's
-`scans`, `speed` (m/s), `turn_rate` (rad/s), `t0` (s); every field of `LaserModel`
+`scans`, `speed` (m/s), `turn_rate` (rad/s), `t0` (s); `sway` (rad, 0: none) and `sway_period`
+(s), a hand-held scanner's heading swept side to side about the path's; every field of `LaserModel`
 (toolkit/sim/laser.py) and of `OdometryModel` (toolkit/sim/odometry.py). Everything random
 draws from one numpy Generator seeded by `seed`: the same seed gives the same log.
 """
@@ -45,6 +46,7 @@ __all__ = [
 ]
 
 PATH_PARAMS: dict[str, type] = {"scans": int, "speed": float, "turn_rate": float, "t0": float}
+SWAY_PERIOD = 4.0  # s: one sweep left and right of a hand-held scanner's `sway`
 # "random": a new world per seed (toolkit/sim/procedural.py), its parameter `route` the path
 SCENARIOS: dict[str, Any] = {**FIXED_SCENARIOS, "random": random_world}
 
@@ -174,14 +176,29 @@ def _yes(value: Param, name: str = "entered") -> bool:
     return bool(convert(value, bool, name, "the simulator"))
 
 
+def _sway(params: dict[str, Param]) -> tuple[float, float]:
+    """`sway` (rad) and `sway_period` (s), taken out of `params` and checked."""
+    amp, period = params.pop("sway", None), params.pop("sway_period", None)
+    sway = cast(float, convert(amp, float, "sway", "the simulator")) if amp is not None else 0.0
+    every = SWAY_PERIOD
+    if period is not None:
+        every = cast(float, convert(period, float, "sway_period", "the simulator"))
+    if sway < 0 or every <= 0:
+        raise ToolkitError("sway must be at least 0 and sway_period positive")
+    return float(sway), float(every)
+
+
 def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
     `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`, and
     `entered`: true for a path that also enters rooms, and `brief`: with it, small rooms
     entered briefly; for "building", `laps`: times round the ring)."""
+    sway, period = _sway(params)
     scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
     truth, times = sample_path(scn.waypoints, scn.scans, scn.speed, scn.turn_rate)
+    if sway > 0:  # a hand-held scanner: turning fast (peak sway * 2 pi / period rad/s) all along
+        truth[:, 2] += sway * np.sin(2.0 * np.pi * times / period)
     t = np.round(scn.t0 + times, 3)  # whole ms: every format (ARIA prints ms) keeps t exactly
     with task(f"simulate {scenario}", total=len(truth)) as (bar, job):
         ranges = laser.measure(scn.world, truth, rng, lambda n: bar.advance(TaskID(job), n))
@@ -196,6 +213,7 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
         **({"entered": True} if _yes(params.get("entered") or False) else {}),
         **({"brief": True} if _yes(params.get("brief") or False, "brief") else {}),
         **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
+        **({"sway": sway, "sway_period": period} if sway > 0 else {}),
         **laser.to_dict(),
         **odometry.to_dict(),
         "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),

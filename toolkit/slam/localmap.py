@@ -98,6 +98,7 @@ class MotionMatcher(sc.StreamMatcher):
         self.probe_filters = probe_filters
         self._probed = 0  # scans since the last probe
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
+        self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame)
         self._dt = 0.0
         self._t: float | None = None
 
@@ -130,23 +131,48 @@ class MotionMatcher(sc.StreamMatcher):
             moved = se2.between(self._last[None], pose[None])[0]
             if self._known:
                 gain = np.full(3, self.gain)
-                if self.probe_filters:
-                    gain[0] *= self.response**2  # 1.0 without the probe
-                self._step = self._step + gain * (moved - self._step)
+                if self.probe_filters and self.config.probe_axis == "motion":
+                    u = self._axis  # the response's along the probed axis, full gain across
+                    along, rest = self.gain * self.response**2, self.gain
+                    d = moved - self._step
+                    d_along = float(d[:2] @ u)
+                    self._step = (
+                        self._step
+                        + np.r_[along * d_along * u + rest * (d[:2] - d_along * u), rest * d[2]]
+                    )
+                else:
+                    if self.probe_filters:
+                        gain[0] *= self.response**2  # 1.0 without the probe
+                    self._step = self._step + gain * (moved - self._step)
             else:
                 self._step, self._known = moved, True
         self._last = pose
         self._t = t
         return pose
 
+    def _probe_axis(self) -> np.ndarray:
+        """Unit vector (robot frame) to probe along: the heading, or with `probe_axis`
+        "motion" the velocity's translation where it moves (1 mm a scan or more)."""
+        v = self._step[:2]
+        norm = float(np.hypot(v[0], v[1]))
+        if self.config.probe_axis == "motion" and norm >= 1e-3:
+            return np.asarray(v / norm)
+        return np.array([1.0, 0.0])
+
     def _forward_response(self, ranges: np.ndarray, predicted: np.ndarray) -> float:
         """The share (0..1) of a `probe_shift` forward offset of the prediction that the fit
         takes out: the scan fitted from the prediction moved forward and moved back."""
         d = self.probe_shift
         around = np.broadcast_to(predicted, (2, 3))
-        seeds = se2.compose(around, np.array([[-d, 0.0, 0.0], [d, 0.0, 0.0]]))
-        fitted = np.array([self.probe(ranges, seed) for seed in seeds])
-        back, ahead = se2.between(around, fitted)[:, 0]
+        if self.config.probe_axis == "motion":
+            u = self._axis = self._probe_axis()
+            offsets = np.array([[-d * u[0], -d * u[1], 0.0], [d * u[0], d * u[1], 0.0]])
+            fitted = np.array([self.probe(ranges, seed) for seed in se2.compose(around, offsets)])
+            back, ahead = se2.between(around, fitted)[:, :2] @ u
+        else:
+            seeds = se2.compose(around, np.array([[-d, 0.0, 0.0], [d, 0.0, 0.0]]))
+            fitted = np.array([self.probe(ranges, seed) for seed in seeds])
+            back, ahead = se2.between(around, fitted)[:, 0]
         kept = (ahead - back) / (2 * d)  # 1: the fit kept the offset; 0: took it out
         return float(min(max(1.0 - kept, 0.0), 1.0))
 

@@ -96,8 +96,9 @@ def simulate_command(
             "--param",
             "-p",
             metavar="KEY=VALUE",
-            help="any model parameter, repeatable: scans, speed, turn_rate, t0 or a field of "
-            "LaserModel or OdometryModel (toolkit/sim)",
+            help="any model parameter, repeatable: scans, speed, turn_rate, t0, sway, "
+            "sway_period (a hand-held scanner's swing) or a field of LaserModel or "
+            "OdometryModel (toolkit/sim)",
         ),
     ] = None,
     option: Annotated[
