@@ -41,7 +41,8 @@ def simulate_command(
             metavar="SCENARIO",
             help="corridor (the paper's Fig. 1), building (-p laps=N: N times round its ring, "
             "for loop closure), or random (a new world per --seed; -p route=1: the other way "
-            "through it)",
+            "through it; -p entered=true: into rooms and turning there; with it -p brief=true: "
+            "short visits to small rooms as well)",
         ),
     ],
     out: Annotated[Path, typer.Option("--out", metavar="DIR", help="directory to write")],
