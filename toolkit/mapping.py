@@ -290,16 +290,20 @@ def matcher_of(
     slam_config: SlamConfig | None = None,
     odometry: bool = True,
 ) -> str | None:
-    """Which sequential matcher maps a dataset with `odometry` or not by these settings, as
-    `slam_trajectory` and `build` decide it: scan-to-map with loops, gaussian, the "map" front
-    end and odometry; else the pair matcher (ICP's for icp); None by odometry."""
+    """Which sequential matcher maps a dataset with `odometry` or not by these settings:
+    scan-to-map with loops where `SlamConfig.maps_scan_to_map` (as `slam_trajectory` decides
+    it), else the pair matcher (ICP's for icp); None by odometry."""
     method = Method.parse(method)
     if method == Method.ODOMETRY:
         return None
     if method in ICP_METHODS:
         return ICP
-    front_end = slam_config.front_end if slam_config is not None else "map"  # SlamConfig's
-    return SCAN_TO_MAP if loops and front_end == "map" and odometry else PAIRS
+    if not loops:
+        return PAIRS
+    from toolkit.slam.pipeline import SlamConfig  # noqa: PLC0415 (on use: the mapper)
+
+    mapper = slam_config or SlamConfig()
+    return SCAN_TO_MAP if mapper.maps_scan_to_map(method, odometry) else PAIRS
 
 
 def has_odometry(dataset: Path) -> bool:

@@ -127,6 +127,12 @@ class SlamConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def maps_scan_to_map(self, method: str, with_odometry: bool) -> bool:
+        """Whether a log is matched by the scan-to-map front end (`scan_map`): the gaussian
+        method, the "map" front end and odometry for its motion model; else the keyframe
+        front end (the pair matcher, or ICP). The one place this is decided."""
+        return method == "gaussian" and self.front_end == "map" and with_odometry
+
 
 @dataclass
 class SlamResult:

@@ -114,7 +114,7 @@ def slam_trajectory(
     slam = slam or SlamConfig()
     t0 = time.perf_counter()
     with_odometry = odometry_poses(ds) is not None
-    if method == "gaussian" and slam.front_end == "map" and with_odometry:
+    if slam.maps_scan_to_map(method, with_odometry):
         # sequential by nature: runs here even when a cluster `matcher` is given (which
         # matches independent scan pairs), so a run gives the same poses on a cluster or not
         result = scan_to_map(ds, slam.scan_map, progress)
