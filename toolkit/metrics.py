@@ -179,3 +179,65 @@ def relation_error_motions(est_motion: np.ndarray, true_motion: np.ndarray) -> d
         "rotation_mean_deg": float(er.mean()),
         "rotation_std_deg": float(er.std()),
     }
+
+
+@dataclass(frozen=True)
+class SharedError:
+    """Repeated runs' error of relative motion over `distance` m of the truth's path, split
+    into the part every run has (`common`: the truth's own error, or a bias of the method no
+    run escapes) and each run's own (`own`: run-to-run noise). RMS over the pose pairs and
+    runs; total^2 = own^2 + common^2. Translation in m, rotation in rad."""
+
+    distance: float
+    translation: float
+    translation_own: float
+    translation_common: float
+    rotation: float
+    rotation_own: float
+    rotation_common: float
+    pairs: int
+    runs: int
+
+
+def shared_error(runs: list[np.ndarray], truth: np.ndarray, distance: float) -> SharedError:
+    """The error of each run's motion from every pose i to the first pose `distance` m of the
+    truth's path later, against the truth's, split by the runs' agreement: the own part from
+    the differences of the runs' errors (pairwise, halved), the common part the rest. Why: the
+    corrected poses real logs give as truth are a SLAM output themselves; a part of the error
+    that drift seeds, starting poses and other matchers all share is no run's own
+    (docs/journal/maps.md, session 27). Needs two runs or more."""
+    if len(runs) < 2:
+        raise ValueError("the split needs two runs or more")
+    checked = [_check(run, truth) for run in runs]
+    truth = checked[0][1]
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth[:, :2], axis=0).T))])
+    later = np.searchsorted(along, along + distance)
+    i = np.nonzero(later < len(truth))[0]
+    j = later[i]
+    true_motion = between(truth[i], truth[j])
+    errors = []
+    for est, _ in checked:
+        e = between(true_motion, between(est[i], est[j]))
+        e[:, 2] = wrap(e[:, 2])
+        errors.append(e)
+    err = np.stack(errors)  # runs x pairs x 3
+    if err.shape[1] == 0:
+        return SharedError(distance, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, len(runs))
+    a, b = np.triu_indices(len(runs), k=1)
+    diff = err[a] - err[b]
+    diff[..., 2] = wrap(diff[..., 2])
+    total_t = float(np.mean(np.sum(err[..., :2] ** 2, axis=-1)))
+    total_r = float(np.mean(err[..., 2] ** 2))
+    own_t = float(np.mean(np.sum(diff[..., :2] ** 2, axis=-1))) / 2.0
+    own_r = float(np.mean(diff[..., 2] ** 2)) / 2.0
+    return SharedError(
+        distance,
+        float(np.sqrt(total_t)),
+        float(np.sqrt(own_t)),
+        float(np.sqrt(max(total_t - own_t, 0.0))),
+        float(np.sqrt(total_r)),
+        float(np.sqrt(own_r)),
+        float(np.sqrt(max(total_r - own_r, 0.0))),
+        len(i),
+        len(runs),
+    )

@@ -12,7 +12,7 @@ import pytest
 import toolkit
 from toolkit import se2
 from toolkit.align import scan as sc
-from toolkit.metrics import ATE, RPE, Failures, align_se2, evaluate
+from toolkit.metrics import ATE, RPE, Failures, align_se2, evaluate, shared_error
 from toolkit.poses import build, compose_refs, compose_steps, poses_at, truth_poses, with_drift
 from toolkit.sim import simulate
 
@@ -81,6 +81,39 @@ def test_metrics_on_known_errors() -> None:
     assert rpe.translation == pytest.approx(np.sqrt(0.3**2 / 200), rel=1e-6)
     assert rpe.rotation == pytest.approx(np.sqrt(np.deg2rad(6) ** 2 / 200), rel=1e-6)
     assert evaluate(bad, truth)["ate"]["rmse"] > 0.1
+
+
+def _headings_noised(truth: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """`truth` rebuilt from its steps with N(0, sigma) rad added to each step's turn."""
+    steps = se2.between(truth[:-1], truth[1:])
+    steps[:, 2] += rng.normal(0.0, sigma, len(steps))
+    return compose_steps(truth[0], steps)
+
+
+def test_shared_error_splits_a_common_error_from_each_runs_own() -> None:
+    """Runs that all inherit one heading error per step (a truth off by it) plus their own:
+    the split recovers both over 10 steps (sigma * sqrt(10)); runs with no common error show
+    (nearly) none; identical runs have no own part."""
+    rng = np.random.default_rng(3)
+    steps = np.column_stack([np.full(2000, 0.5), np.zeros(2000), rng.normal(0, 0.05, 2000)])
+    truth = compose_steps(np.zeros(3), steps)  # 0.5 m apart: 4.9 m of path is 10 steps
+    common, own = 0.004, 0.002
+    shared = _headings_noised(truth, common, rng)
+    runs = [_headings_noised(shared, own, rng) for _ in range(6)]
+    got = shared_error(runs, truth, 4.9)
+    assert got.runs == 6 and got.pairs == len(truth) - 10
+    assert got.rotation_common == pytest.approx(common * np.sqrt(10), rel=0.1)
+    assert got.rotation_own == pytest.approx(own * np.sqrt(10), rel=0.1)
+    assert got.rotation**2 == pytest.approx(got.rotation_own**2 + got.rotation_common**2)
+    alone = shared_error([_headings_noised(truth, own, rng) for _ in range(6)], truth, 4.9)
+    assert alone.rotation_common < 0.3 * alone.rotation_own
+    assert alone.rotation_own == pytest.approx(own * np.sqrt(10), rel=0.1)
+    same = shared_error([shared, shared.copy()], truth, 4.9)
+    assert same.rotation_own == 0.0 and same.translation_own == 0.0
+    assert same.rotation_common == pytest.approx(common * np.sqrt(10), rel=0.1)
+    assert same.translation_common > 0.0
+    with pytest.raises(ValueError, match="two runs"):
+        shared_error([shared], truth, 4.9)
 
 
 @pytest.mark.parametrize("scenario", ["corridor", "building"])
