@@ -122,6 +122,10 @@ class Config:
     # scan has a tenth of its beams reaching past this (a junction, a way seen across); an
     # enclosed turn keeps each scan's own evidence and weight, as without pooling (its few
     # headings are all there is of a small place). classify.pool_turns; 0: every turn pooled
+    turn_pool_door: int = 0  # with `turn_pool_reach`: a far-seeing turn with an enclosed turn
+    # among this many turns before or after it (the turn at a doorway, beside a room's first or
+    # last scans) is not pooled either: its room-facing headings keep their weight for the
+    # room's short stay (0: off; 2 also reaches past a room's last scan seeing out of its door)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -316,6 +320,10 @@ class Config:
             raise ToolkitError("turn_pool, sparse_turn_pool: m, 0 or more")
         if self.turn_pool_reach < 0:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
+        if self.turn_pool_door < 0:
+            raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
+        if self.turn_pool_door and not self.turn_pool_reach:
+            raise ToolkitError("turn_pool_door needs turn_pool_reach (what a turn sees far is)")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
