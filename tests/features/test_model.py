@@ -301,6 +301,13 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     # before session 25, a door's zone past its opening stayed corridor
     marginless = {k: v for k, v in now.items() if k != "room_margin"}
     assert Config.from_dict(marginless).room_margin == 0.0 < Config().room_margin
+    # before session 27, a sparse log's turns on the spot were not pooled, and the expert's
+    # pooled turn took the mean over every turn
+    unpooled = {k: v for k, v in now.items() if "turn_pool" not in k}
+    old = Config.from_dict(unpooled)
+    assert (old.sparse_turn_pool, old.turn_pool_rule, old.turn_pool_reach) == (None, "mean", 0.0)
+    assert old.turn_pool_door == 0 < Config().turn_pool_door
+    assert Config().sparse_turn_pool == 0.3 and Config().turn_pool == 0.0  # dense: none
 
 
 def test_background_density_integrates_to_one() -> None:

@@ -225,6 +225,16 @@ def turn_reach(ranges: np.ndarray, first: np.ndarray) -> np.ndarray:
     return np.asarray(np.maximum.reduceat(reach, first))
 
 
+def doorway_free(far: np.ndarray, k: int) -> np.ndarray:
+    """Per turn, whether it sees far (`far`) and none of the `k` turns before or after it is
+    enclosed: a turn at a doorway, next to a room's first or last scans, is not."""
+    if not k or not len(far):
+        return np.asarray(far)
+    enclosed = np.r_[np.zeros(k, dtype=bool), ~far, np.zeros(k, dtype=bool)]
+    near = np.lib.stride_tricks.sliding_window_view(enclosed, 2 * k + 1).any(axis=1)
+    return np.asarray(far & ~near)
+
+
 def pool_turns(
     config: Config,
     scores: np.ndarray,
@@ -239,7 +249,10 @@ def pool_turns(
     headings one vote, not four for the room they look like across; a room's turn still its
     room's. With `turn_pool_reach` (and `ranges`), a turn that does not see that far
     (`turn_reach`) is left as without pooling: an enclosed spot's few headings are all the
-    evidence of a short stay. Without poses: `evidence_weights` alone."""
+    evidence of a short stay; with `turn_pool_door` k, so is a far-seeing turn with an
+    enclosed one among the k turns before or after it (the turn at a doorway: a room's first or
+    last scans are next to it, and its headings that face the room are that short stay's
+    evidence too). Without poses: `evidence_weights` alone."""
     n = len(scores)
     own = np.asarray(scores * evidence_weights(config, n, poses)[:, None])
     if poses is None or len(poses) != n or n == 0 or not config.turn_pool:
@@ -256,7 +269,7 @@ def pool_turns(
     out = np.asarray(pooled[group] * share[group, None])
     if config.turn_pool_reach and ranges is not None and len(ranges) == n:
         far = turn_reach(ranges, first) > config.turn_pool_reach
-        out = np.where(far[group, None], out, own)
+        out = np.where(doorway_free(far, config.turn_pool_door)[group, None], out, own)
     return out
 
 

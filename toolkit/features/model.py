@@ -117,11 +117,18 @@ class Config:
     # their log-probabilities), weighing together what their path without turning weighs:
     # one view of the spot from every heading, one vote (classify.pool_turns; 0: each scan
     # its own)
-    turn_pool_rule: TurnPool = "mean"  # "max": per place the largest over the turn's scans
-    turn_pool_reach: float = 0.0  # m: only a turn that sees far is pooled, one in which some
+    turn_pool_rule: TurnPool = "max"  # per place the largest over the turn's scans; "mean"
+    # (the default until session 27): their mean
+    turn_pool_reach: float = 6.0  # m: only a turn that sees far is pooled, one in which some
     # scan has a tenth of its beams reaching past this (a junction, a way seen across); an
     # enclosed turn keeps each scan's own evidence and weight, as without pooling (its few
     # headings are all there is of a small place). classify.pool_turns; 0: every turn pooled
+    # (the default until session 27)
+    turn_pool_door: int = 2  # with `turn_pool_reach`: a far-seeing turn with an enclosed turn
+    # among this many turns before or after it (the turn at a doorway, beside a room's first or
+    # last scans) is not pooled either: its room-facing headings keep their weight for the
+    # room's short stay (0: off, the default until session 27; 2 also reaches past a room's
+    # last scan that sees out of its door; nothing with `turn_pool_reach` 0)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -189,8 +196,10 @@ class Config:
     # neighbouring scans pool what their descriptors cannot (0: each scan alone)
     sparse_turn_length: float | None = None  # the HMM's `turn_length` where the scans are
     # too far apart for the context (None: `turn_length`)
-    sparse_turn_pool: float | None = None  # the HMM's `turn_pool` where the scans are too
-    # far apart for the context (None: `turn_pool`)
+    sparse_turn_pool: float | None = 0.3  # the HMM's `turn_pool` where the scans are too
+    # far apart for the context (None: `turn_pool`, the default until session 27): a turn on
+    # the spot one view where it sees far and is not at a doorway (docs/journal/places.md,
+    # session 27)
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -316,6 +325,8 @@ class Config:
             raise ToolkitError("turn_pool, sparse_turn_pool: m, 0 or more")
         if self.turn_pool_reach < 0:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
+        if self.turn_pool_door < 0:
+            raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
@@ -360,7 +371,9 @@ class Config:
 #: rules apply to), and (learnt) a door's closed and opened copies where glass lay across
 #: (the learning-only fields too, so that a loaded model's config says how it was learnt),
 #: and kept a window call where a room was seen beside the laser (one saved after session 24
-#: names its glass and room places, ("window", "door"), in its config: applied as before)
+#: names its glass and room places, ("window", "door"), in its config: applied as before);
+#: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
+#: expert's) took the mean over every turn
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -376,6 +389,10 @@ LEGACY: dict[str, Any] = {
     "narrow_places": ("door",),
     "glass_to": (),
     "room_margin": 0.0,
+    "sparse_turn_pool": None,
+    "turn_pool_rule": "mean",
+    "turn_pool_reach": 0.0,
+    "turn_pool_door": 0,
 }
 
 
