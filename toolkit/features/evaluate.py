@@ -34,8 +34,8 @@ short visits (`random_world(..., brief=True)`).
 The default seeds, 100-119, were the first held-out set. Each session since has held out a
 fresh set, run only to measure and then spent for development (300-319, 400-419, 500-519,
 600-619, 700-719, 800-819, 900-919, 2000-2019, 2020-2039, 2040-2059, 2060-2079, 2080-2099, 2100-2119,
-2120-2139; docs/places.md): a new held-out figure needs seeds never run before, their transfer
-worlds (seed + 1000) included (2140 and up)."""
+2120-2139, 2140-2159; docs/places.md): a new held-out figure needs seeds never run before, their
+transfer worlds (seed + 1000) included (2160 and up)."""
 
 from __future__ import annotations
 
