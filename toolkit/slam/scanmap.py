@@ -122,6 +122,12 @@ class MapConfig:
     # odometry's position 1.24 m from the right pose, which the search found on its edge and
     # whose fit was then refused as slid out of the window (51.8 -> 0.36 m); on the ten real
     # logs x seeds 0-11 it changes 2 runs of 120 (docs/journal/maps.md, session 22)
+    recheck: int = 0  # > 0: a searched step (with odometry) whose candidates (the
+    # prediction, its fit, the search's fit) lie apart from the pose taken is fitted again
+    # once this many later scans are in the map (without its own keyframe), from each of
+    # them and from its pose; the best refit replaces its pose and keyframe if it fits
+    # `recheck_gain` more of its returns (`_recheck`; 0: off, session 27: no gain measured)
+    recheck_gain: float = 0.05
     search_gate: float = 5.0  # a search result whose step no heading slip of the odometry's
     # explains (beyond this many sigmas of the prior's translation spread: `slipped`) is an
     # alias: the fit restarts from the slips with its heading instead (0: off)
@@ -521,6 +527,27 @@ def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _compose(inv, b)
 
 
+@dataclass
+class _Pending:
+    """A searched scan awaiting its recheck (`MapConfig.recheck`): its returns, ranges, pose,
+    prior information, keyframe (None: it became none), the candidate poses apart from its
+    pose, and the scans matched since."""
+
+    pts: np.ndarray
+    ranges: np.ndarray
+    pose: np.ndarray
+    info: np.ndarray
+    key: tuple[float, np.ndarray, np.ndarray] | None
+    candidates: list[np.ndarray]
+    later: int
+
+
+def _apart(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two poses are another solution, not the same one (0.1 m or 1 degree apart)."""
+    turn = math.atan2(math.sin(a[2] - b[2]), math.cos(a[2] - b[2]))
+    return math.hypot(a[0] - b[0], a[1] - b[1]) > 0.1 or abs(turn) > math.radians(1.0)
+
+
 class MapMatcher:
     """Scan-to-map matching one scan at a time: `push(ranges, odometry, t)` returns the robot
     pose. Keeps the window's keyframes (their segments) and the grid."""
@@ -553,6 +580,12 @@ class MapMatcher:
         self._scale_searched = 0  # searches seen by the scale's learner
         self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
         # pose and path: where a slip that its fit could not see happened
+        self._candidates: list[np.ndarray] = []  # the last search's starts (`recheck`)
+        self._pending: deque[_Pending] = deque()  # searched scans awaiting their recheck
+        self.revised: list[tuple[int, np.ndarray]] = []  # after `push`: (scans back, pose)
+        # of each earlier scan whose pose its recheck replaced
+        self.rechecks = 0  # searched scans fitted again (`recheck`) ...
+        self.replaced = 0  # ... and those whose pose the refit replaced
         self._motion = MotionMatcher(laser, gain=1.0, probe=0.0)  # as measured (docs/maps.md)
         self._mount = se2.mount_pose(laser)
         self._cos = np.cos(laser.angles + self._mount[2])  # the beams' directions, once
@@ -616,11 +649,24 @@ class MapMatcher:
             self._anchor = None
         elif self._anchor is None:
             self._anchor = (pose.copy(), self._path)
+        if cfg.recheck > 0:
+            self.revised = []
+            for pending in self._pending:
+                pending.later += 1
+        keys = len(self._keys)
         if not (unverified and cfg.defer_sparse) and (
             math.hypot(since[0], since[1]) >= cfg.keyframe_distance
             or abs(since[2]) >= cfg.keyframe_angle
         ):
             self._add_key(pose, ranges)
+        if cfg.recheck > 0 and self._candidates:
+            # a searched step whose candidates differ: the next scans say which is right
+            others = [c for c in self._candidates if _apart(c, pose)]
+            if others:
+                key = self._keys[-1] if len(self._keys) > keys else None
+                self._pending.append(_Pending(pts, np.asarray(ranges), pose, info, key, others, 0))
+        while self._pending and self._pending[0].later >= cfg.recheck:
+            self._recheck(self._pending.popleft())
         return pose
 
     def _match(
@@ -659,6 +705,8 @@ class MapMatcher:
         fit(predicted, info, out, cov)
         if by_odometry and cfg.slip_sigmas > 0 and out[4] >= cfg.min_inliers:
             self._slip_free(fit, predicted, info, out, cov)
+        self._candidates = []
+        first = out[:3].copy()
         if out[4] < cfg.min_inliers and len(pts) >= SEARCH_MIN:
             # after scans too sparse to verify, a slip may lie back at the first of them (its
             # fit failed): the step is taken from its pose (its position is right, its heading
@@ -672,6 +720,7 @@ class MapMatcher:
             out2, cov2, clear = self._search_fit(
                 fit, pts, predicted, info, base, window, cfg.search_turn, by_odometry
             )
+            found = [out2]
             if out2[4] > out[4] + 0.1 and (clear or out2[4] >= cfg.lost):
                 # a winner that is not clear and fits fewer than `lost` of the returns
                 # verifies nothing (freiburg-campus seed 9, scan 931: a 46 degree alias
@@ -689,11 +738,82 @@ class MapMatcher:
                     out, cov = out3, cov3
             if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
                 self._unturned(fit, predicted, info, out, cov)
+            if logged and by_odometry and cfg.recheck > 0:
+                # what the recheck fits again: the prediction, its fit, the searches' fits
+                self._candidates = [predicted, first] + [f[:3].copy() for f in found if f[4] >= 0]
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(pts, predicted, info, out, cov)
         self.stats = out
         self.covariance = cov
         return out[:3].copy()
+
+    def _recheck(self, pending: _Pending) -> None:
+        """Fit a searched scan again once `recheck` later scans are in the map, against the
+        map without its own keyframe, from its candidates and from its own pose (the
+        odometry's translation spread as prior, the heading free); take the best refit if it
+        fits `recheck_gain` more of the scan's returns than its own pose's refit: its pose
+        (`revised`, for the caller) and its keyframe (the grid rebuilt) move there. A
+        search's winner can be an alias of a map that had not yet seen where the robot went;
+        the scans after it have."""
+        self.rechecks += 1
+        assert self._grid is not None
+        cfg = self.config
+        origin, dist = self._grid
+        if pending.key is not None:
+            dist = np.full_like(dist, cfg.cap)  # the map without the scan's own keyframe
+            for key in self._keys:
+                if key is not pending.key:
+                    stamp_segments(dist, origin, cfg.resolution, key[2], cfg.cap)
+        prior = pending.info * _HEADING_FREE
+
+        def refit(start: np.ndarray) -> np.ndarray:
+            res = np.zeros(_OUT)
+            _fit(
+                dist,
+                origin,
+                cfg.resolution,
+                pending.pts,
+                start,
+                start,
+                prior,
+                cfg.iterations,
+                cfg.gate,
+                cfg.sigma_min,
+                cfg.inlier_distance,
+                cfg.degenerate,
+                cfg.min_information,
+                res,
+                np.zeros((3, 3)),
+            )
+            return res
+
+        own = refit(pending.pose)
+        best = max((refit(c) for c in pending.candidates), key=lambda r: float(r[4]))
+        if best[4] < own[4] + cfg.recheck_gain or not _apart(best, pending.pose):
+            return
+        pose = best[:3].copy()
+        self.replaced += 1
+        self.revised.append((pending.later, pose))
+        for i, key in enumerate(self._keys):
+            if key is pending.key:
+                placed = _placed_surfaces(
+                    pending.ranges.astype(np.float64),
+                    self._cos,
+                    self._sin,
+                    self._mount,
+                    cfg.max_range + cfg.map_margin,
+                    cfg.join * abs(self.laser.angle_increment),
+                    math.cos(cfg.join_angle),
+                    cfg.join_max,
+                    cfg.lone_range,
+                    pose,
+                )
+                self._keys[i] = (key[0], pose, placed)
+                self._coarse = None
+                dist = self._grid[1]  # the map again, with the keyframe moved
+                dist.fill(cfg.cap)
+                for _, _, q in self._keys:
+                    stamp_segments(dist, origin, cfg.resolution, q, cfg.cap)
 
     def _unturned(
         self,
@@ -1078,6 +1198,8 @@ def scan_to_map(
             matches.covariance[k - 1] = matcher.covariance
             matches.sigma[k - 1], matches.used[k - 1] = st[3], int(st[5])
             matches.degenerate[k - 1], matches.agreement[k - 1] = int(st[6]), st[4]
+        for back, pose in matcher.revised:
+            poses[k - back] = pose  # a searched scan's pose replaced by its recheck
             if progress is not None and (k % every == 0 or k == n - 1):
                 progress(k % every or every)
     seconds = time.perf_counter() - t0
