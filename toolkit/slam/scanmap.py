@@ -55,7 +55,6 @@ from toolkit.slam.grid import (
     correlative_search,
     stamp_segments,
 )
-from toolkit.slam.localmap import MotionMatcher
 
 
 @dataclass(frozen=True)
@@ -553,6 +552,10 @@ class MapMatcher:
         self._scale_searched = 0  # searches seen by the scale's learner
         self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
         # pose and path: where a slip that its fit could not see happened
+        # localmap's keyframe front end fits its heading on this module's grid
+        # (`toolkit.slam.heading`): imported here, not at the top, against the cycle
+        from toolkit.slam.localmap import MotionMatcher  # noqa: PLC0415
+
         self._motion = MotionMatcher(laser, gain=1.0, probe=0.0)  # as measured (docs/maps.md)
         self._mount = se2.mount_pose(laser)
         self._cos = np.cos(laser.angles + self._mount[2])  # the beams' directions, once
