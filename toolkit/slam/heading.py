@@ -31,6 +31,8 @@ MIN_SHARE = 0.5  # a fit with fewer of its returns within `inlier_distance` of t
 MAX_TURN = 0.05  # rad: a fit that turns the heading further is left (a slide, not a drift)
 ITERATIONS = 20  # most Gauss-Newton rounds of a heading fit (10: 0.47 deg apart on the bag)
 MARGIN = 5.0  # m around the map's surfaces when its grid is built: new keyframes fit in
+REACH = 2.0  # ... and at most this many times the map's range (max_range + map_margin) from
+# the robot each way (120 m square, 23 MB, at scan-to-map's 25 + 5 m)
 
 
 class HeadingMap:
@@ -81,7 +83,11 @@ class HeadingMap:
         every = np.concatenate(list(self._keys))
         ends = np.concatenate([every[:, :2], every[:, 2:], np.asarray(pose)[None, :2]])
         lo, hi = bounds(ends)
-        lo, hi = lo - MARGIN, hi + MARGIN
+        # at most `REACH` m from the robot: a trajectory lost far and wide (a CARMEN log
+        # without its odometry) would ask for hundreds of metres of 5 cm cells
+        reach = REACH * (cfg.max_range + cfg.map_margin)
+        lo = np.maximum(lo - MARGIN, np.asarray(pose)[:2] - reach)
+        hi = np.minimum(hi + MARGIN, np.asarray(pose)[:2] + reach)
         shape = np.ceil((hi - lo) / cfg.resolution).astype(np.int64)
         dist = np.full((int(shape[1]), int(shape[0])), cfg.cap, dtype=np.float32)
         for q in self._keys:
