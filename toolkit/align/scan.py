@@ -76,6 +76,8 @@ class MatchConfig:
     probe_axis: ProbeAxis = "heading"  # without odometry, the forward probe (whether the fit
     # observes the motion) along the heading (a vehicle) or along the predicted motion
     # (motion: a hand-held scanner whose heading sways off its path; expert)
+    heading_map: int = 0  # without odometry, > 0: each scan's heading fitted (its translation
+    # held) to a local map of this many recent keyframes (`toolkit.slam.heading`; 0: off)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -767,6 +769,7 @@ class StreamMatcher:
         self.pose = np.zeros(3)  # relative pose of the last pair (laser frame)
         self.covariance = np.zeros((3, 3))
         self.stats = np.zeros(4)  # sigma, correspondences used, degenerate, agreement
+        self.keyed = False  # whether the last scan pushed became the keyframe
 
     @property
     def working_bytes(self) -> int:
@@ -828,10 +831,14 @@ class StreamMatcher:
             self._key_scan[:] = scan
             self._key_odometry[:] = odo
             self._key_pose[:] = odo
+            self.keyed = True
             return odo.copy()
         pose = self._match(scan, odo, self.pose, self.covariance, self.stats)
         cfg = self.config
-        if se2_jit.is_keyframe(odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle):
+        self.keyed = se2_jit.is_keyframe(
+            odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle
+        )
+        if self.keyed:
             self._key_scan[:] = scan
             self._key_odometry[:] = odo
             self._key_pose[:] = pose

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,6 +55,9 @@ from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry, PoseStream
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
+
+if TYPE_CHECKING:  # heading.py builds on scanmap.py, which builds on this module
+    from toolkit.slam.heading import HeadingMap
 
 STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
 VELOCITY_GAIN = 0.3  # share of a scan's matched motion taken into the velocity (1: the last)
@@ -76,7 +80,9 @@ class MotionMatcher(sc.StreamMatcher):
     times the square of the share of a `probe` m forward offset of the prediction that the
     fit takes out (`response`; probe 0: by `gain`). `probe_filters` False: the response is
     measured, but the forward part follows by `gain` like the rest (the start-velocity
-    pass)."""
+    pass). `heading`: each scan's heading is fitted to this local map of the keyframes
+    (`MatchConfig.heading_map`), the keyframe kept with the fitted pose, before the velocity
+    takes the motion."""
 
     def __init__(
         self,
@@ -87,6 +93,7 @@ class MotionMatcher(sc.StreamMatcher):
         probe: float = PROBE_SHIFT,
         probe_every: int = PROBE_EVERY,
         probe_filters: bool = True,
+        heading: HeadingMap | None = None,
     ) -> None:
         super().__init__(laser, config)
         self._last = np.zeros(3)
@@ -96,6 +103,7 @@ class MotionMatcher(sc.StreamMatcher):
         self.probe_shift = probe
         self.probe_every = max(1, probe_every)
         self.probe_filters = probe_filters
+        self.heading = heading
         self._probed = 0  # scans since the last probe
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
         self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame)
@@ -125,6 +133,13 @@ class MotionMatcher(sc.StreamMatcher):
                 self.response = self._forward_response(ranges, predicted)
             self._probed += 1
         pose = self.push(ranges, predicted)
+        if self.heading is not None:
+            if not first:  # the heading fitted to the map; the keyframe keeps the fitted pose
+                pose = self.heading.refine(ranges, pose)
+                if self.keyed:
+                    self._key_pose[:] = pose
+            if self.keyed:
+                self.heading.add(ranges, pose)
         if not first:
             if t is not None and self._t is not None:
                 self._dt = t - self._t
@@ -242,7 +257,12 @@ def sequential(
     rest = standing(ds.ranges)  # the start velocity from where the robot starts moving
     rest = rest if rest > 1 else 0  # the first scan alone is no rest
     velocity = start_velocity(ds, config, begin=rest)
-    matcher = MotionMatcher(ds.laser, config, None if rest else velocity)
+    heading = None
+    if config.heading_map > 0:
+        from toolkit.slam.heading import HeadingMap  # noqa: PLC0415  (heading -> scanmap -> here)
+
+        heading = HeadingMap(ds.laser, config.heading_map)
+    matcher = MotionMatcher(ds.laser, config, None if rest else velocity, heading=heading)
     poses = np.zeros((ds.n_scans, 3))
     matches = sc.PairMatches.empty(max(ds.n_scans - 1, 0))
     for k in range(ds.n_scans):

@@ -86,6 +86,13 @@ class SlamConfig:
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
     # earlier ones (0: none); the scan-to-map front end has its own local map
     min_agreement: float = 0.5  # a local-map match with fewer agreeing returns is left out
+    # > 0: a local-map edge's heading spread (rad) instead of the floor and per-metre one: its
+    # translation kept, its heading left to the sequential edges. An expert setting, off; 1
+    # with `MatchConfig.heading_map` (the keyframes' headings fitted to a local map): the
+    # lags' pair matches repeat the drift the map took out (the CCNY hand-held bag: 1,223
+    # cells of 5 cm with them, 1,069 without). On the simulator without odometry the lags'
+    # heading is worth 0.05 m ATE on the corridor (docs/journal/maps.md, session 27)
+    local_map_turn: float = 0.0
     # True: the scan-to-map front end gets the local-map edges too (each keyframe matched to
     # the 2nd .. `local_map`-th before it). An expert setting, off: over the ten real logs x
     # drift seeds 0-9 the same on the whole (mean ATE 0.1706 -> 0.1702 m), a little better on
@@ -331,6 +338,8 @@ def local_map_edges(
         length = np.hypot(rel[:, 0], rel[:, 1]) + 0.3 * np.abs(rel[:, 2])
         st = config.sigma_floor[0] + config.sigma_per_metre[0] * length
         sr = config.sigma_floor[1] + config.sigma_per_metre[1] * length
+        if config.local_map_turn > 0:
+            sr = np.full_like(sr, config.local_map_turn)
         for k in np.nonzero(good)[0]:
             a, b = int(keys[ref[k + 1]]), int(keys[k + 1])
             cov = np.diag([st[k] ** 2, st[k] ** 2, sr[k] ** 2])
