@@ -9,15 +9,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from toolkit.dataset import LaserGeometry
 from toolkit.errors import ToolkitError
 from toolkit.features import Config, classify
 from toolkit.features.classify import (
     evidence_weights,
     path_steps,
     pool_turns,
+    pooled_view,
     switch_probability,
     turn_groups,
     turn_reach,
+    view_arms,
 )
 from toolkit.features.descriptors import path_length
 from toolkit.features.evaluate import protocol, protocol_scores, teaches_two, thinned, worlds
@@ -428,3 +431,53 @@ def test_a_far_turn_beside_an_enclosed_one_is_not_pooled() -> None:
         assert turns["door"] > turns["door 2"] > turns["none"] + 0.08
         if key == "a":
             assert stays["reach"] < 0.9
+
+
+def test_a_long_turn_seen_once_from_all_its_scans() -> None:
+    """`turn_view` (session 27, turns27; off by default). A spin of eight scans, 45 degrees
+    apart, at one spot: drawn in one frame, their end points give the spot all round
+    (`pooled_view`), with its ways out (`view_arms`): two for a corridor seen both ways, one for
+    a room seen out of its door, none narrower than `ARM_WIDTH`. A described turn's scans get
+    per place the larger of the view's and the turn's pooled log-probability; the rest are
+    left as `pool_turns` gives them."""
+    laser = LaserGeometry(
+        beams=180, angle_min=-np.pi / 2, angle_increment=np.radians(1.0), range_max=30.0
+    )
+    heading = np.radians(45.0) * np.arange(8)
+    poses = np.c_[np.zeros(8), np.zeros(8), heading]
+    world = (heading[:, None] + laser.angles[None, :] + 1e-9) % (2 * np.pi)
+    bearing = np.degrees(world)  # each beam's heading in the world, degrees
+    corridor = (np.abs(((bearing + 180) % 360) - 180) < 20) | (np.abs(bearing - 180) < 20)
+    ranges = np.where(corridor, 15.0, 2.0)
+    view = pooled_view(ranges, poses, laser, np.arange(8))
+    assert view.shape == (360,)
+    assert np.allclose(view[:19], 15.0) and np.allclose(view[21:160], 2.0)
+    assert view_arms(view, 6.0) == 2
+    door = np.where(corridor & (bearing < 90), 15.0, 2.0)  # a room seen out of its door
+    assert view_arms(pooled_view(door, poses, laser, np.arange(8)), 6.0) == 1
+    gap = np.full(360, 2.0)
+    gap[100:105] = 9.0  # 5 degrees past 6 m: a gap, not a way out
+    assert view_arms(gap, 6.0) == 0
+    assert view_arms(np.full(360, 9.0), 6.0) == 1 and view_arms(np.full(360, 2.0), 6.0) == 0
+    half = ranges.copy()
+    half[4:] = np.nan  # the last four headings get no return: what only they see is far (inf)
+    seen_far = pooled_view(half, poses, laser, np.arange(8))
+    assert np.isinf(seen_far[225:270]).all() and np.isfinite(seen_far[:225]).all()
+    two = pooled_view(ranges, poses, laser, np.array([0, 2]))  # 0 and 90 degrees: half round
+    assert two[200] == two[179] == 15.0 and two[250] == two[270] == 2.0  # nearest filled bin
+    # pooling: two turns (the spin and a driven scan); only the first described
+    both = np.r_[poses, [[3.0, 0.0, 0.0]]]
+    scores = np.log(np.full((9, 2), 0.5))
+    scores[:8, 1] = np.log(0.7)
+    scores[:8, 0] = np.log(0.3)
+    cfg = Config(turn_pool=0.3, turn_pool_rule="max", turn_pool_reach=6.0, turn_pool_door=0)
+    views = np.array([[np.log(0.9), np.log(0.1)], [np.nan, np.nan]])
+    r9 = np.r_[ranges, np.full((1, 180), 2.0)]
+    plain = pool_turns(cfg, scores, both, r9)
+    seen = pool_turns(cfg, scores, both, r9, views)
+    share = plain[0, 1] / np.log(0.7)  # the turn's weight, spread over its scans
+    assert np.allclose(seen[:8, 0], np.log(0.9) * share)  # the view's: larger for corridor
+    assert np.allclose(seen[:8, 1], np.log(0.7) * share)  # the scans' own: larger for room
+    assert np.array_equal(seen[8], plain[8])
+    with pytest.raises(ToolkitError, match="turn_view -1: scans, 0 or more"):
+        Config(turn_view=-1)

@@ -235,11 +235,102 @@ def doorway_free(far: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(far & ~near)
 
 
+#: degrees a run of headings past `turn_pool_reach` spans in a turn's pooled view to be a
+#: way out of the spot (an arm: a corridor or a door seen along, not a gap between boxes)
+ARM_WIDTH = 10.0
+#: ways out a long turn's pooled view needs to be described once (`turn_views`): a junction or
+#: a corridor's spin has two or more; a room seen out of its door one
+VIEW_ARMS = 2
+#: beam spacings either side of a pooled view's best axis that it keeps clear
+AXIS_HALF = 5
+
+
+def pooled_view(
+    ranges: np.ndarray, poses: np.ndarray, laser: LaserGeometry, idx: np.ndarray
+) -> np.ndarray:
+    """A turn's scans `idx` drawn in one frame: per heading bin (the laser's beam spacing, all
+    round, bin 0 along the world's x axis) the nearest end point's distance from the turn's
+    first position (inf: only beams with no return); an empty bin takes its nearest filled
+    one."""
+    inc = laser.angle_increment
+    bins = round(2 * np.pi / inc)
+    theta = poses[idx, 2:3]
+    a = theta + laser.yaw + laser.angle_min + inc * np.arange(ranges.shape[1])[None, :]
+    r = ranges[idx].astype(np.float64)
+    hit = np.isfinite(r) & (r > 0)
+    r = np.where(hit, r, 0.0)
+    ox = poses[idx, 0:1] + laser.x * np.cos(theta) - laser.y * np.sin(theta)
+    oy = poses[idx, 1:2] + laser.x * np.sin(theta) + laser.y * np.cos(theta)
+    ex = ox + r * np.cos(a) - poses[idx[0], 0]
+    ey = oy + r * np.sin(a) - poses[idx[0], 1]
+    at = np.mod(np.round(np.where(hit, np.arctan2(ey, ex), a) / inc).astype(int), bins).ravel()
+    view = np.full(bins, np.inf)
+    np.minimum.at(view, at, np.where(hit, np.hypot(ex, ey), np.inf).ravel())
+    seen = np.flatnonzero(np.bincount(at, minlength=bins) > 0)
+    if len(seen) < bins:  # circular distance to the nearest filled bin
+        gap = np.abs(np.arange(bins)[:, None] - seen[None, :])
+        view = view[seen[np.minimum(gap, bins - gap).argmin(axis=1)]]
+    return view
+
+
+def view_arms(view: np.ndarray, reach: float) -> int:
+    """The ways out of a pooled view: runs of bins past `reach` m at least `ARM_WIDTH` wide
+    (circular; a view that sees far all round is one)."""
+    far = view > reach
+    if far.all() or not far.any():
+        return int(far.all())
+    f = np.roll(far, -int(np.flatnonzero(~far)[0])).astype(int)  # starts on a near bin
+    d = np.diff(np.r_[0, f, 0])
+    width = (np.flatnonzero(d == -1) - np.flatnonzero(d == 1)) * 360.0 / len(view)
+    return int(np.sum(width >= ARM_WIDTH))
+
+
+def turn_views(
+    model: FeatureModel, ranges: np.ndarray, poses: np.ndarray, first: np.ndarray
+) -> np.ndarray:
+    """Per turn (its scans from `first`), the log-probabilities (K) of its pooled view
+    (`pooled_view`) seen as one scan: the laser's beams along the clearest axis (the heading
+    whose `AXIS_HALF` bins either side reach farthest at their nearest) from the turn's first
+    position, scored by `class_scores` in place of every scan of the turn (the context along
+    the path sees the same view); NaN where the turn is not described (`Config.turn_view`:
+    fewer scans, not seeing past `turn_pool_reach`, or fewer than `VIEW_ARMS` ways out)."""
+    cfg, laser = model.config, model.laser
+    n = len(ranges)
+    size = np.diff(np.r_[first, n])
+    reach = cfg.turn_pool_reach or 6.0
+    out = np.full((len(first), len(model.classes)), np.nan)
+    which = np.flatnonzero((size >= cfg.turn_view) & (turn_reach(ranges, first) > reach))
+    r = np.array(ranges, dtype=ranges.dtype)
+    p = np.array(poses, dtype=np.float64)
+    inc = laser.angle_increment
+    described = []
+    for t in which:  # per turn: each a whole pooled view, no beam loop
+        idx = np.arange(first[t], first[t] + size[t])
+        view = pooled_view(ranges, poses, laser, idx)
+        if view_arms(view, reach) < VIEW_ARMS:
+            continue
+        v = np.where(np.isfinite(view), view, laser.range_max)
+        h = AXIS_HALF
+        clear = np.lib.stride_tricks.sliding_window_view(np.r_[v[-h:], v, v[:h]], 2 * h + 1)
+        head = int(clear.min(axis=1).argmax()) * inc
+        start = int(np.round((head + laser.angle_min) / inc))
+        beams = view[np.mod(start + np.arange(ranges.shape[1]), len(view))]
+        r[idx] = np.where(np.isfinite(beams), beams, np.nan)[None, :]
+        p[idx, :2] = poses[first[t], :2]
+        p[idx, 2] = head - laser.yaw
+        described.append(t)
+    if described:
+        scores = class_scores(model, r, CHUNK, None, p)
+        out[described] = np.maximum.reduceat(scores, first, axis=0)[described]
+    return out
+
+
 def pool_turns(
     config: Config,
     scores: np.ndarray,
     poses: np.ndarray | None,
     ranges: np.ndarray | None = None,
+    views: np.ndarray | None = None,
 ) -> np.ndarray:
     """The HMM's evidence (S x K log-probabilities) with each turn on the spot
     (`turn_groups` over `turn_pool` m) pooled: every scan of a turn gets the turn's mean (or,
@@ -270,6 +361,9 @@ def pool_turns(
     if config.turn_pool_reach and ranges is not None and len(ranges) == n:
         far = turn_reach(ranges, first) > config.turn_pool_reach
         out = np.where(doorway_free(far, config.turn_pool_door)[group, None], out, own)
+    if views is not None and len(views) == len(first):  # a long turn described once
+        best = np.maximum(views, np.maximum.reduceat(scores, first, axis=0)) * share[:, None]
+        out = np.where(np.isnan(views[:, :1])[group], out, best[group])
     return out
 
 
@@ -303,7 +397,12 @@ def classify(
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
-        scores = pool_turns(cfg, scores, poses, ranges)
+        views = None
+        if cfg.turn_view and poses is not None and len(poses) == len(scores) and len(scores):
+            group = turn_groups(poses, cfg.turn_pool)
+            first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+            views = turn_views(model, ranges, poses, first)
+        scores = pool_turns(cfg, scores, poses, ranges, views)
     elif cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)

@@ -129,6 +129,13 @@ class Config:
     # last scans) is not pooled either: its room-facing headings keep their weight for the
     # room's short stay (0: off, the default until session 27; 2 also reaches past a room's
     # last scan that sees out of its door; nothing with `turn_pool_reach` 0)
+    turn_view: int = 0  # scans: a turn on the spot of at least this many that sees far
+    # (`turn_pool_reach`) and has two ways out or more (`classify.VIEW_ARMS`) is described once:
+    # the end points of all its scans, around its first position, looked at along its clearest
+    # axis as one scan of the laser's beams (`classify.turn_views`); each of its scans gets per
+    # place the larger of that view's and its pooled log-probability, door rule or not (a
+    # junction's long spin, whose every heading alone looks like a room). 0: off (the default;
+    # an expert setting, session 27: 7 chosen on a development protocol with spins)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -325,6 +332,8 @@ class Config:
             raise ToolkitError("turn_pool, sparse_turn_pool: m, 0 or more")
         if self.turn_pool_reach < 0:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
+        if self.turn_view < 0:
+            raise ToolkitError(f"turn_view {self.turn_view}: scans, 0 or more")
         if self.turn_pool_door < 0:
             raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
         if self.sparse_dwell_stages < 0:
