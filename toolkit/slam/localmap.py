@@ -47,149 +47,23 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from toolkit import se2
 from toolkit.align import scan as sc
-from toolkit.dataset import Dataset, LaserGeometry, PoseStream
+from toolkit.dataset import Dataset, PoseStream
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
-
-if TYPE_CHECKING:  # heading.py builds on scanmap.py, which builds on this module
-    from toolkit.slam.heading import HeadingMap
+from toolkit.slam.heading import HeadingMap
+from toolkit.slam.motion import PROBE_SHIFT, MotionMatcher
 
 STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
-VELOCITY_GAIN = 0.3  # share of a scan's matched motion taken into the velocity (1: the last)
 START_SCANS = 300  # scans of the first pass that gives the start velocity
 START_SEEN = 1.0  # the first pass's summed squared forward response below which its forward
 # speed is the plain median (no scan observed forward motion: nothing to weigh by)
-PROBE_SHIFT = 0.05  # m: the prediction moved this far forward and back to see whether the fit
-# observes forward motion (0: no probe; the forward velocity filtered like the rest)
-PROBE_EVERY = 3  # scans: the probe's response measured on every third scan, kept in between
 REST_CHANGE = 0.1  # m: a beam whose range moved this much since the first scan (or whose
 # return came or went) has seen motion ...
 REST_SHARE = 0.02  # ... and a scan with more such beams than this share is not at rest
-
-
-class MotionMatcher(sc.StreamMatcher):
-    """`StreamMatcher` whose `push` takes odometry or None; with None, the pose predicted by
-    constant velocity plays the odometry's part. The velocity (per scan interval) starts at
-    `step` (robot frame; None: standstill, then the first matched motion) and follows the
-    matched motion by `gain` of the difference per scan; its forward part (robot x) by `gain`
-    times the square of the share of a `probe` m forward offset of the prediction that the
-    fit takes out (`response`; probe 0: by `gain`). `probe_filters` False: the response is
-    measured, but the forward part follows by `gain` like the rest (the start-velocity
-    pass). `heading`: each scan's heading is fitted to this local map of the keyframes
-    (`MatchConfig.heading_map`), the keyframe kept with the fitted pose, before the velocity
-    takes the motion."""
-
-    def __init__(
-        self,
-        laser: LaserGeometry,
-        config: sc.MatchConfig | None = None,
-        step: np.ndarray | None = None,
-        gain: float = VELOCITY_GAIN,
-        probe: float = PROBE_SHIFT,
-        probe_every: int = PROBE_EVERY,
-        probe_filters: bool = True,
-        heading: HeadingMap | None = None,
-    ) -> None:
-        super().__init__(laser, config)
-        self._last = np.zeros(3)
-        self._step = np.zeros(3) if step is None else np.asarray(step, np.float64).reshape(3)
-        self._known = step is not None  # a velocity to filter the matched motion into
-        self.gain = gain
-        self.probe_shift = probe
-        self.probe_every = max(1, probe_every)
-        self.probe_filters = probe_filters
-        self.heading = heading
-        self._probed = 0  # scans since the last probe
-        self.response = 1.0  # the last scan's: share of the forward offset the fit took out
-        self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame)
-        self._dt = 0.0
-        self._t: float | None = None
-
-    def set_velocity(self, step: np.ndarray) -> None:
-        """Go on from the next scan with this motion per scan interval (robot frame)."""
-        self._step = np.asarray(step, np.float64).reshape(3)
-        self._known = True
-
-    def push_predicted(self, ranges: np.ndarray, t: float | None = None) -> np.ndarray:
-        """Take the next scan of a log without odometry (at time `t`, to scale the motion to
-        uneven scan intervals); return the robot pose."""
-        first = not self._started
-        step = self._step
-        if t is not None and self._t is not None and self._dt > 0:
-            scale = min((t - self._t) / self._dt, 3.0)
-            step = step * scale
-        predicted = se2.compose(self._last[None], step[None])[0]
-        if first:
-            predicted = np.zeros(3)
-        else:  # the "odometry" is the corrected frame: the keyframe's pose is its own odometry
-            self._key_odometry[:] = self._key_pose
-        if not first and self._known and self.probe_shift > 0:
-            if self._probed % self.probe_every == 0:
-                self.response = self._forward_response(ranges, predicted)
-            self._probed += 1
-        pose = self.push(ranges, predicted)
-        if self.heading is not None:
-            if not first:  # the heading fitted to the map; the keyframe keeps the fitted pose
-                pose = self.heading.refine(ranges, pose)
-                if self.keyed:
-                    self._key_pose[:] = pose
-            if self.keyed:
-                self.heading.add(ranges, pose)
-        if not first:
-            if t is not None and self._t is not None:
-                self._dt = t - self._t
-            moved = se2.between(self._last[None], pose[None])[0]
-            if self._known:
-                gain = np.full(3, self.gain)
-                if self.probe_filters and self.config.probe_axis == "motion":
-                    u = self._axis  # the response's along the probed axis, full gain across
-                    along, rest = self.gain * self.response**2, self.gain
-                    d = moved - self._step
-                    d_along = float(d[:2] @ u)
-                    self._step = (
-                        self._step
-                        + np.r_[along * d_along * u + rest * (d[:2] - d_along * u), rest * d[2]]
-                    )
-                else:
-                    if self.probe_filters:
-                        gain[0] *= self.response**2  # 1.0 without the probe
-                    self._step = self._step + gain * (moved - self._step)
-            else:
-                self._step, self._known = moved, True
-        self._last = pose
-        self._t = t
-        return pose
-
-    def _probe_axis(self) -> np.ndarray:
-        """Unit vector (robot frame) to probe along: the heading, or with `probe_axis`
-        "motion" the velocity's translation where it moves (1 mm a scan or more)."""
-        v = self._step[:2]
-        norm = float(np.hypot(v[0], v[1]))
-        if self.config.probe_axis == "motion" and norm >= 1e-3:
-            return np.asarray(v / norm)
-        return np.array([1.0, 0.0])
-
-    def _forward_response(self, ranges: np.ndarray, predicted: np.ndarray) -> float:
-        """The share (0..1) of a `probe_shift` forward offset of the prediction that the fit
-        takes out: the scan fitted from the prediction moved forward and moved back."""
-        d = self.probe_shift
-        around = np.broadcast_to(predicted, (2, 3))
-        if self.config.probe_axis == "motion":
-            u = self._axis = self._probe_axis()
-            offsets = np.array([[-d * u[0], -d * u[1], 0.0], [d * u[0], d * u[1], 0.0]])
-            fitted = np.array([self.probe(ranges, seed) for seed in se2.compose(around, offsets)])
-            back, ahead = se2.between(around, fitted)[:, :2] @ u
-        else:
-            seeds = se2.compose(around, np.array([[-d, 0.0, 0.0], [d, 0.0, 0.0]]))
-            fitted = np.array([self.probe(ranges, seed) for seed in seeds])
-            back, ahead = se2.between(around, fitted)[:, 0]
-        kept = (ahead - back) / (2 * d)  # 1: the fit kept the offset; 0: took it out
-        return float(min(max(1.0 - kept, 0.0), 1.0))
 
 
 def standing(ranges: np.ndarray, chunk: int = 1024) -> int:
@@ -257,11 +131,7 @@ def sequential(
     rest = standing(ds.ranges)  # the start velocity from where the robot starts moving
     rest = rest if rest > 1 else 0  # the first scan alone is no rest
     velocity = start_velocity(ds, config, begin=rest)
-    heading = None
-    if config.heading_map > 0:
-        from toolkit.slam.heading import HeadingMap  # noqa: PLC0415  (heading -> scanmap -> here)
-
-        heading = HeadingMap(ds.laser, config.heading_map)
+    heading = HeadingMap(ds.laser, config.heading_map) if config.heading_map > 0 else None
     matcher = MotionMatcher(ds.laser, config, None if rest else velocity, heading=heading)
     poses = np.zeros((ds.n_scans, 3))
     matches = sc.PairMatches.empty(max(ds.n_scans - 1, 0))

@@ -55,7 +55,7 @@ from toolkit.slam.grid import (
     correlative_search,
     stamp_segments,
 )
-from toolkit.slam.localmap import MotionMatcher
+from toolkit.slam.motion import MotionMatcher
 
 
 @dataclass(frozen=True)

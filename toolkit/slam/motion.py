@@ -1,0 +1,143 @@
+"""The streaming matcher with a motion model for logs without odometry: constant velocity,
+filtered, its forward part weighed by how far the fit observes it (`toolkit.slam.localmap`'s
+docstring says why). Its own module so that scan-to-map (`toolkit.slam.scanmap`) and the
+keyframe front end (`toolkit.slam.localmap`, which may fit the heading on scan-to-map's grid,
+`toolkit.slam.heading`) both build on it without an import cycle."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from toolkit import se2
+from toolkit.align import scan as sc
+from toolkit.dataset import LaserGeometry
+
+if TYPE_CHECKING:  # the heading map builds on scan-to-map, which builds on this module
+    from toolkit.slam.heading import HeadingMap
+
+VELOCITY_GAIN = 0.3  # share of a scan's matched motion taken into the velocity (1: the last)
+PROBE_SHIFT = 0.05  # m: the prediction moved this far forward and back to see whether the fit
+# observes forward motion (0: no probe; the forward velocity filtered like the rest)
+PROBE_EVERY = 3  # scans: the probe's response measured on every third scan, kept in between
+
+
+class MotionMatcher(sc.StreamMatcher):
+    """`StreamMatcher` whose `push` takes odometry or None; with None, the pose predicted by
+    constant velocity plays the odometry's part. The velocity (per scan interval) starts at
+    `step` (robot frame; None: standstill, then the first matched motion) and follows the
+    matched motion by `gain` of the difference per scan; its forward part (robot x) by `gain`
+    times the square of the share of a `probe` m forward offset of the prediction that the
+    fit takes out (`response`; probe 0: by `gain`). `probe_filters` False: the response is
+    measured, but the forward part follows by `gain` like the rest (the start-velocity
+    pass). `heading`: each scan's heading is fitted to this local map of the keyframes
+    (`MatchConfig.heading_map`), the keyframe kept with the fitted pose, before the velocity
+    takes the motion."""
+
+    def __init__(
+        self,
+        laser: LaserGeometry,
+        config: sc.MatchConfig | None = None,
+        step: np.ndarray | None = None,
+        gain: float = VELOCITY_GAIN,
+        probe: float = PROBE_SHIFT,
+        probe_every: int = PROBE_EVERY,
+        probe_filters: bool = True,
+        heading: HeadingMap | None = None,
+    ) -> None:
+        super().__init__(laser, config)
+        self._last = np.zeros(3)
+        self._step = np.zeros(3) if step is None else np.asarray(step, np.float64).reshape(3)
+        self._known = step is not None  # a velocity to filter the matched motion into
+        self.gain = gain
+        self.probe_shift = probe
+        self.probe_every = max(1, probe_every)
+        self.probe_filters = probe_filters
+        self.heading = heading
+        self._probed = 0  # scans since the last probe
+        self.response = 1.0  # the last scan's: share of the forward offset the fit took out
+        self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame)
+        self._dt = 0.0
+        self._t: float | None = None
+
+    def set_velocity(self, step: np.ndarray) -> None:
+        """Go on from the next scan with this motion per scan interval (robot frame)."""
+        self._step = np.asarray(step, np.float64).reshape(3)
+        self._known = True
+
+    def push_predicted(self, ranges: np.ndarray, t: float | None = None) -> np.ndarray:
+        """Take the next scan of a log without odometry (at time `t`, to scale the motion to
+        uneven scan intervals); return the robot pose."""
+        first = not self._started
+        step = self._step
+        if t is not None and self._t is not None and self._dt > 0:
+            scale = min((t - self._t) / self._dt, 3.0)
+            step = step * scale
+        predicted = se2.compose(self._last[None], step[None])[0]
+        if first:
+            predicted = np.zeros(3)
+        else:  # the "odometry" is the corrected frame: the keyframe's pose is its own odometry
+            self._key_odometry[:] = self._key_pose
+        if not first and self._known and self.probe_shift > 0:
+            if self._probed % self.probe_every == 0:
+                self.response = self._forward_response(ranges, predicted)
+            self._probed += 1
+        pose = self.push(ranges, predicted)
+        if self.heading is not None:
+            if not first:  # the heading fitted to the map; the keyframe keeps the fitted pose
+                pose = self.heading.refine(ranges, pose)
+                if self.keyed:
+                    self._key_pose[:] = pose
+            if self.keyed:
+                self.heading.add(ranges, pose)
+        if not first:
+            if t is not None and self._t is not None:
+                self._dt = t - self._t
+            moved = se2.between(self._last[None], pose[None])[0]
+            if self._known:
+                gain = np.full(3, self.gain)
+                if self.probe_filters and self.config.probe_axis == "motion":
+                    u = self._axis  # the response's along the probed axis, full gain across
+                    along, rest = self.gain * self.response**2, self.gain
+                    d = moved - self._step
+                    d_along = float(d[:2] @ u)
+                    self._step = (
+                        self._step
+                        + np.r_[along * d_along * u + rest * (d[:2] - d_along * u), rest * d[2]]
+                    )
+                else:
+                    if self.probe_filters:
+                        gain[0] *= self.response**2  # 1.0 without the probe
+                    self._step = self._step + gain * (moved - self._step)
+            else:
+                self._step, self._known = moved, True
+        self._last = pose
+        self._t = t
+        return pose
+
+    def _probe_axis(self) -> np.ndarray:
+        """Unit vector (robot frame) to probe along: the heading, or with `probe_axis`
+        "motion" the velocity's translation where it moves (1 mm a scan or more)."""
+        v = self._step[:2]
+        norm = float(np.hypot(v[0], v[1]))
+        if self.config.probe_axis == "motion" and norm >= 1e-3:
+            return np.asarray(v / norm)
+        return np.array([1.0, 0.0])
+
+    def _forward_response(self, ranges: np.ndarray, predicted: np.ndarray) -> float:
+        """The share (0..1) of a `probe_shift` forward offset of the prediction that the fit
+        takes out: the scan fitted from the prediction moved forward and moved back."""
+        d = self.probe_shift
+        around = np.broadcast_to(predicted, (2, 3))
+        if self.config.probe_axis == "motion":
+            u = self._axis = self._probe_axis()
+            offsets = np.array([[-d * u[0], -d * u[1], 0.0], [d * u[0], d * u[1], 0.0]])
+            fitted = np.array([self.probe(ranges, seed) for seed in se2.compose(around, offsets)])
+            back, ahead = se2.between(around, fitted)[:, :2] @ u
+        else:
+            seeds = se2.compose(around, np.array([[-d, 0.0, 0.0], [d, 0.0, 0.0]]))
+            fitted = np.array([self.probe(ranges, seed) for seed in seeds])
+            back, ahead = se2.between(around, fitted)[:, 0]
+        kept = (ahead - back) / (2 * d)  # 1: the fit kept the offset; 0: took it out
+        return float(min(max(1.0 - kept, 0.0), 1.0))
