@@ -22,8 +22,9 @@ from toolkit.features.classify import (
 from toolkit.features.descriptors import path_length
 from toolkit.features.evaluate import protocol, protocol_scores, teaches_two, thinned, worlds
 from toolkit.features.fitting import _sparse, fit
+from toolkit.features.model import FeatureModel
 from toolkit.features.regions import spans_from_frame, training_indices
-from toolkit.sim import simulate
+from toolkit.sim import Simulation, simulate
 from toolkit.sim.truth import runs as label_runs
 
 
@@ -190,6 +191,31 @@ def gt_poses(sim: object) -> np.ndarray:
     return np.asarray(gt[["x", "y", "theta"]].to_numpy())
 
 
+def short_stays_and_turns(
+    models: dict[str, FeatureModel], run: Simulation, taught: dict[str, np.ndarray] | None
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Per model, the share of the run's short room stays (under ten scans) found as room and
+    of its corridor scans taken turning on the spot found as corridor (`taught`: the scans
+    left out, run a's training ones)."""
+    poses = gt_poses(run)
+    turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
+    test = np.ones(len(turning), dtype=bool)
+    if taught is not None:
+        test[np.concatenate(list(taught.values()))] = False
+    short = np.zeros(len(test), dtype=bool)
+    for place, first, last in label_runs(run.labels):
+        if place == "room" and last - first < 10:
+            short[first : last + 1] = True
+    stays, turns = {}, {}
+    for name, m in models.items():
+        label = classify(m, run.dataset.ranges, poses).label
+        stays[name] = float(np.mean(label[(run.labels == "room") & short & test] == "room"))
+        turns[name] = float(
+            np.mean(label[(run.labels == "corridor") & turning & test] == "corridor")
+        )
+    return stays, turns
+
+
 def test_turning_on_the_spot_counted_by_turn_length() -> None:
     """`turn_length` (m of path per rad turned in the HMM, 1 by default) and, on sparse logs,
     `sparse_turn_length` (session 25, turn25; off by default: on the Intel log it takes the
@@ -340,21 +366,7 @@ def test_a_turn_pooled_only_where_it_sees_far() -> None:
         "far": model,
     }
     for key in "ab":
-        run = runs[key]
-        poses = gt_poses(run)
-        turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
-        test = np.ones(len(turning), dtype=bool)
-        if key == "a":
-            test[np.concatenate(list(taught.values()))] = False
-        short = np.zeros(len(test), dtype=bool)
-        for place, first, last in label_runs(run.labels):
-            if place == "room" and last - first < 10:
-                short[first : last + 1] = True
-        stays, turns = {}, {}
-        for name, m in models.items():
-            label = classify(m, run.dataset.ranges, poses).label
-            stays[name] = np.mean(label[(run.labels == "room") & short & test] == "room")
-            turns[name] = np.mean(label[(run.labels == "corridor") & turning & test] == "corridor")
+        stays, turns = short_stays_and_turns(models, runs[key], taught if key == "a" else None)
         assert stays["far"] > 0.95 and stays["every turn"] < 0.9 and stays["default"] > 0.95
         assert turns["far"] > turns["default"] + 0.25
 
@@ -409,21 +421,7 @@ def test_a_far_turn_beside_an_enclosed_one_is_not_pooled() -> None:
         )
     }  # fmt: skip
     for key in "ab":
-        run = runs[key]
-        poses = gt_poses(run)
-        turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
-        test = np.ones(len(turning), dtype=bool)
-        if key == "a":
-            test[np.concatenate(list(taught.values()))] = False
-        short = np.zeros(len(test), dtype=bool)
-        for place, first, last in label_runs(run.labels):
-            if place == "room" and last - first < 10:
-                short[first : last + 1] = True
-        stays, turns = {}, {}
-        for name, m in models.items():
-            label = classify(m, run.dataset.ranges, poses).label
-            stays[name] = np.mean(label[(run.labels == "room") & short & test] == "room")
-            turns[name] = np.mean(label[(run.labels == "corridor") & turning & test] == "corridor")
+        stays, turns = short_stays_and_turns(models, runs[key], taught if key == "a" else None)
         assert stays["door"] == stays["door 2"] == stays["none"] > 0.9
         assert turns["door"] > turns["door 2"] > turns["none"] + 0.08
         if key == "a":

@@ -23,7 +23,7 @@ import numpy as np
 from toolkit import se2
 from toolkit.dataset import LaserGeometry
 from toolkit.slam.grid import bounds, stamp_segments
-from toolkit.slam.scanmap import _OUT, MapConfig, _fit, _placed_surfaces, _scan_points
+from toolkit.slam.scanmap import _OUT, MapConfig, _fit, _scan_points, surfaces
 
 HOLD = 1e12  # the translation's prior information (1 / m^2): held
 HEADING_SIGMA = 0.05  # rad: the front end's heading as a prior (loose: the map decides)
@@ -61,18 +61,7 @@ class HeadingMap:
         """Take a keyframe: its surfaces placed at `pose` stamped into the grid, or the grid
         rebuilt around the last `keys` keyframes."""
         cfg = self.config
-        seg = _placed_surfaces(
-            np.asarray(ranges, dtype=np.float64),
-            self._cos,
-            self._sin,
-            self._mount,
-            cfg.max_range + cfg.map_margin,
-            cfg.join * abs(self.laser.angle_increment),
-            math.cos(cfg.join_angle),
-            cfg.join_max,
-            cfg.lone_range,
-            np.asarray(pose, dtype=np.float64),
-        )
+        seg = surfaces(ranges, self.laser, cfg, pose, (self._cos, self._sin, self._mount))
         self._keys.append(seg)
         grid = self._grid
         if grid is not None and len(self._keys) < 2 * self.keys and self._covers(seg):

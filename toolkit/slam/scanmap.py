@@ -351,19 +351,24 @@ def surfaces(
     laser: LaserGeometry,
     config: MapConfig,
     pose: np.ndarray | None = None,
+    beams: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """A scan's surfaces, N x 4 segments (x0, y0, x1, y1), in the robot frame or, with `pose`,
     placed in the world: consecutive returns of one surface joined (close enough for their
     range, or in line with a neighbouring segment: a wall seen at a grazing angle); a lone
     return (no neighbour on its surface) is left out beyond `lone_range`, as a point it would
     pull a later scan's returns of that surface towards where they were sampled; returns
-    within `max_range` + `map_margin` only."""
-    mount = se2.mount_pose(laser)
-    a = laser.angles + mount[2]
+    within `max_range` + `map_margin` only. `beams`: the beams' cosines and sines in the robot
+    frame and the mount pose, when a caller keeps them (a map taking scan after scan)."""
+    if beams is None:
+        mount = se2.mount_pose(laser)
+        a = laser.angles + mount[2]
+        beams = (np.cos(a), np.sin(a), mount)
+    cos, sin, mount = beams
     return _placed_surfaces(
         np.asarray(ranges, dtype=np.float64),
-        np.cos(a),
-        np.sin(a),
+        cos,
+        sin,
         mount,
         config.max_range + config.map_margin,
         config.join * abs(laser.angle_increment),
@@ -960,18 +965,7 @@ class MapMatcher:
         the window's keyframes once the robot has left the grid's centre (keyframes that fell
         out of the window leave the grid then)."""
         cfg = self.config
-        pts = _placed_surfaces(
-            np.asarray(ranges, dtype=np.float64),
-            self._cos,
-            self._sin,
-            self._mount,
-            cfg.max_range + cfg.map_margin,
-            cfg.join * abs(self.laser.angle_increment),
-            math.cos(cfg.join_angle),
-            cfg.join_max,
-            cfg.lone_range,
-            pose,
-        )
+        pts = surfaces(ranges, self.laser, cfg, pose, (self._cos, self._sin, self._mount))
         self._keys.append((self._path, pose.copy(), pts))
         self._key_pose = pose.copy()
         self._coarse = None
