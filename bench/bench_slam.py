@@ -9,7 +9,11 @@ odometry (its `last_delta` set to the odometry's motion before each frame; const
 without odometry, its own model); the best of voxel 0.1 / 0.3 m is kept. Per log and method:
 ATE (m), RPE (m, deg), relation error (Kümmerle et al., relations derived from the truth),
 failures, scans/s, and for the mapper the loops found and the false ones (residual against the
-truth above 0.5 m or 5 deg).
+truth above 0.5 m or 5 deg). With two seeds or more, `bench_slam_own.csv`: per real log and
+method, the error over 20 m of path split into each seed's own part and the part every seed
+shares (`toolkit.metrics.shared_error`): the corrected poses are a SLAM output themselves, and
+on infinite-corridor most of the ATE is common to every run (docs/maps.md, session 27), so the
+own part is the figure a method's change can move.
 
 A run is chaotic: the odometry moved by 1e-9 m moves edmonton seed 0's ATE over 0.12-0.36 m
 (docs/maps.md). `BENCH_SLAM_DRAWS=N` runs every method N times on a log with odometry, draw d > 0
@@ -40,11 +44,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from bench import peers
 from toolkit import se2
 from toolkit.dataset import Dataset
-from toolkit.metrics import evaluate, relation_error, truth_relations
+from toolkit.metrics import evaluate, relation_error, shared_error, truth_relations
 from toolkit.poses import build, odometry_poses, truth_poses, with_drift
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -198,8 +203,10 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
             if fn is not kiss_best:
                 fn(replace(ds, ranges=ds.ranges[:300], t=ds.t[:300], groundtruth=None))
     rows: list[dict[str, object]] = []
+    kept: dict[tuple[str, str], list[np.ndarray]] = {}  # real logs: poses per seed
+    truths: dict[str, np.ndarray] = {}
 
-    def measure(log: str, seed: int, ds: Dataset) -> None:
+    def measure(log: str, seed: int, ds: Dataset, keep: bool = False) -> None:
         truth = truth_poses(ds)
         odo = odometry_poses(ds)
         if odo is not None and truth is not None:
@@ -209,9 +216,15 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
             for d in range(draws if odo is not None else 1):
                 run_ds = nudged(ds, d)
                 poses, seconds, extra = fn(run_ds)
-                runs.append({**_row(log, seed, name, run_ds, poses, seconds), **extra})
+                runs.append(
+                    {**_row(log, seed, name, run_ds, poses, seconds), **extra, "_poses": poses}
+                )
             runs.sort(key=lambda r: float(r["ate_m"]))
             row = runs[(len(runs) - 1) // 2]
+            if keep and truth is not None:
+                truths[log] = truth
+                kept.setdefault((log, name), []).append(row.pop("_poses"))
+            row.pop("_poses", None)
             if len(runs) > 1:
                 row["draws"] = len(runs)
                 row["ate_min"], row["ate_max"] = runs[0]["ate_m"], runs[-1]["ate_m"]
@@ -225,8 +238,37 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
     drift = {k: float(v) for k, v in json.loads(os.environ.get("BENCH_SLAM_DRIFT", "{}")).items()}
     for name, ds in real_logs():
         for seed in seeds:
-            measure(name, seed, with_drift(ds, seed, **drift))
+            measure(name, seed, with_drift(ds, seed, **drift), keep=True)
     for seed in seeds:
         for name, ds in sim_logs(seed):
             measure(name, seed, ds)
+    own = own_parts(kept, truths)
+    if own:
+        out.mkdir(parents=True, exist_ok=True)
+        pd.DataFrame(own).to_csv(out / "bench_slam_own.csv", index=False)
+        print(pd.DataFrame(own).to_string(index=False), flush=True)
     return rows
+
+
+def own_parts(
+    kept: dict[tuple[str, str], list[np.ndarray]], truths: dict[str, np.ndarray]
+) -> list[dict[str, object]]:
+    """Per real log and method run on two seeds or more: the error over 20 m of the truth's
+    path, each seed's own part and the part every seed shares (m, deg)."""
+    own = []
+    for (log, method), poses in kept.items():
+        if len(poses) < 2:
+            continue
+        split = shared_error(poses, truths[log], 20.0)
+        own.append(
+            {
+                "log": log,
+                "method": method,
+                "seeds": split.runs,
+                "own_20m_m": round(split.translation_own, 3),
+                "common_20m_m": round(split.translation_common, 3),
+                "own_20m_deg": round(float(np.degrees(split.rotation_own)), 3),
+                "common_20m_deg": round(float(np.degrees(split.rotation_common)), 3),
+            }
+        )
+    return own
