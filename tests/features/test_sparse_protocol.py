@@ -5,6 +5,7 @@ taught and the scored logs; ten taught scans per place among the kept ones."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -191,12 +192,12 @@ def gt_poses(sim: object) -> np.ndarray:
     return np.asarray(gt[["x", "y", "theta"]].to_numpy())
 
 
-def short_stays_and_turns(
-    models: dict[str, FeatureModel], run: Simulation, taught: dict[str, np.ndarray] | None
-) -> tuple[dict[str, float], dict[str, float]]:
-    """Per model, the share of the run's short room stays (under ten scans) found as room and
-    of its corridor scans taken turning on the spot found as corridor (`taught`: the scans
-    left out, run a's training ones)."""
+def found_shares(
+    models: dict[Any, FeatureModel], run: Simulation, taught: dict[str, np.ndarray] | None
+) -> dict[str, dict[Any, float]]:
+    """Per model, the share found as their place of the run's short room stays (under ten
+    scans; "stays"), of its corridor scans taken turning on the spot ("turns") and of its
+    room scans ("rooms"); `taught`: the scans left out, run a's training ones."""
     poses = gt_poses(run)
     turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
     test = np.ones(len(turning), dtype=bool)
@@ -206,14 +207,14 @@ def short_stays_and_turns(
     for place, first, last in label_runs(run.labels):
         if place == "room" and last - first < 10:
             short[first : last + 1] = True
-    stays, turns = {}, {}
+    room, corridor = (run.labels == "room") & test, (run.labels == "corridor") & test
+    found: dict[str, dict[Any, float]] = {"stays": {}, "turns": {}, "rooms": {}}
     for name, m in models.items():
         label = classify(m, run.dataset.ranges, poses).label
-        stays[name] = float(np.mean(label[(run.labels == "room") & short & test] == "room"))
-        turns[name] = float(
-            np.mean(label[(run.labels == "corridor") & turning & test] == "corridor")
-        )
-    return stays, turns
+        found["stays"][name] = float(np.mean(label[room & short] == "room"))
+        found["turns"][name] = float(np.mean(label[corridor & turning] == "corridor"))
+        found["rooms"][name] = float(np.mean(label[room] == "room"))
+    return found
 
 
 def test_turning_on_the_spot_counted_by_turn_length() -> None:
@@ -246,18 +247,9 @@ def test_turning_on_the_spot_counted_by_turn_length() -> None:
     }
     assert models[None].config.turn_length == 1.0 and models[0.0].config.turn_length == 0.0
     for key, (before, after) in {"a": (0.2, 0.8), "b": (0.2, 0.6)}.items():
-        run = runs[key]
-        poses = gt_poses(run)
-        turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
-        test = np.ones(len(turning), dtype=bool)
-        if key == "a":
-            test[np.concatenate(list(taught.values()))] = False
-        found = {}
-        for tl, model in models.items():
-            label = classify(model, run.dataset.ranges, poses).label
-            found[tl] = np.mean(label[(run.labels == "corridor") & test & turning] == "corridor")
-            assert np.mean(label[(run.labels == "room") & test] == "room") > 0.95
-        assert found[None] < before and found[0.0] > after
+        found = found_shares(models, runs[key], taught if key == "a" else None)
+        assert all(share > 0.95 for share in found["rooms"].values())
+        assert found["turns"][None] < before and found["turns"][0.0] > after
     # a dense log keeps `turn_length` (sparse_turn_length is for sparse logs only)
     sim = simulate("random", seed=3)
     ds = sim.dataset
@@ -311,18 +303,9 @@ def test_a_turn_on_the_spot_pooled_into_one_view() -> None:
     }
     assert models[None].config.turn_pool == 0.0 and models[0.3].config.turn_pool == 0.3
     for key in "ab":
-        run = runs[key]
-        poses = gt_poses(run)
-        turning = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T) < 0.3, False]
-        test = np.ones(len(turning), dtype=bool)
-        if key == "a":
-            test[np.concatenate(list(taught.values()))] = False
-        found = {}
-        for pool, model in models.items():
-            label = classify(model, run.dataset.ranges, poses).label
-            found[pool] = np.mean(label[(run.labels == "corridor") & test & turning] == "corridor")
-            assert np.mean(label[(run.labels == "room") & test] == "room") > 0.95
-        assert found[None] < 0.2 and found[0.3] > 0.6
+        found = found_shares(models, runs[key], taught if key == "a" else None)
+        assert all(share > 0.95 for share in found["rooms"].values())
+        assert found["turns"][None] < 0.2 and found["turns"][0.3] > 0.6
 
 
 def test_a_turn_pooled_only_where_it_sees_far() -> None:
@@ -366,7 +349,8 @@ def test_a_turn_pooled_only_where_it_sees_far() -> None:
         "far": model,
     }
     for key in "ab":
-        stays, turns = short_stays_and_turns(models, runs[key], taught if key == "a" else None)
+        found = found_shares(models, runs[key], taught if key == "a" else None)
+        stays, turns = found["stays"], found["turns"]
         assert stays["far"] > 0.95 and stays["every turn"] < 0.9 and stays["default"] > 0.95
         assert turns["far"] > turns["default"] + 0.25
 
@@ -421,7 +405,8 @@ def test_a_far_turn_beside_an_enclosed_one_is_not_pooled() -> None:
         )
     }  # fmt: skip
     for key in "ab":
-        stays, turns = short_stays_and_turns(models, runs[key], taught if key == "a" else None)
+        found = found_shares(models, runs[key], taught if key == "a" else None)
+        stays, turns = found["stays"], found["turns"]
         assert stays["door"] == stays["door 2"] == stays["none"] > 0.9
         assert turns["door"] > turns["door 2"] > turns["none"] + 0.08
         if key == "a":

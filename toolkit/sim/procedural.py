@@ -149,7 +149,6 @@ def random_world(
     b = WorldBuilder()
     zones: list[Zone] = []
     openings: dict[tuple[int, int], list[tuple[float, float, str]]] = {}
-    rooms: dict[tuple[int, int], list[tuple[float, float]]] = {}
     placed: list[tuple[int, int, float, float, float]] = []  # leg, side, door start, w, depth
 
     def along(leg: _Leg, u0: float, u1: float, margin: float, label: str) -> Zone:
@@ -194,18 +193,16 @@ def random_world(
             continue
         d0 = u + room_w / 2 - DOOR_WIDTH / 2
         openings.setdefault((k, s), []).append((d0, d0 + DOOR_WIDTH, "door"))
-        rooms.setdefault((k, s), []).append((room_w, float(rng.uniform(3.0, 4.0))))
-        placed.append((k, s, d0, room_w, rooms[k, s][-1][1]))
+        placed.append((k, s, d0, room_w, float(rng.uniform(3.0, 4.0))))
         zones.append(along(legs[k], d0, d0 + DOOR_WIDTH, DOOR_MARGIN, "door"))
         doors += 1
         if doors >= 5:
             break
 
-    visits = _brief_rooms(placed, seed) if brief else None
-    if visits is not None:  # the small rooms, around their doors
-        rooms = {}
-        for k, s, _, w, depth in placed:
-            rooms.setdefault((k, s), []).append((w, depth))
+    visits = _brief_rooms(placed, seed) if brief else None  # the small rooms, in place
+    rooms: dict[tuple[int, int], list[tuple[float, float]]] = {}  # per wall: (width, depth)
+    for k, s, _, w, depth in placed:
+        rooms.setdefault((k, s), []).append((w, depth))
 
     # windows: 1-3, any leg
     wanted, windows = int(rng.integers(1, 4)), 0

@@ -259,19 +259,24 @@ def _chain_cov(
     return out
 
 
+def unverified(ranges: np.ndarray, step_fit: np.ndarray, config: SlamConfig) -> np.ndarray:
+    """(S - 1,) bool, pair k = scan k -> k+1: the steps into scans the scan-to-map front end
+    could not verify (fewer returns than it searches, `SEARCH_MIN`, and a fit with fewer than
+    `min_inliers` of them within reach of the map), whose heading is the odometry's."""
+    cfg = config.scan_map
+    out: np.ndarray = (returns(ranges[1:], cfg.max_range) < SEARCH_MIN) & (
+        np.asarray(step_fit) < cfg.min_inliers
+    )
+    return out
+
+
 def blind_steps(
     ranges: np.ndarray, step_fit: np.ndarray, before: np.ndarray, config: SlamConfig
 ) -> np.ndarray:
-    """(S - 1,) bool, pair k = scan k -> k+1: the steps into scans the scan-to-map front end
-    could not verify (fewer returns than it searches, `SEARCH_MIN`, and a fit with fewer than
-    `min_inliers` of them within reach of the map), whose heading is the odometry's, that
-    turn (in the estimate `before`) more than `blind_min_turn`: where a slip may hide."""
-    cfg = config.scan_map
-    sparse = returns(ranges[1:], cfg.max_range) < SEARCH_MIN
+    """The `unverified` steps that turn (in the estimate `before`) more than
+    `blind_min_turn`: where a slip may hide."""
     turn = np.abs(se2.between(before[:-1], before[1:])[:, 2])
-    out: np.ndarray = (
-        sparse & (np.asarray(step_fit) < cfg.min_inliers) & (turn > config.blind_min_turn)
-    )
+    out: np.ndarray = unverified(ranges, step_fit, config) & (turn > config.blind_min_turn)
     return out
 
 
@@ -287,12 +292,10 @@ def mend_blind(
     one of them stays in the blind scans' poses even when the next fitted scan takes it out;
     the turn the ends disagree with the odometry by goes on the step it leaves turning least.
     Poses outside the stretches that need it are returned unchanged (the same array)."""
-    cfg = config.scan_map
-    blind = np.zeros(len(before), dtype=bool)
-    blind[1:] = (returns(ranges[1:], cfg.max_range) < SEARCH_MIN) & (
-        np.asarray(step_fit) < cfg.min_inliers
-    )
-    if config.blind_mend <= 0 or not blind.any():
+    if config.blind_mend <= 0:
+        return before
+    blind = np.r_[False, unverified(ranges, step_fit, config)]
+    if not blind.any():
         return before
     edge = np.diff(np.concatenate([[0], blind.astype(np.int8), [0]]))
     out = before

@@ -113,8 +113,8 @@ def slam_trajectory(
     `progress(m)`: m more scan pairs matched (`toolkit.poses.build`)."""
     slam = slam or SlamConfig()
     t0 = time.perf_counter()
-    with_odometry = odometry_poses(ds) is not None
-    if slam.maps_scan_to_map(method, with_odometry):
+    wheels = odometry_poses(ds)
+    if slam.maps_scan_to_map(method, wheels is not None):
         # sequential by nature: runs here even when a cluster `matcher` is given (which
         # matches independent scan pairs), so a run gives the same poses on a cluster or not
         result = scan_to_map(ds, slam.scan_map, progress)
@@ -129,11 +129,10 @@ def slam_trajectory(
     step_cov = None
     if slam.front_end == "map" and result.matches is not None:
         step_cov = result.matches.covariance  # scan-to-map: world frame, per scan step
-    odometry = odometry_poses(ds) if slam.odometry_along > 0 else None
+    odometry = wheels if slam.odometry_along > 0 else None
     step_fit = None
     if slam.front_end == "map" and slam.blind_turn > 0 and result.matches is not None:
         step_fit = result.matches.agreement  # the inlier share of each scan's fit
-    wheels = odometry_poses(ds) if slam.blind_mend > 0 else None
     if slam.front_end == "map" and wheels is not None and result.matches is not None:
         before = mend_blind(ds.ranges, result.matches.agreement, before, wheels, slam)
     poses, keys, edges, loops, timings, before = close_loops(
