@@ -13,7 +13,9 @@ import pytest
 
 from tests.conftest import Cli
 from toolkit.sim import simulate
-from toolkit.sim.procedural import PLACES, random_world
+from toolkit.sim.geometry import cast
+from toolkit.sim.procedural import CORNER_MARGIN, PLACES, SPIN_STEP, random_world
+from toolkit.sim.scenarios import Scenario, Zone
 from toolkit.sim.truth import runs
 
 
@@ -251,3 +253,122 @@ def test_revisit_on_the_command_line_and_in_the_protocol(tmp_path: Path, cli: Cl
     far = int(np.argmin(np.hypot(*(gt[["x", "y"]].to_numpy() - end).T)))
     assert set(a.regions.feature) == {"corridor", "room"}
     assert a.regions.end.max() < a.dataset.t[far]
+
+
+def _crossing_zones(scn: Scenario) -> list[Zone]:
+    """The crossings of a world with `crossings`: its zones labelled "corridor"."""
+    return [z for z in scn.zones if z.label == "corridor"]
+
+
+@pytest.mark.parametrize(
+    "kw", [{}, {"entered": True, "brief": True}, {"entered": True, "brief": True, "revisit": True}]
+)
+def test_crossings_add_side_corridors_and_spins_and_change_nothing_else(
+    kw: dict[str, bool],
+) -> None:
+    """`crossings` is off by default; on, the zones but the crossings' and the regions' parts
+    are the same, the path is the same but for the spins' steps of `SPIN_STEP` m (their own
+    generators), and from each crossing's centre the laser sees 6-12 m down a side corridor
+    where the plain world has a wall beside the corridor."""
+    for seed, route in ((3, 0), (2001, 1), (5, 0)):
+        plain = random_world(seed, route, **kw)
+        assert np.array_equal(
+            random_world(seed, route, crossings=False, **kw).waypoints, plain.waypoints
+        )
+        both = random_world(seed, route, crossings=True, **kw)
+        crossings = _crossing_zones(both)
+        assert 1 <= len(crossings) <= 2 and not _crossing_zones(plain)
+        assert [z for z in both.zones if z.label != "corridor"] == plain.zones
+        assert both.region_parts == plain.region_parts
+        step = np.hypot(*np.diff(both.waypoints, axis=0).T)
+        spin = np.r_[False, step < SPIN_STEP + 1e-9]  # the spins' waypoints
+        spins = int(spin.sum()) // 3  # three steps each: look to one side, across, back
+        assert spin.sum() == 3 * spins and len(crossings) <= spins <= 2 * len(crossings)
+        # without the spins' steps and the crossings' points, the plain path
+        kept = both.waypoints[~spin]
+        if not kw.get("revisit"):
+            on_plain = np.array([any(np.all(p == plain.waypoints, axis=1)) for p in kept])
+            assert np.array_equal(kept[on_plain], plain.waypoints) and (~on_plain).sum() == spins
+        else:
+            out = random_world(seed, route, crossings=True, **{**kw, "revisit": False})
+            assert np.array_equal(both.waypoints[: len(out.waypoints)], out.waypoints)
+        for z in crossings:
+            centre = np.array([(z.x0 + z.x1) / 2, (z.y0 + z.y1) / 2])
+            angles = np.arange(4) * np.pi / 2
+            far = cast(both.world, centre, np.zeros(1), angles, 80.0).opaque[0]
+            near = cast(plain.world, centre, np.zeros(1), angles, 80.0).opaque[0]
+            half = (z.x1 - z.x0) / 2 - CORNER_MARGIN  # the corridor's half width
+            sideways = near < half + 0.01  # the plain world's walls beside the corridor
+            assert sideways.sum() == 2
+            assert np.all(far[sideways] < half + 12.01)
+            assert np.any(far[sideways] > half + 6.0)  # a T or an X
+
+
+@pytest.mark.parametrize("seed", [3, 2001])
+def test_the_path_spins_at_the_crossings_labelled_corridor(seed: int) -> None:
+    """At each crossing the path turns on the spot by 1.5-2 pi (9-13 scans at 1 m or 0.5 rad,
+    as the Intel robot's long turns at its junctions), every scan there labelled corridor,
+    also after `as_intel`; with `revisit` the way back passes each crossing again."""
+    from toolkit.features.evaluate import as_intel, thinned
+
+    for revisit in (False, True):
+        dense = simulate(
+            "random", seed=seed, entered=True, brief=True, crossings=True, revisit=revisit
+        )
+        assert dense.params["crossings"] is True
+        sim = as_intel(thinned(dense, 1.0, 0.5))
+        scn = random_world(seed, entered=True, brief=True, crossings=True, revisit=revisit)
+        for z in _crossing_zones(scn):
+            counts, turned = [], []
+            for run in (dense, sim):
+                gt = run.dataset.groundtruth
+                assert gt is not None
+                inside = np.flatnonzero(z.contains(gt[["x", "y"]].to_numpy()))
+                assert set(run.labels[inside]) == {"corridor"}
+                passes = np.split(inside, np.flatnonzero(np.diff(inside) > 1) + 1)
+                assert len(passes) == (2 if revisit else 1)
+                heading = np.unwrap(gt.theta.to_numpy())
+                counts.append([len(p) for p in passes])
+                turned.append(
+                    [np.abs(np.diff(heading[p[0] - 1 : p[-1] + 2])).sum() for p in passes]
+                )
+            spun = 1.5 * np.pi - 0.05 < turned[0][0] < 2 * np.pi + 0.05
+            assert spun and 9 <= counts[1][0] <= 16  # the thinned scans of the spin
+            if revisit:  # the way back: a spin or a drive through (a scan or four)
+                assert turned[0][1] < 0.05 or 1.5 * np.pi - 0.05 < turned[0][1] < 2 * np.pi + 0.05
+                assert 9 <= counts[1][1] <= 16 or (turned[0][1] < 0.05 and counts[1][1] <= 6)
+
+
+def test_crossings_on_the_command_line_and_in_the_protocol(tmp_path: Path, cli: Cli) -> None:
+    """`-p crossings=true` (random worlds only) and `evaluate --crossings`."""
+    from toolkit.features.evaluate import worlds
+
+    out = tmp_path / "random"
+    code, stdout, _ = cli(
+        "simulate",
+        "random",
+        "--seed",
+        "3",
+        "-p",
+        "crossings=true",
+        "--out",
+        str(out),
+        "-f",
+        "dataset",
+    )
+    assert code == 0, stdout
+    assert len(pd.read_parquet(out / "truth.parquet")) == random_world(3, crossings=True).scans
+    code, _, err = cli(
+        "simulate",
+        "corridor",
+        "-p",
+        "crossings=true",
+        "--out",
+        str(tmp_path / "c"),
+        "-f",
+        "dataset",
+    )
+    assert code == 1 and "crossings" in err
+    runs_x = worlds(3, 1.0, 0.5, True, True, True, True)
+    for key in "abc":
+        assert runs_x[key].params["crossings"] is True and runs_x[key].params["revisit"] is True

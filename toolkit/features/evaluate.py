@@ -14,7 +14,7 @@ the seeds), top-label ECE, and precision and recall per place (means over the se
 row of the ablation adds one part to the one before; the default row is `Config()`.
 
     python -m toolkit.features.evaluate [--seeds 100-119] [--scenarios] [--spacing 1.0]
-        [--turn 0.5] [--entered] [--brief] [--revisit] [--out table.md]
+        [--turn 0.5] [--entered] [--brief] [--revisit] [--crossings] [--out table.md]
 
 With `--spacing` (m) every run is thinned to scans that far apart along the true path, as
 in a log whose scans are far apart (the Intel log's are about 1 m apart, and the sparse-scan
@@ -32,7 +32,9 @@ crossings included) and room, two spans of ten scans each; only those are scored
 short visits (`random_world(..., brief=True)`). `--revisit` makes every path come back along
 the chain to its start (`random_world(..., revisit=True)`; session 28): each stretch of
 corridor seen twice, once each way, as the Intel robot sees its ring; the regions stay on the
-way out, so (a) scores the rest of the run, the way back included.
+way out, so (a) scores the rest of the run, the way back included. `--crossings` puts one or
+two side corridors across the chain (`random_world(..., crossings=True)`; session 28): the
+paths spin on the spot where they cross, as the Intel robot at its ring's junctions.
 
 The default seeds, 100-119, were the first held-out set. Each session since has held out a
 fresh set, run only to measure and then spent for development (300-319, 400-419, 500-519,
@@ -192,35 +194,41 @@ def worlds(
     entered: bool = False,
     brief: bool = False,
     revisit: bool = False,
+    crossings: bool = False,
 ) -> dict[str, Any]:
     """The three runs of the protocol for one seed: a (teach and score), b (same world,
     other route), c (another world); with `spacing` > 0 each thinned (`thinned`, also at
     every `turn` rad turned when > 0); with `entered` the paths enter rooms and the runs are
     labelled and taught as the Intel log is (`as_intel`); with `brief` too, small rooms
     entered briefly beside two entered fully; with `revisit`, paths that come back to their
-    start (`random_world`)."""
+    start; with `crossings`, worlds with side corridors where the paths spin
+    (`random_world`)."""
     more: dict[str, bool] = {"entered": True} if entered else {}
     if brief:
         more["brief"] = True
     if revisit:
         more["revisit"] = True
+    if crossings:
+        more["crossings"] = True
     runs = {
         "a": simulate("random", seed=seed, **more),
         "b": simulate("random", seed=seed, route=1, **more),
         "c": simulate("random", seed=seed + TRANSFER, **more),
     }
     # with `revisit`: the time each run reaches the end of its way out (the turn-around)
-    ends = {k: way_out_end(v, entered, brief) for k, v in runs.items()} if revisit else {}
+    ends = (
+        {k: way_out_end(v, entered, brief, crossings) for k, v in runs.items()} if revisit else {}
+    )
     if spacing > 0:
         runs = {k: thinned(v, spacing, turn) for k, v in runs.items()}
     return {k: as_intel(v, ends.get(k)) for k, v in runs.items()} if entered else runs
 
 
-def way_out_end(sim: Simulation, entered: bool, brief: bool) -> float:
+def way_out_end(sim: Simulation, entered: bool, brief: bool, crossings: bool = False) -> float:
     """The time a path that comes back (`revisit`) reaches its way out's end: its first scan
     there (the way out is the path of the same world and route without `revisit`)."""
     p = sim.params
-    end = random_world(sim.seed, p["route"], entered, brief).waypoints[-1]
+    end = random_world(sim.seed, p["route"], entered, brief, crossings=crossings).waypoints[-1]
     gt = sim.dataset.groundtruth
     assert gt is not None
     there = np.hypot(*(gt[["x", "y"]].to_numpy() - end).T) < 1e-6
@@ -344,6 +352,7 @@ def protocol(
     entered: bool = False,
     brief: bool = False,
     revisit: bool = False,
+    crossings: bool = False,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The protocol's table (a row per configuration) and, for the first configuration
     marked default (else the first), precision and recall per place and run. With `spacing`
@@ -353,7 +362,7 @@ def protocol(
     results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
     partial = spacing > 0 or entered
     for seed in seeds:
-        runs = worlds(seed, spacing, turn, entered, brief, revisit)
+        runs = worlds(seed, spacing, turn, entered, brief, revisit, crossings)
         if partial and not teaches_two(runs):
             continue
         for name, config in configs:
@@ -475,6 +484,11 @@ def main() -> None:
         action="store_true",
         help="paths that come back along the corridors to their start (every stretch seen twice)",
     )
+    parser.add_argument(
+        "--crossings",
+        action="store_true",
+        help="worlds with side corridors across the chain, the paths spinning where they cross",
+    )
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     if args.brief and not args.entered:
@@ -485,7 +499,14 @@ def main() -> None:
     configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
     started = time.perf_counter()
     table, places = protocol(
-        configs, args.seeds, args.spacing, args.turn, args.entered, args.brief, args.revisit
+        configs,
+        args.seeds,
+        args.spacing,
+        args.turn,
+        args.entered,
+        args.brief,
+        args.revisit,
+        args.crossings,
     )
     text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)})"
     if args.entered:
@@ -493,6 +514,8 @@ def main() -> None:
         text += " (small rooms entered briefly)" if args.brief else ""
     if args.revisit:
         text += ", paths coming back to their start"
+    if args.crossings:
+        text += ", side corridors crossing the chain (the paths spinning there)"
     if args.spacing > 0:
         text += f", scans {args.spacing:g} m apart"
         text += f" or {args.turn:g} rad of turning" if args.turn > 0 else ""

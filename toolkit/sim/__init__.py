@@ -142,6 +142,10 @@ def parameters(
     if revisit is not None and scenario != "random":
         raise ToolkitError("revisit is a parameter of the random scenario only")
     back = _yes(revisit, "revisit") if revisit is not None else False
+    crossings = params.pop("crossings", None)
+    if crossings is not None and scenario != "random":
+        raise ToolkitError("crossings is a parameter of the random scenario only")
+    cross = _yes(crossings, "crossings") if crossings is not None else False
     laps = params.pop("laps", None)
     if laps is not None and scenario != "building":
         raise ToolkitError("laps is a parameter of the building scenario only")
@@ -149,7 +153,7 @@ def parameters(
     if rounds < 1:
         raise ToolkitError(f"laps must be at least 1, not {rounds}")
     if scenario == "random":
-        scn = random_world(seed, way, enter, short, back)
+        scn = random_world(seed, way, enter, short, back, cross)
     elif scenario == "building":
         scn = building(rounds)
     else:
@@ -196,7 +200,8 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
     `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`, and
     `entered`: true for a path that also enters rooms, and `brief`: with it, small rooms
-    entered briefly, and `revisit`: a path that comes back to its start; for "building",
+    entered briefly, `revisit`: a path that comes back to its start, and `crossings`: side
+    corridors across the chain, where the path spins on the spot; for "building",
     `laps`: times round the ring)."""
     sway, period = _sway(params)
     scn, laser, odometry = parameters(scenario, seed, **params)
@@ -218,6 +223,7 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
         **({"entered": True} if _yes(params.get("entered") or False) else {}),
         **({"brief": True} if _yes(params.get("brief") or False, "brief") else {}),
         **({"revisit": True} if _yes(params.get("revisit") or False, "revisit") else {}),
+        **({"crossings": True} if _yes(params.get("crossings") or False, "crossings") else {}),
         **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
         **({"sway": sway, "sway_period": period} if sway > 0 else {}),
         **laser.to_dict(),

@@ -46,6 +46,19 @@ briefly, a large one fully), as the Intel lab's robot enters some rooms on one p
 its ring and not on another. So every stretch of corridor is seen twice, once each way; the
 regions (ten scans per place) are still drawn from each place's first occurrence, on the
 way out.
+
+With `crossings` (off by default: every world and path as without it, to the bit; session 28,
+issue 16) one or two side corridors of the world's width cross the chain's legs, as the Intel
+ring's corridors meet at its junctions: an X (p 0.5) or a T, each arm 6-12 m long and closed
+at its end, where no door, window or hall is (`_crossings`). The path spins there: it turns on
+the spot to look down the arm (an X's drawn), back across its heading to look the other way,
+and back to go on, 1.5-2 pi in all (11-15 scans in the crossing at 1 m or 0.5 rad, as the
+Intel robot's long turns at its junctions); it does not drive into the arms (the Intel miss
+is in the turns on the spot). The crossing is labelled "corridor" (a zone of its own, first in the list, so that it
+can be found), as the Intel junctions are by its position rule; "corner" stays the chain's own
+bends. With `revisit` too, the way back spins at each crossing with probability `SPIN_BACK`
+and else drives through. The crossings and the spins draw from their own generators, so every
+other draw is unchanged.
 """
 
 from __future__ import annotations
@@ -66,6 +79,9 @@ CORNER_MARGIN = 0.3  # m either side of the crossing: the zone "corner"
 ENTER_SHARE = 0.6  # with `entered`: the share of the open doors whose room the path enters
 BRIEF_DOORS = 4  # with `brief`: open doors drawn until at least this many (where they fit)
 BRIEF_WIDER = 1.5  # with `brief`: m added to every room's width (the rooms entered fully)
+SPIN = (1.5 * np.pi, 2.0 * np.pi)  # with `crossings`: rad turned on the spot at a crossing
+SPIN_STEP = 0.03  # m: the path's step between the headings of a spin (a turn on the spot)
+SPIN_BACK = 0.5  # with `crossings` and `revisit`: the share of crossings the way back spins at
 
 
 @dataclass
@@ -147,11 +163,13 @@ def random_world(
     entered: bool = False,
     brief: bool = False,
     revisit: bool = False,
+    crossings: bool = False,
 ) -> Scenario:
     """A random building (see the module docstring), and a path through it by `route`; with
     `entered`, one that also enters rooms through their doors (labelled "room"); with `brief`
     too, small rooms entered briefly beside two entered fully; with `revisit`, a path that
-    comes back along the chain to its start."""
+    comes back along the chain to its start; with `crossings`, side corridors across the
+    chain's legs, where the path spins on the spot."""
     if brief and not entered:
         raise ValueError("brief room visits need entered")
     rng = np.random.default_rng([seed, 16])
@@ -257,6 +275,20 @@ def random_world(
         if u is not None:
             clutter.append((k, s, u, size, float(rng.uniform(0.2, min(0.6, 0.25 * width)))))
 
+    # with `crossings`: side corridors across the legs, from their own generator
+    hall = [_side_box(leg, s, h, u_hall, hall_len, hall_depth) for s in (1, -1)]
+    blocked = [hall[0] if hall_side != -1 else None, hall[1] if hall_side != 1 else None]
+    blocked += [_room_zone(legs[k], s, d0, w, depth, h) for k, s, d0, w, depth in placed]
+    crossed = (
+        _crossings(seed, legs, sides, zones, [z for z in blocked if z is not None], h)
+        if crossings
+        else []
+    )
+    for cross in crossed:
+        for s, arm in cross.arms.items():
+            openings.setdefault((cross.leg, s), []).append((cross.u - h, cross.u + h, "gap"))
+            _arm(b, legs[cross.leg], s, h, cross.u, arm)
+
     # the walls, with their openings (positions along the wall, from its first end)
     for k, leg in enumerate(legs):
         for s, (p0, p1) in ((1, leg.left), (-1, leg.right)):
@@ -296,6 +328,10 @@ def random_world(
     for v in centre[1:-1]:
         m = h + CORNER_MARGIN
         zones.insert(0, Zone("corner", v[0] - m, v[1] - m, v[0] + m, v[1] + m))
+    for cross in crossed:  # the crossings: corridor, as the Intel ring's junctions are
+        v = legs[cross.leg].start + legs[cross.leg].direction * cross.u
+        m = h + CORNER_MARGIN
+        zones.insert(0, Zone("corridor", v[0] - m, v[1] - m, v[0] + m, v[1] + m))
 
     path_rng = np.random.default_rng([seed, 16, route])
     offset = float(path_rng.uniform(-0.2, 0.2)) * width
@@ -305,16 +341,19 @@ def random_world(
     if entered:
         way = _entering(way, legs, placed, offset, h, seed, visits)
         zones += [_room_zone(legs[k], s, d0, w, depth, h) for k, s, d0, w, depth in placed]
+    if crossed:
+        spin_rng = np.random.default_rng([seed, 16, 281, route])
+        way = _spins(way, legs, crossed, offset, spin_rng)
     if route % 2 == 1:
         way = way[::-1]
     if revisit:
         way = np.concatenate(
-            [way, _way_back(centre, legs, placed, width, seed, route, entered, visits)]
+            [way, _way_back(centre, legs, placed, width, seed, route, entered, visits, crossed)]
         )
     speed = float(path_rng.uniform(0.35, 0.6))
     turn_rate = 0.5
     length = float(np.hypot(*np.diff(way, axis=0).T).sum())
-    if entered or revisit:  # turns of any angle (in a room, half turns)
+    if entered or revisit or crossings:  # turns of any angle (in a room, half turns)
         d = np.diff(way, axis=0)
         turned = float(np.abs(np.diff(np.unwrap(np.arctan2(d[:, 1], d[:, 0])))).sum())
         seconds = length / speed + turned / turn_rate
@@ -368,11 +407,13 @@ def _way_back(
     route: int,
     entered: bool,
     visits: dict[int, tuple[float, int]] | None,
+    crossed: list[_Crossing] | None = None,
 ) -> np.ndarray:
     """With `revisit`: the waypoints from the far end of `route`'s path back to its start, on
     a lateral offset of its own (up to a fifth of the width off the centre line), with
-    `entered` into each room with probability `ENTER_SHARE` (entered on the way out or not);
-    drawn from their own generator, so that every other draw is unchanged."""
+    `entered` into each room with probability `ENTER_SHARE` (entered on the way out or not),
+    with `crossed` spinning at each crossing with probability `SPIN_BACK` (else driving
+    through); drawn from their own generators, so that every other draw is unchanged."""
     rng = np.random.default_rng([seed, 16, route, 28])
     offset = float(rng.uniform(-0.2, 0.2)) * width
     way = _offset(centre, offset)
@@ -381,6 +422,9 @@ def _way_back(
     if entered:
         pick = rng.random(len(placed)) < ENTER_SHARE
         way = _entering(way, legs, placed, offset, width / 2, seed, visits, pick)
+    if crossed:
+        spin_rng = np.random.default_rng([seed, 16, 282, route])
+        way = _spins(way, legs, crossed, offset, spin_rng, SPIN_BACK)
     return way if route % 2 == 1 else way[::-1]
 
 
@@ -435,6 +479,148 @@ def _room_zone(leg: _Leg, side: int, d0: float, w: float, depth: float, h: float
     pts = [c + leg.direction * a + n * b for a in (-w / 2, w / 2) for b in (h, h + depth)]
     xs, ys = [p[0] for p in pts], [p[1] for p in pts]
     return Zone("room", min(xs), min(ys), max(xs), max(ys))
+
+
+@dataclass
+class _Crossing:
+    leg: int  # the leg it crosses
+    u: float  # m along the leg: the side corridor's centre line
+    arms: dict[int, float]  # per side of the leg (+1 left, -1 right): the arm's length (m)
+
+
+def _side_box(leg: _Leg, side: int, h: float, u: float, along: float, out: float) -> Zone:
+    """The box beside `leg` on `side`: from `u` to `u + along` along it, from its wall out to
+    `out` m beyond the wall."""
+    n = _normal(leg.direction) * side
+    pts = [leg.start + leg.direction * a + n * b for a in (u, u + along) for b in (h, h + out)]
+    xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+    return Zone("", min(xs), min(ys), max(xs), max(ys))
+
+
+def _overlap(a: Zone, b: Zone) -> bool:
+    return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
+
+
+def _crossings(
+    seed: int,
+    legs: list[_Leg],
+    sides: list[_Sides],
+    places: list[Zone],
+    blocked: list[Zone],
+    h: float,
+) -> list[_Crossing]:
+    """With `crossings`: one or two side corridors of the world's width (an X with p 0.5,
+    else a T to a random side), each arm 6-12 m long and closed at its end, across a leg 2.5 m
+    plus the width from its ends, where the crossing is 1 m clear of every place zone along
+    the leg (`places`: doors, windows, the hall), its mouths clear of niches and clutter, and
+    its arms 0.5 m clear of the `blocked` boxes (rooms, the hall), of every leg and of each
+    other; drawn (among every place it fits, 0.1 m apart) from their own generator, so that
+    every other draw is unchanged. A crossing that fits nowhere is left out."""
+    rng = np.random.default_rng([seed, 16, 280])
+    width, clear, gap = 2 * h, 0.5, 1.0
+    boxes, places = list(blocked), list(places)
+    for leg in legs:  # each leg's own corridor, its corners included
+        xs = [leg.start[0] - h, leg.start[0] + h, leg.end[0] - h, leg.end[0] + h]
+        ys = [leg.start[1] - h, leg.start[1] + h, leg.end[1] - h, leg.end[1] + h]
+        boxes.append(Zone("", min(xs), min(ys), max(xs), max(ys)))
+    out: list[_Crossing] = []
+    for _ in range(int(rng.integers(1, 3))):
+        kinds = (1, -1) if rng.random() < 0.5 else (int(rng.choice([1, -1])),)
+        arms = {s: float(rng.uniform(6.0, 12.0)) for s in kinds}
+        fits = []  # every place it fits, on a grid of 0.1 m along each leg
+        for k, leg in enumerate(legs):
+            for u in np.arange(width + 2.5, leg.length - width - 2.5, 0.1):
+                square = Zone("", *_extent(leg, u - h - gap, u + h + gap, h))
+                if any(_overlap(square, z) for z in places) or any(
+                    u - h - 0.2 < b and a < u + h + 0.2 for s in arms for a, b in sides[k].taken[s]
+                ):
+                    continue
+                wide = [
+                    _side_box(leg, s, h, u - h - clear, width + 2 * clear, length + clear)
+                    for s, length in arms.items()
+                ]
+                # 0.5 m clear of everything but its own leg, where it opens
+                if not any(
+                    _overlap(Zone("", *_inset(a, leg, clear)), b) for a in wide for b in boxes
+                ):
+                    fits.append((k, float(u), wide, square))
+        if not fits:
+            continue
+        k, u, wide, square = fits[int(rng.integers(len(fits)))]
+        boxes += wide
+        places.append(square)  # the next crossing keeps clear of this one
+        out.append(_Crossing(k, u, arms))
+    return out
+
+
+def _extent(leg: _Leg, u0: float, u1: float, h: float) -> tuple[float, float, float, float]:
+    """The box of `leg`'s corridor from `u0` to `u1` along it."""
+    n = _normal(leg.direction) * h
+    pts = [leg.start + leg.direction * u + e for u in (u0, u1) for e in (n, -n)]
+    xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+    return min(xs), min(ys), max(xs), max(ys)
+
+
+def _inset(box: Zone, leg: _Leg, clear: float) -> tuple[float, float, float, float]:
+    """`box` (an arm with its clearance) without the strip of `clear` m along `leg`'s wall."""
+    x0, y0, x1, y1 = box.x0, box.y0, box.x1, box.y1
+    if leg.horizontal:  # the arm runs along y: drop the strip nearest the leg's centre line
+        if abs(y0 - leg.start[1]) < abs(y1 - leg.start[1]):
+            y0 += clear
+        else:
+            y1 -= clear
+    elif abs(x0 - leg.start[0]) < abs(x1 - leg.start[0]):
+        x0 += clear
+    else:
+        x1 -= clear
+    return x0, y0, x1, y1
+
+
+def _arm(b: WorldBuilder, leg: _Leg, side: int, h: float, u: float, length: float) -> None:
+    """A side corridor's arm: two walls from `leg`'s wall on `side` out to `length` m, and
+    the wall that closes it."""
+    n = _normal(leg.direction) * side
+    near = [leg.start + leg.direction * (u + a) + n * h for a in (-h, h)]
+    b.polyline([_pt(q) for q in (near[0], near[0] + n * length, near[1] + n * length, near[1])])
+
+
+def _spins(
+    way: np.ndarray,
+    legs: list[_Leg],
+    crossed: list[_Crossing],
+    offset: float,
+    rng: np.random.Generator,
+    share: float = 1.0,
+) -> np.ndarray:
+    """The waypoints `way` (route 0, on `offset`) with a spin on the spot at each crossing
+    (with probability `share`, else driving through): it turns to look down the arm (a T's, an
+    X's drawn), turns back across its heading to look the other way, and turns to go on; in
+    all `SPIN` rad turned (drawn), in steps of `SPIN_STEP` m, which the simulator drives as
+    turns on the spot."""
+    for cross in crossed:
+        leg = legs[cross.leg]
+        d = leg.direction
+        total = float(rng.uniform(*SPIN))
+        first = int(rng.choice(sorted(cross.arms)))
+        if rng.random() >= share:
+            continue
+        at = leg.start + d * cross.u + _normal(d) * offset
+        seg = np.diff(way, axis=0)
+        rel = at - way[:-1]
+        t = np.einsum("ij,ij->i", rel, seg) / np.einsum("ij,ij->i", seg, seg)
+        off = np.abs(rel[:, 0] * seg[:, 1] - rel[:, 1] * seg[:, 0])
+        hit = np.flatnonzero((t > 0) & (t < 1) & (off < 1e-6 * np.hypot(*seg.T)))
+        if len(hit) == 0:  # the crossing is placed away from every detour: never here
+            raise RuntimeError("no stretch of the path passes the crossing")
+        i = int(hit[0])
+        look = total / 4  # to the side, back across by twice that, and back to go on
+        heading = float(np.arctan2(d[1], d[0]))
+        turns = [heading + first * look, heading, heading - first * look]
+        steps = [at]
+        for th in turns:
+            steps.append(steps[-1] + SPIN_STEP * np.array([np.cos(th), np.sin(th)]))
+        way = np.concatenate([way[: i + 1], np.array(steps), way[i + 1 :]])
+    return way
 
 
 def _pt(p: np.ndarray) -> tuple[float, float]:

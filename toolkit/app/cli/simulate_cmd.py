@@ -43,7 +43,8 @@ def simulate_command(
             "for loop closure), or random (a new world per --seed; -p route=1: the other way "
             "through it; -p entered=true: into rooms and turning there; with it -p brief=true: "
             "short visits to small rooms as well; -p revisit=true: back to the start along the "
-            "same corridors)",
+            "same corridors; -p crossings=true: side corridors across the chain, the path "
+            "spinning on the spot where they cross)",
         ),
     ],
     out: Annotated[Path, typer.Option("--out", metavar="DIR", help="directory to write")],
