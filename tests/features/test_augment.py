@@ -230,7 +230,8 @@ def test_turned_views_render_the_corridor_seen_across() -> None:
 def test_turned_copies_of_the_spans_driven_straight() -> None:
     """`fitting.turned_copies`: a view per taught scan and heading of `turned_by`; with
     `turned_spans` "straight" only the span driven along the corridor, not the one turning
-    on the spot in the room (it has its own views); "all" both; `turned_of` names places."""
+    on the spot in the room (it has its own views); "all" (the default) both; `turned_of`
+    names places."""
     from toolkit.features.fitting import turned_copies
     from toolkit.features.model import Config
 
@@ -239,13 +240,13 @@ def test_turned_copies_of_the_spans_driven_straight() -> None:
     poses = np.vstack([drive_, spin])
     r = cast(poses)
     spans = [("corridor", np.arange(2, 9)), ("room", np.arange(11, 17))]
-    on = Config(augment_turned=1.0, turned_by=(90.0, -90.0, 180.0))
+    on = Config(augment_turned=1.0, turned_by=(90.0, -90.0, 180.0), turned_spans="straight")
     out = turned_copies(r, LASER, poses, spans, on)
     assert [round(float(np.degrees(t))) for t, _, _ in out] == [90, -90, 180]
     assert all(
         np.array_equal(rows, np.arange(2, 9)) and v.shape == (7, LASER.beams) for _, rows, v in out
     )
-    both = turned_copies(r, LASER, poses, spans, Config(augment_turned=1.0, turned_spans="all"))
-    assert [len(rows) for _, rows, _ in both] == [13, 13]
-    rooms = Config(augment_turned=1.0, turned_spans="all", turned_of=("room",))
-    assert [len(rows) for _, rows, _ in turned_copies(r, LASER, poses, spans, rooms)] == [6, 6]
+    both = turned_copies(r, LASER, poses, spans, Config(augment_turned=1.0, turned_by=(90.0,)))
+    assert [len(rows) for _, rows, _ in both] == [13]  # the default: every span
+    rooms = Config(augment_turned=1.0, turned_of=("room",))
+    assert [len(rows) for _, rows, _ in turned_copies(r, LASER, poses, spans, rooms)] == [6] * 4
