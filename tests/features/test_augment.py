@@ -22,6 +22,7 @@ from toolkit.features.augment import (
     started,
     stretched,
     to_width,
+    turned_views,
     usual_wall,
     usual_width,
     walled_across,
@@ -200,3 +201,52 @@ def test_reach_in_metres_follows_the_rescaled_descriptors_as_measured() -> None:
     assert seen.mean() > 0.9
     assert np.allclose(y[seen][:, m] - y[seen][:, k:], np.log(2.0))  # the rescaled: log 2 more
     assert np.array_equal(with_metres(x.copy(), columns, 2.0, False), y[:, :k])  # off: as before
+
+
+def test_turned_views_render_the_corridor_seen_across() -> None:
+    """Scans driven along the corridor (x 1-11, heading +x), rendered from x 6 turned by 90
+    degrees: the beams that meet a wall the scans saw give its range (the simulated laser's
+    own at that pose, within noise and a cell); those that look back along the corridor
+    past where the scans saw leave what they saw and are no-returns."""
+    poses = np.column_stack([np.arange(1.0, 11.5, 1.0), np.zeros(11), np.zeros(11)])
+    r = cast(poses)
+    at = np.array([5])  # x 6
+    view, unseen = turned_views(r, LASER, poses, np.arange(11), at, np.pi / 2)
+    turned = poses[at].copy()
+    turned[:, 2] += np.pi / 2
+    truth = cast(turned, sigma=0.0)[0]
+    both = np.isfinite(view[0]) & np.isfinite(truth)
+    assert both.mean() > 0.8  # the left wall and the corridor ahead (+x) were seen
+    assert np.percentile(np.abs(view[0] - truth)[both], 90) < 0.08
+    back = LASER.angles > np.radians(80)  # looking along -x, past the first scan's x 1
+    assert unseen[0, back].all() and np.isnan(view[0, back]).all()
+    assert not unseen[0, np.abs(LASER.angles) < np.radians(10)].any()  # the wall ahead
+    ahead, _ = turned_views(r, LASER, poses, np.arange(11), at, 0.0)  # not turned: the scan
+    assert (np.isnan(ahead[0]) == np.isnan(r[5])).mean() > 0.95  # past range_max alike
+    near = np.isfinite(ahead[0]) & np.isfinite(r[5])
+    assert np.median(np.abs(ahead[0] - r[5])[near]) < 0.05
+
+
+def test_turned_copies_of_the_spans_driven_straight() -> None:
+    """`fitting.turned_copies`: a view per taught scan and heading of `turned_by`; with
+    `turned_spans` "straight" only the span driven along the corridor, not the one turning
+    on the spot in the room (it has its own views); "all" (the default) both; `turned_of`
+    names places."""
+    from toolkit.features.fitting import turned_copies
+    from toolkit.features.model import Config
+
+    drive_ = np.column_stack([np.arange(1.0, 11.5, 1.0), np.zeros(11), np.zeros(11)])
+    spin = np.column_stack([np.full(6, 14.0), np.full(6, 2.5), np.linspace(0, 2.5, 6)])
+    poses = np.vstack([drive_, spin])
+    r = cast(poses)
+    spans = [("corridor", np.arange(2, 9)), ("room", np.arange(11, 17))]
+    on = Config(augment_turned=1.0, turned_by=(90.0, -90.0, 180.0), turned_spans="straight")
+    out = turned_copies(r, LASER, poses, spans, on)
+    assert [round(float(np.degrees(t))) for t, _, _ in out] == [90, -90, 180]
+    assert all(
+        np.array_equal(rows, np.arange(2, 9)) and v.shape == (7, LASER.beams) for _, rows, v in out
+    )
+    both = turned_copies(r, LASER, poses, spans, Config(augment_turned=1.0, turned_by=(90.0,)))
+    assert [len(rows) for _, rows, _ in both] == [13]  # the default: every span
+    rooms = Config(augment_turned=1.0, turned_of=("room",))
+    assert [len(rows) for _, rows, _ in turned_copies(r, LASER, poses, spans, rooms)] == [6] * 4

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from toolkit import se2
 from toolkit.dataset import LaserGeometry
 
 LATERAL = np.sin(np.radians(30.0))  # beams at 30-150 degrees either side decide the sides
@@ -340,3 +341,111 @@ def started(
     side = wall / sin  # a no-return short of the start is the wall, unless out of range
     reach = np.where((cross < distance) & (side <= laser.range_max), side, np.inf)
     return np.asarray(np.fmin(r, reach.astype(np.float32)[None, :]), dtype=np.float32)
+
+
+#: m: the cell of the grid a taught span's returns are drawn into for `turned_views` (the
+#: rays march a quarter cell at a time)
+TURN_CELL = 0.05
+#: cells of `TURN_CELL` per side of the coarser cell in which `turned_views` records what
+#: the source beams crossed (beams 1 degree apart are 0.17 m apart at 10 m)
+TURN_SEEN = 4
+#: m: how far `turned_views` renders a beam; one that meets nothing seen within it is a
+#: no-return (a longer range changes the log-range descriptors little)
+TURN_FAR = 30.0
+#: m: two neighbouring returns of one scan closer than this (or within 10 % of range of
+#: each other) are one surface, drawn between them: a wall seen at a slant is not a sieve
+TURN_JOIN = 0.3
+
+
+def turned_views(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray,
+    source: np.ndarray,
+    at: np.ndarray,
+    turn: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The scans the laser would take at the robot poses `poses[at]` turned on the spot by
+    `turn` rad, rendered from what the scans `source` saw (their returns drawn into one
+    grid, `TURN_CELL`), and per rendered beam whether it left what they saw before meeting
+    a return (it crossed a cell of `TURN_SEEN` no source beam passed through): such a beam
+    is a no-return (NaN) in the view, as is one that meets nothing within `TURN_FAR` (or the
+    laser's `range_max`). Why: a place taught
+    by scans driven along it (a corridor's spans) was never seen from across, yet the robot
+    turns on the spot there (docs/journal/places.md, session 28)."""
+    r = np.asarray(ranges, dtype=np.float64)[source]
+    lp = se2.laser_poses(np.asarray(poses, dtype=np.float64)[source], laser)
+    bearing = lp[:, 2:3] + laser.angles[None, :]
+    ok = np.isfinite(r) & (r > 0) & (r < laser.range_max)
+    ex = lp[:, 0:1] + r * np.cos(bearing)
+    ey = lp[:, 1:2] + r * np.sin(bearing)
+    # the returns, and between neighbouring returns of one surface points a cell apart
+    pair = ok[:, 1:] & ok[:, :-1]
+    with np.errstate(invalid="ignore"):
+        gap = np.hypot(ex[:, 1:] - ex[:, :-1], ey[:, 1:] - ey[:, :-1])
+        one = pair & ((gap < TURN_JOIN) | (np.abs(np.diff(r, axis=1)) <= 0.1 * r[:, 1:]))
+    steps = max(2, int(np.ceil(TURN_JOIN / TURN_CELL * 4)))
+    f = np.linspace(0.0, 1.0, steps)[None, :]
+    jx = ex[:, :-1][one][:, None] + f * (ex[:, 1:] - ex[:, :-1])[one][:, None]
+    jy = ey[:, :-1][one][:, None] + f * (ey[:, 1:] - ey[:, :-1])[one][:, None]
+    px = np.concatenate([ex[ok], jx.ravel()])
+    py = np.concatenate([ey[ok], jy.ravel()])
+    # the grid: around the source and the views' poses, out to `TURN_FAR`
+    at_lp = se2.laser_poses(np.asarray(poses, dtype=np.float64)[at], laser)
+    gone = np.isnan(r)  # a no-return saw free space out to `TURN_FAR`
+    far_x = lp[:, 0:1] + TURN_FAR * np.cos(bearing)
+    far_y = lp[:, 1:2] + TURN_FAR * np.sin(bearing)
+    xs = np.concatenate([px, lp[:, 0], at_lp[:, 0], far_x[gone]])
+    ys = np.concatenate([py, lp[:, 1], at_lp[:, 1], far_y[gone]])
+    lo = np.array([xs.min(), ys.min()]) - 2 * TURN_CELL
+    shape = (np.array([xs.max(), ys.max()]) + 2 * TURN_CELL - lo) / TURN_CELL
+    nx, ny = (int(v) + 1 for v in shape)
+    occupied = np.zeros((nx, ny), dtype=bool)
+    occupied[_cell(px, lo[0], nx), _cell(py, lo[1], ny)] = True
+    # what the source saw: the cells its beams crossed before their return (a no-return:
+    # out to `TURN_FAR`)
+    seen = np.zeros((nx // TURN_SEEN + 1, ny // TURN_SEEN + 1), dtype=bool)
+    reach = np.where(ok, r - TURN_CELL, np.where(gone, TURN_FAR, 0.0))
+    t = np.arange(0.0, min(TURN_FAR, float(reach.max(initial=0.0))) + TURN_CELL, TURN_CELL)
+    for k in range(len(r)):  # a scan at a time: beams x samples
+        inside = t[None, :] <= reach[k][:, None]
+        sx = lp[k, 0] + t[None, :] * np.cos(bearing[k])[:, None]
+        sy = lp[k, 1] + t[None, :] * np.sin(bearing[k])[:, None]
+        ix, iy, within = _cells(sx[inside], sy[inside], lo, nx, ny)
+        seen[ix[within] // TURN_SEEN, iy[within] // TURN_SEEN] = True
+    # the views: each beam marched half a cell at a time to its first occupied cell
+    robot = np.asarray(poses, dtype=np.float64)[at].copy()
+    robot[:, 2] += turn
+    view_lp = se2.laser_poses(robot, laser)
+    t = np.arange(0.0, min(TURN_FAR, laser.range_max), TURN_CELL / 4)
+    out = np.full((len(at), laser.beams), np.nan, dtype=np.float32)
+    unseen = np.zeros((len(at), laser.beams), dtype=bool)
+    for k in range(len(at)):
+        b = view_lp[k, 2] + laser.angles
+        sx = view_lp[k, 0] + t[None, :] * np.cos(b)[:, None]
+        sy = view_lp[k, 1] + t[None, :] * np.sin(b)[:, None]
+        ix, iy, within = _cells(sx, sy, lo, nx, ny)
+        hit = within & occupied[ix, iy]
+        left = ~within | ~seen[ix // TURN_SEEN, iy // TURN_SEEN]
+        first = np.where(hit.any(axis=1), hit.argmax(axis=1), len(t))
+        away = np.where(left.any(axis=1), left.argmax(axis=1), len(t))
+        found = (first < len(t)) & (first <= away)
+        out[k, found] = t[first[found]]
+        unseen[k] = ~found & (away < len(t))
+    out[out < max(laser.range_min, 1e-3)] = np.nan
+    return out, unseen
+
+
+def _cell(v: np.ndarray, lo: float, n: int) -> np.ndarray:
+    return np.clip(((v - lo) / TURN_CELL).astype(np.int64), 0, n - 1)
+
+
+def _cells(
+    x: np.ndarray, y: np.ndarray, lo: np.ndarray, nx: int, ny: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grid cells of points, clipped into the grid, and whether each point lies inside it."""
+    fx, fy = (x - lo[0]) / TURN_CELL, (y - lo[1]) / TURN_CELL
+    within = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+    ix = np.clip(fx.astype(np.int64), 0, nx - 1)
+    iy = np.clip(fy.astype(np.int64), 0, ny - 1)
+    return ix, iy, within

@@ -27,7 +27,10 @@ from toolkit.features.augment import (
     glazed,
     opened,
     started,
+    stretched,
+    turned_views,
     walled_across,
+    width_factor,
 )
 from toolkit.features.classify import learn_opening_places
 from toolkit.features.descriptors import (
@@ -247,6 +250,7 @@ def _fit_places(
 ) -> PlaceClassifier:
     """The descriptor classifier from the training scans, each component a span."""
     # every building at one width: the log's widths rescaled, or it stretched
+    measured = ranges
     ranges, factor = canonical(ranges, laser, config.canonical_width, config.canonical_how)
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
@@ -328,6 +332,25 @@ def _fit_places(
             taken &= differs(ranges[idx], copied[idx])
         labels = y[taken] if c.label is None else np.full(int(taken.sum()), c.label)
         extra.append((xa[idx][taken], labels, np.full(int(taken.sum()), c.weight)))
+    # and as seen from the taught poses turned on the spot (a corridor taught driving along
+    # it, met turning at a junction, looks like a room: docs/journal/places.md, session 28);
+    # where the context is off (the sparse path, scans taken at every turn), measured there
+    views_on = config.augment_turned > 0 and config.context <= 0 and config.classifier == "trees"
+    if views_on and poses is not None:
+        stretch = config.canonical_how == "stretch" and config.canonical_width > 0
+        spread = width_factor(measured, laser, config.canonical_width) if stretch else 1.0
+        for turn, rows, views in turned_copies(measured, laser, poses, components, config):
+            log, turned = ranges.copy(), np.array(poses, dtype=np.float64)
+            log[rows] = stretched(views, laser, spread) if stretch else views
+            turned[rows, 2] += turn
+            xa = features(
+                log, laser, columns, along, config.context, None, config.beside, turned,
+                config.local_map, ahead, config.opening, factor, config.reach_metres,
+            )  # fmt: skip
+            taken = np.isin(idx, rows)
+            extra.append(
+                (xa[idx][taken], y[taken], np.full(int(taken.sum()), config.augment_turned))
+            )
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=own_width,
@@ -336,6 +359,52 @@ def _fit_places(
         claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,
         leaf_weight=config.leaf_weight,
     )  # fmt: skip
+
+
+#: rad: a taught span that turns less than this over its scans is driven straight (with
+#: `Config.turned_spans` "straight", only such spans' views are rendered)
+TURN_STRAIGHT = 0.5
+#: m of path either side of a taught span whose scans also draw its map for the views
+TURN_AROUND = 3.0
+#: a view with more than this share of its beams leaving what the span's map saw is left out
+TURN_UNSEEN = 1.0
+
+
+def turned_copies(
+    ranges: np.ndarray,
+    laser: LaserGeometry,
+    poses: np.ndarray,
+    components: list[tuple[str, np.ndarray]],
+    config: Config,
+) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """Per heading of `Config.turned_by` (degrees): the turn (rad), the taught scans viewed
+    and their views from their poses turned by it (`augment.turned_views`), rendered from
+    the scans within `TURN_AROUND` m of path of their span; of the places `turned_of`
+    (empty: all), of the spans `turned_spans` ("straight": those turning less than
+    `TURN_STRAIGHT` over their scans), views with a share over `TURN_UNSEEN` of their beams
+    unseen left out."""
+    along = path_length(len(ranges), poses)
+    theta = np.unwrap(np.asarray(poses, dtype=np.float64)[:, 2])
+    spans = []
+    for name, idx in components:
+        if config.turned_of and name not in config.turned_of:
+            continue
+        if config.turned_spans == "straight" and np.abs(np.diff(theta[idx])).sum() >= TURN_STRAIGHT:
+            continue
+        near = (along >= along[idx].min() - TURN_AROUND) & (along <= along[idx].max() + TURN_AROUND)
+        spans.append((np.flatnonzero(near), idx))
+    out = []
+    for degrees in config.turned_by:
+        turn = float(np.radians(degrees))
+        rendered = [turned_views(ranges, laser, poses, src, idx, turn) for src, idx in spans]
+        rows = [
+            idx[u.mean(axis=1) <= TURN_UNSEEN]
+            for (_, idx), (_, u) in zip(spans, rendered, strict=True)
+        ]
+        views = [v[u.mean(axis=1) <= TURN_UNSEEN] for v, u in rendered]
+        if any(len(r) for r in rows):
+            out.append((turn, np.concatenate(rows), np.concatenate(views)))
+    return out
 
 
 class _Copy(NamedTuple):

@@ -277,6 +277,16 @@ class Config:
     # (empty: the door's) with a window across from their opening (augment.glazed: no
     # return there but near normal): a door met across from a window was called window
     # (session 24; 0: none)
+    augment_turned: float = 0.0  # weight of the taught scans' views from their poses
+    # turned on the spot by `turned_by` degrees, rendered from the returns of the scans
+    # around their span (fitting.turned_copies, augment.turned_views: a corridor taught
+    # driving along it is met turning at its junctions; session 28; 0: none)
+    turned_by: tuple[float, ...] = (45.0, -45.0, 90.0, -90.0)  # with `augment_turned`,
+    # the turns (degrees; 135 and 180 too lost more rooms on the brief worlds)
+    turned_of: tuple[str, ...] = ()  # with `augment_turned`, these places' spans (empty: all)
+    turned_spans: str = "all"  # with `augment_turned`, every taught span; "straight": only
+    # those turning less than fitting.TURN_STRAIGHT (a span that turns has its own views:
+    # lost more rooms, -0.20 / -0.16 / -0.14 against -0.13 / -0.09 / -0.08, session 28)
     glass_to: tuple[str, ...] | None = None  # (glass place, room place): a call of the
     # first at a scan whose beams square to the path see, on either side, returns from 1 to
     # 5 m past that side's usual wall (a room behind an opening) goes to the second
@@ -346,6 +356,10 @@ class Config:
             raise ToolkitError(f"glass_to {self.glass_to!r}: empty or (glass place, room place)")
         if not 0.0 <= self.leaf_mix < 1.0:
             raise ToolkitError(f"leaf_mix {self.leaf_mix}: a share in [0, 1)")
+        object.__setattr__(self, "turned_by", tuple(float(v) for v in self.turned_by))
+        object.__setattr__(self, "turned_of", tuple(self.turned_of))
+        if self.augment_turned < 0 or self.turned_spans not in ("straight", "all"):
+            raise ToolkitError("augment_turned: 0 or more; turned_spans: straight or all")
 
     def ahead(self, laser: LaserGeometry) -> float | None:
         """m of path the context window reaches ahead of a scan (None: `context`)."""
