@@ -85,6 +85,7 @@ Classifier = Literal["trees", "logistic"]
 OpenSet = Literal["auto", "always", "never"]
 CanonicalHow = Literal["rescale", "stretch"]
 TurnPool = Literal["mean", "max"]
+PlacePoolInto = Literal["junctions", "far", "all"]
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,16 @@ class Config:
     # last scans) is not pooled either: its room-facing headings keep their weight for the
     # room's short stay (0: off, the default until session 27; 2 also reaches past a room's
     # last scan that sees out of its door; nothing with `turn_pool_reach` 0)
+    place_pool: float = 0.0  # m: before the HMM, each scan's evidence mixed with that of the
+    # scans taken within one cell of this size of it on other passes (a revisit, at any time
+    # and heading): a place is where the robot is (classify.pool_places; 0: off). Needs poses
+    # consistent over the log (ground truth or a SLAM trajectory, not drifting odometry)
+    place_pool_share: float = 1.0  # with `place_pool`: the weight of a neighbour's evidence
+    # per `evidence_length` of path it drove, against the scan's own at 1
+    place_pool_into: PlacePoolInto = "junctions"  # with `place_pool`, the scans that take
+    # the other passes' evidence: "junctions", a turn on the spot that sees far and is not at
+    # a doorway (`turn_pool_reach`, `turn_pool_door`: pool_turns' rule); "far", such a turn
+    # of any size (a scan driven past too); "all" (classify.pool_receivers)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -311,6 +322,7 @@ class Config:
             ("open_set", OpenSet),
             ("canonical_how", CanonicalHow),
             ("turn_pool_rule", TurnPool),
+            ("place_pool_into", PlacePoolInto),
         ):
             value, allowed = getattr(self, name), get_args(kind)
             if value not in allowed:
@@ -327,6 +339,8 @@ class Config:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
         if self.turn_pool_door < 0:
             raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
+        if self.place_pool < 0 or self.place_pool_share < 0:
+            raise ToolkitError("place_pool, place_pool_share: 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
