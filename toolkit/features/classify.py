@@ -472,7 +472,8 @@ def classify(
     model.check_laser(_laser_like(model, ranges))
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
-    scores = pool_places(cfg, scores, poses, ranges)
+    if cfg.smoothing != "forward":  # the other passes: later ones too, not streaming
+        scores = pool_places(cfg, scores, poses, ranges)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
         scores = pool_turns(cfg, scores, poses, ranges)
     elif cfg.smoothing != "none" and cfg.evidence_length:

@@ -211,6 +211,9 @@ class Config:
     # far apart for the context (None: `turn_pool`, the default until session 27): a turn on
     # the spot one view where it sees far and is not at a doorway (docs/journal/places.md,
     # session 27)
+    sparse_place_pool: float | None = None  # `place_pool` where the scans are too far apart
+    # for the context (None: `place_pool`); "junctions" tells a turn on the spot by scans
+    # within 0.3 m of its first, which on a dense log are any few consecutive scans
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -339,8 +342,8 @@ class Config:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
         if self.turn_pool_door < 0:
             raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
-        if self.place_pool < 0 or self.place_pool_share < 0:
-            raise ToolkitError("place_pool, place_pool_share: 0 or more")
+        if self.place_pool < 0 or self.place_pool_share < 0 or (self.sparse_place_pool or 0) < 0:
+            raise ToolkitError("place_pool, sparse_place_pool, place_pool_share: 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
