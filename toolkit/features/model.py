@@ -130,10 +130,11 @@ class Config:
     # last scans) is not pooled either: its room-facing headings keep their weight for the
     # room's short stay (0: off, the default until session 27; 2 also reaches past a room's
     # last scan that sees out of its door; nothing with `turn_pool_reach` 0)
-    place_pool: float = 0.0  # m: before the HMM, each scan's evidence mixed with that of the
+    place_pool: float = 0.0  # m: before the HMM, a scan's evidence mixed with that of the
     # scans taken within one cell of this size of it on other passes (a revisit, at any time
-    # and heading): a place is where the robot is (classify.pool_places; 0: off). Needs poses
-    # consistent over the log (ground truth or a SLAM trajectory, not drifting odometry)
+    # and heading): a place is where the robot is (classify.pool_places; 0: off). Poses
+    # consistent over the log find the true revisits; with drifting odometry about 0.6 of
+    # the gain stays (a junction's turn takes the corridor passed near it; session 28)
     place_pool_share: float = 1.0  # with `place_pool`: the weight of a neighbour's evidence
     # per `evidence_length` of path it drove, against the scan's own at 1
     place_pool_into: PlacePoolInto = "junctions"  # with `place_pool`, the scans that take
@@ -211,9 +212,14 @@ class Config:
     # far apart for the context (None: `turn_pool`, the default until session 27): a turn on
     # the spot one view where it sees far and is not at a doorway (docs/journal/places.md,
     # session 27)
-    sparse_place_pool: float | None = None  # `place_pool` where the scans are too far apart
-    # for the context (None: `place_pool`); "junctions" tells a turn on the spot by scans
-    # within 0.3 m of its first, which on a dense log are any few consecutive scans
+    sparse_place_pool: float | None = 4.0  # `place_pool` where the scans are too far apart
+    # for the context (None: `place_pool`, the default until session 28): a junction's turn
+    # on the spot takes the evidence of the other passes within the 3 x 3 cells of 4 m around
+    # it. On brief worlds that come back along their path (`evaluate --revisit`) BA +0.012 /
+    # +0.007 / +0.006 (seeds 0-19, 2000-2019) and +0.011 / +0.008 / +0.005 (50-69, 200-219),
+    # ECE -0.007 to -0.020, rooms +0.000; the Intel corridor 0.611 -> 0.689, rooms 0.832
+    # (docs/journal/places.md, session 28, space28). Not on dense logs: "junctions" tells a
+    # turn on the spot by scans within 0.3 m of its first, any few consecutive scans there
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -390,7 +396,7 @@ class Config:
 #: and kept a window call where a room was seen beside the laser (one saved after session 24
 #: names its glass and room places, ("window", "door"), in its config: applied as before);
 #: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
-#: expert's) took the mean over every turn
+#: expert's) took the mean over every turn; one saved before session 28 pooled no revisit
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -410,6 +416,7 @@ LEGACY: dict[str, Any] = {
     "turn_pool_rule": "mean",
     "turn_pool_reach": 0.0,
     "turn_pool_door": 0,
+    "sparse_place_pool": None,
 }
 
 
