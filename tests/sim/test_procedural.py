@@ -161,3 +161,93 @@ def test_brief_needs_entered(cli: Cli, tmp_path: Path) -> None:
         text=True,
     )
     assert done.returncode == 2 and "--brief needs --entered" in done.stderr
+
+
+@pytest.mark.parametrize("kw", [{}, {"entered": True}, {"entered": True, "brief": True}])
+def test_revisit_adds_a_way_back_and_changes_nothing_else(kw: dict[str, bool]) -> None:
+    """`revisit` is off by default; on, the world, its zones and regions' parts and the way out
+    are the same to the bit (the way back draws from its own generator), the scans about
+    double, and the way back ends where the path started."""
+    for seed, route in ((0, 0), (3, 1), (2001, 0)):
+        plain = random_world(seed, route, **kw)
+        assert np.array_equal(
+            random_world(seed, route, revisit=False, **kw).waypoints, plain.waypoints
+        )
+        both = random_world(seed, route, revisit=True, **kw)
+        assert np.array_equal(both.world.segments, plain.world.segments)
+        assert both.zones == plain.zones and both.region_parts == plain.region_parts
+        assert np.array_equal(both.waypoints[: len(plain.waypoints)], plain.waypoints)
+        assert 1.7 < both.scans / plain.scans < 2.3
+        first, end = plain.waypoints[0], both.waypoints[-1]
+        assert np.hypot(*(first - end)) < 1.6  # the offsets differ by 0.4 width at most
+        assert not np.any(np.all(np.diff(both.waypoints, axis=0) == 0, axis=1))  # no empty leg
+
+
+@pytest.mark.parametrize(("seed", "rooms"), [(0, (4, 4)), (3, (3, 2))])
+def test_the_way_back_sees_the_way_out_again_with_the_same_labels(
+    seed: int, rooms: tuple[int, int]
+) -> None:
+    """With `revisit` nearly every corridor position of the way out has a way-back scan within
+    1 m, labelled the same (labels are by position); the robot turns on the spot at the far
+    end (half a turn); the regions are on the way out; the way back enters rooms of its own
+    choice (brief: every room on the way out, on seed 3 not all of them on the way back)."""
+    sim = simulate("random", seed=seed, entered=True, brief=True, revisit=True)
+    assert sim.params["revisit"] is True
+    assert "revisit" not in simulate("random", seed=seed, entered=True).params
+    out = random_world(seed, entered=True, brief=True)
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    xy, heading = gt[["x", "y"]].to_numpy(), np.unwrap(gt.theta.to_numpy())
+    far = int(np.argmin(np.hypot(*(xy - out.waypoints[-1]).T)))  # the way out's end
+    assert abs(far - out.scans) < 0.02 * out.scans
+    way_out, way_back = np.arange(far), np.arange(far, len(xy))
+    corridor = way_out[sim.labels[way_out] == "corridor"]
+    gap = np.hypot(*(xy[corridor, None] - xy[None, way_back]).transpose(2, 0, 1))
+    near, nearest = gap.min(axis=1) < 1.0, way_back[gap.argmin(axis=1)]
+    assert near.mean() > 0.95
+    assert np.mean(sim.labels[nearest[near]] == "corridor") > 0.9
+    step = np.hypot(*np.diff(xy[far - 1 : far + 80], axis=0).T)
+    turn = np.diff(heading[far - 1 : far + 80])
+    assert abs(abs(turn.sum()) - np.pi) < 0.05  # back the way it came
+    assert 2.8 < np.abs(turn[step < 0.02]).sum() < np.pi + 0.05  # on the spot: two quarters
+    assert sim.regions.end.max() < sim.dataset.t[far]
+    visits = np.array([a for label, a, _ in runs(sim.labels) if label == "room"])
+    assert ((visits < far).sum(), (visits >= far).sum()) == rooms
+
+
+def test_revisit_on_the_command_line_and_in_the_protocol(tmp_path: Path, cli: Cli) -> None:
+    """`-p revisit=true` (random worlds only) and `evaluate --revisit`: every run comes back;
+    run a's regions (taught as the Intel log) stay on the way out."""
+    from toolkit.features.evaluate import worlds
+
+    out = tmp_path / "random"
+    code, stdout, _ = cli(
+        "simulate",
+        "random",
+        "--seed",
+        "1",
+        "-p",
+        "revisit=true",
+        "--out",
+        str(out),
+        "-f",
+        "dataset",
+    )
+    assert code == 0, stdout
+    truth = pd.read_parquet(out / "truth.parquet")
+    assert len(truth) == random_world(1, revisit=True).scans
+    code, _, err = cli(
+        "simulate", "corridor", "-p", "revisit=true", "--out", str(tmp_path / "c"), "-f", "dataset"
+    )
+    assert code == 1 and "revisit" in err
+    plain, runs_back = worlds(2, 1.0, 0.5, True, True), worlds(2, 1.0, 0.5, True, True, True)
+    for key in "abc":
+        assert runs_back[key].params["revisit"] is True
+        assert 1.4 < runs_back[key].dataset.n_scans / plain[key].dataset.n_scans < 2.3
+    a = runs_back["a"]
+    end = random_world(2, entered=True, brief=True).waypoints[-1]  # the way out's end
+    gt = a.dataset.groundtruth
+    assert gt is not None
+    far = int(np.argmin(np.hypot(*(gt[["x", "y"]].to_numpy() - end).T)))
+    assert set(a.regions.feature) == {"corridor", "room"}
+    assert a.regions.end.max() < a.dataset.t[far]

@@ -14,7 +14,7 @@ the seeds), top-label ECE, and precision and recall per place (means over the se
 row of the ablation adds one part to the one before; the default row is `Config()`.
 
     python -m toolkit.features.evaluate [--seeds 100-119] [--scenarios] [--spacing 1.0]
-        [--turn 0.5] [--entered] [--out table.md]
+        [--turn 0.5] [--entered] [--brief] [--revisit] [--out table.md]
 
 With `--spacing` (m) every run is thinned to scans that far apart along the true path, as
 in a log whose scans are far apart (the Intel log's are about 1 m apart, and the sparse-scan
@@ -29,7 +29,10 @@ With `--entered` the paths also enter rooms (`random_world(..., entered=True)`) 
 is labelled and taught as the Intel log is (`as_intel`): corridor (its doorways, windows and
 crossings included) and room, two spans of ten scans each; only those are scored. `--brief`
 (with `--entered`) makes the rooms but two small and entered briefly, as the Intel lab's
-short visits (`random_world(..., brief=True)`).
+short visits (`random_world(..., brief=True)`). `--revisit` makes every path come back along
+the chain to its start (`random_world(..., revisit=True)`; session 28): each stretch of
+corridor seen twice, once each way, as the Intel robot sees its ring; the regions stay on the
+way out, so (a) scores the rest of the run, the way back included.
 
 The default seeds, 100-119, were the first held-out set. Each session since has held out a
 fresh set, run only to measure and then spent for development (300-319, 400-419, 500-519,
@@ -59,6 +62,7 @@ from toolkit.features.metrics import (
 from toolkit.features.model import PAPER, SURROUNDINGS, Config
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import Simulation, simulate
+from toolkit.sim.procedural import random_world
 from toolkit.sim.truth import REGION_PARTS, REGION_SCANS, training_regions
 from toolkit.sim.truth import runs as label_runs
 
@@ -183,24 +187,47 @@ def score(
 
 
 def worlds(
-    seed: int, spacing: float = 0.0, turn: float = 0.0, entered: bool = False, brief: bool = False
+    seed: int,
+    spacing: float = 0.0,
+    turn: float = 0.0,
+    entered: bool = False,
+    brief: bool = False,
+    revisit: bool = False,
 ) -> dict[str, Any]:
     """The three runs of the protocol for one seed: a (teach and score), b (same world,
     other route), c (another world); with `spacing` > 0 each thinned (`thinned`, also at
     every `turn` rad turned when > 0); with `entered` the paths enter rooms and the runs are
     labelled and taught as the Intel log is (`as_intel`); with `brief` too, small rooms
-    entered briefly beside two entered fully (`random_world`)."""
+    entered briefly beside two entered fully; with `revisit`, paths that come back to their
+    start (`random_world`)."""
     more: dict[str, bool] = {"entered": True} if entered else {}
     if brief:
         more["brief"] = True
+    if revisit:
+        more["revisit"] = True
     runs = {
         "a": simulate("random", seed=seed, **more),
         "b": simulate("random", seed=seed, route=1, **more),
         "c": simulate("random", seed=seed + TRANSFER, **more),
     }
+    # with `revisit`: the time each run reaches the end of its way out (the turn-around)
+    ends = {k: way_out_end(v, entered, brief) for k, v in runs.items()} if revisit else {}
     if spacing > 0:
         runs = {k: thinned(v, spacing, turn) for k, v in runs.items()}
-    return {k: as_intel(v) for k, v in runs.items()} if entered else runs
+    return {k: as_intel(v, ends.get(k)) for k, v in runs.items()} if entered else runs
+
+
+def way_out_end(sim: Simulation, entered: bool, brief: bool) -> float:
+    """The time a path that comes back (`revisit`) reaches its way out's end: its first scan
+    there (the way out is the path of the same world and route without `revisit`)."""
+    p = sim.params
+    end = random_world(sim.seed, p["route"], entered, brief).waypoints[-1]
+    gt = sim.dataset.groundtruth
+    assert gt is not None
+    there = np.hypot(*(gt[["x", "y"]].to_numpy() - end).T) < 1e-6
+    if not there.any():
+        raise ValueError("the path does not reach its way out's end: not a revisit path")
+    return float(sim.dataset.t[int(np.argmax(there))])
 
 
 def thinned(sim: Simulation, spacing: float, turn: float = 0.0) -> Simulation:
@@ -229,12 +256,14 @@ def thinned(sim: Simulation, spacing: float, turn: float = 0.0) -> Simulation:
 AS_CORRIDOR = ("door", "window", "corner")
 
 
-def as_intel(sim: Simulation) -> Simulation:
+def as_intel(sim: Simulation, until: float | None = None) -> Simulation:
     """The run labelled and taught as the Intel log is: "corridor" for the corridor's whole
     stretch (`AS_CORRIDOR`), "room" inside rooms, the hall kept (not taught, so not scored);
     the corridor taught from two spans of ten scans driven straight along two of its runs,
     the rooms from ten scans in each of two rooms (the README's intel-regions.csv); a place
-    with one such run has its two spans there, at a quarter and three quarters of it."""
+    with one such run has its two spans there, at a quarter and three quarters of it. With
+    `until` (a time), the spans are chosen among the scans up to then (a path that comes
+    back: its way out, whose last corridor run would otherwise run on into the way back)."""
     labels = np.where(np.isin(sim.labels, AS_CORRIDOR), "corridor", sim.labels)
     gt = sim.dataset.groundtruth
     assert gt is not None
@@ -242,10 +271,11 @@ def as_intel(sim: Simulation) -> Simulation:
     step = np.hypot(*np.diff(xy, axis=0).T)
     driving = np.concatenate([[False], step > 0.5 * (step.max() if len(step) else 0.0)])
     t = sim.dataset.t
+    until = t[-1] if until is None else until
     rows = []
     for place in ("corridor", "room"):
         found = []  # per run of the place: the first scans of its windows of ten
-        for label, first, last in label_runs(labels):
+        for label, first, last in label_runs(labels[: np.searchsorted(t, until, "right")]):
             if label != place or last - first + 1 < REGION_SCANS:
                 continue
             ok = driving[first : last + 1] if place == "corridor" else np.ones(last - first + 1)
@@ -314,6 +344,7 @@ def protocol(
     turn: float = 0.0,
     entered: bool = False,
     brief: bool = False,
+    revisit: bool = False,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The protocol's table (a row per configuration) and, for the first configuration
     marked default (else the first), precision and recall per place and run. With `spacing`
@@ -323,7 +354,7 @@ def protocol(
     results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
     partial = spacing > 0 or entered
     for seed in seeds:
-        runs = worlds(seed, spacing, turn, entered, brief)
+        runs = worlds(seed, spacing, turn, entered, brief, revisit)
         if partial and not teaches_two(runs):
             continue
         for name, config in configs:
@@ -440,6 +471,11 @@ def main() -> None:
         action="store_true",
         help="with --entered: small rooms entered briefly, as the Intel lab's (a step in, a look, out)",
     )
+    parser.add_argument(
+        "--revisit",
+        action="store_true",
+        help="paths that come back along the corridors to their start (every stretch seen twice)",
+    )
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     if args.brief and not args.entered:
@@ -449,11 +485,15 @@ def main() -> None:
         parser.error(f"--rows: no ablation row {wrong[0]} (rows 0-{len(ABLATION) - 1})")
     configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
     started = time.perf_counter()
-    table, places = protocol(configs, args.seeds, args.spacing, args.turn, args.entered, args.brief)
+    table, places = protocol(
+        configs, args.seeds, args.spacing, args.turn, args.entered, args.brief, args.revisit
+    )
     text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)})"
     if args.entered:
         text += ", paths entering rooms, taught as the Intel log"
         text += " (small rooms entered briefly)" if args.brief else ""
+    if args.revisit:
+        text += ", paths coming back to their start"
     if args.spacing > 0:
         text += f", scans {args.spacing:g} m apart"
         text += f" or {args.turn:g} rad of turning" if args.turn > 0 else ""

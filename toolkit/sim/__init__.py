@@ -138,6 +138,10 @@ def parameters(
     short = _yes(brief, "brief") if brief is not None else False
     if short and not enter:
         raise ToolkitError("brief (short room visits) needs entered")
+    revisit = params.pop("revisit", None)
+    if revisit is not None and scenario != "random":
+        raise ToolkitError("revisit is a parameter of the random scenario only")
+    back = _yes(revisit, "revisit") if revisit is not None else False
     laps = params.pop("laps", None)
     if laps is not None and scenario != "building":
         raise ToolkitError("laps is a parameter of the building scenario only")
@@ -145,7 +149,7 @@ def parameters(
     if rounds < 1:
         raise ToolkitError(f"laps must be at least 1, not {rounds}")
     if scenario == "random":
-        scn = random_world(seed, way, enter, short)
+        scn = random_world(seed, way, enter, short, back)
     elif scenario == "building":
         scn = building(rounds)
     else:
@@ -192,7 +196,8 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
     """Simulate `scenario` ("corridor", "building" or "random") with the models' parameters
     `params` (for "random", also `route`: 0 or 1, the path through the world of `seed`, and
     `entered`: true for a path that also enters rooms, and `brief`: with it, small rooms
-    entered briefly; for "building", `laps`: times round the ring)."""
+    entered briefly, and `revisit`: a path that comes back to its start; for "building",
+    `laps`: times round the ring)."""
     sway, period = _sway(params)
     scn, laser, odometry = parameters(scenario, seed, **params)
     rng = np.random.default_rng(seed)
@@ -212,6 +217,7 @@ def simulate(scenario: str, seed: int = 0, **params: Param) -> Simulation:
         **({"route": int(params.get("route") or 0)} if scenario == "random" else {}),
         **({"entered": True} if _yes(params.get("entered") or False) else {}),
         **({"brief": True} if _yes(params.get("brief") or False, "brief") else {}),
+        **({"revisit": True} if _yes(params.get("revisit") or False, "revisit") else {}),
         **({"laps": int(params.get("laps") or 1)} if scenario == "building" else {}),
         **({"sway": sway, "sway_period": period} if sway > 0 else {}),
         **laser.to_dict(),

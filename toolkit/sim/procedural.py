@@ -34,6 +34,18 @@ every other open door leads to a small room (2.2-3.2 m wide, 2.2-3 m deep) that 
 enters briefly: it turns to the door, drives 1-1.8 m in, turns a quarter to look one way
 along the room, and turns back out through the door (about 8-10 scans at 1 m or 0.5 rad,
 3-4 rad turned: the Intel rooms' short visits, which are lost to the corridor).
+
+With `revisit` (off by default: every world and path as without it, to the bit; session 28,
+issue 16) the path comes back: having reached the last leg's end it turns on the spot (a
+quarter turn, a step sideways to its own lateral offset, another quarter turn) and drives
+back along the chain to where it started, turning on the spot at the corners as on the way
+out. The way back's offset and the rooms it enters are drawn from their own generator, so
+every other draw is unchanged. With `entered` it enters each room with probability
+`ENTER_SHARE`, whether or not it was entered on the way out (with `brief`: a small room
+briefly, a large one fully), as the Intel lab's robot enters some rooms on one pass round
+its ring and not on another. So every stretch of corridor is seen twice, once each way; the
+regions (ten scans per place) are still drawn from each place's first occurrence, on the
+way out.
 """
 
 from __future__ import annotations
@@ -130,11 +142,16 @@ class _Sides:
 
 
 def random_world(
-    seed: int = 0, route: int = 0, entered: bool = False, brief: bool = False
+    seed: int = 0,
+    route: int = 0,
+    entered: bool = False,
+    brief: bool = False,
+    revisit: bool = False,
 ) -> Scenario:
     """A random building (see the module docstring), and a path through it by `route`; with
     `entered`, one that also enters rooms through their doors (labelled "room"); with `brief`
-    too, small rooms entered briefly beside two entered fully."""
+    too, small rooms entered briefly beside two entered fully; with `revisit`, a path that
+    comes back along the chain to its start."""
     if brief and not entered:
         raise ValueError("brief room visits need entered")
     rng = np.random.default_rng([seed, 16])
@@ -290,10 +307,14 @@ def random_world(
         zones += [_room_zone(legs[k], s, d0, w, depth, h) for k, s, d0, w, depth in placed]
     if route % 2 == 1:
         way = way[::-1]
+    if revisit:
+        way = np.concatenate(
+            [way, _way_back(centre, legs, placed, width, seed, route, entered, visits)]
+        )
     speed = float(path_rng.uniform(0.35, 0.6))
     turn_rate = 0.5
     length = float(np.hypot(*np.diff(way, axis=0).T).sum())
-    if entered:  # turns of any angle (in a room, half turns)
+    if entered or revisit:  # turns of any angle (in a room, half turns)
         d = np.diff(way, axis=0)
         turned = float(np.abs(np.diff(np.unwrap(np.arctan2(d[:, 1], d[:, 0])))).sum())
         seconds = length / speed + turned / turn_rate
@@ -338,6 +359,31 @@ def _brief_rooms(
     return visits
 
 
+def _way_back(
+    centre: np.ndarray,
+    legs: list[_Leg],
+    placed: list[tuple[int, int, float, float, float]],
+    width: float,
+    seed: int,
+    route: int,
+    entered: bool,
+    visits: dict[int, tuple[float, int]] | None,
+) -> np.ndarray:
+    """With `revisit`: the waypoints from the far end of `route`'s path back to its start, on
+    a lateral offset of its own (up to a fifth of the width off the centre line), with
+    `entered` into each room with probability `ENTER_SHARE` (entered on the way out or not);
+    drawn from their own generator, so that every other draw is unchanged."""
+    rng = np.random.default_rng([seed, 16, route, 28])
+    offset = float(rng.uniform(-0.2, 0.2)) * width
+    way = _offset(centre, offset)
+    way[0] += legs[0].direction * 1.0
+    way[-1] -= legs[-1].direction * 1.0
+    if entered:
+        pick = rng.random(len(placed)) < ENTER_SHARE
+        way = _entering(way, legs, placed, offset, width / 2, seed, visits, pick)
+    return way if route % 2 == 1 else way[::-1]
+
+
 def _entering(
     way: np.ndarray,
     legs: list[_Leg],
@@ -346,17 +392,19 @@ def _entering(
     h: float,
     seed: int,
     visits: dict[int, tuple[float, int]] | None = None,
+    pick: np.ndarray | None = None,
 ) -> np.ndarray:
     """The waypoints `way` (route 0) with detours into rooms: at least two of the `placed`
     rooms (leg, side, door start, width, depth), each with probability `ENTER_SHARE`, drawn
     from their own generator so that the world's draws are unchanged; with `visits` (`brief`),
-    the rooms not in it entered fully and those in it briefly (in, a look one way, out)."""
-    if visits is None:
+    every room, those not in it entered fully and those in it briefly (in, a look one way,
+    out); with `pick` (the way back of `revisit`), the rooms it marks."""
+    if pick is None and visits is None:
         rng = np.random.default_rng([seed, 16, 25])
         pick = rng.random(len(placed)) < ENTER_SHARE
         if pick.sum() < 2:
             pick[rng.permutation(len(placed))[:2]] = True
-    else:
+    elif pick is None:
         pick = np.ones(len(placed), dtype=bool)
     out: list[np.ndarray] = [way[0]]
     for k, leg in enumerate(legs):

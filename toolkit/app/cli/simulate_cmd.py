@@ -42,7 +42,8 @@ def simulate_command(
             help="corridor (the paper's Fig. 1), building (-p laps=N: N times round its ring, "
             "for loop closure), or random (a new world per --seed; -p route=1: the other way "
             "through it; -p entered=true: into rooms and turning there; with it -p brief=true: "
-            "short visits to small rooms as well)",
+            "short visits to small rooms as well; -p revisit=true: back to the start along the "
+            "same corridors)",
         ),
     ],
     out: Annotated[Path, typer.Option("--out", metavar="DIR", help="directory to write")],
