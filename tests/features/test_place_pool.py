@@ -123,3 +123,29 @@ def test_place_pool_is_off_by_default_and_checked() -> None:
     for bad in ({"place_pool": -1.0}, {"place_pool_share": -0.5}, {"place_pool_into": "some"}):
         with pytest.raises(ToolkitError):
             Config(**bad)  # type: ignore[arg-type]
+
+
+def test_a_revisit_world_s_junction_turns_found_by_the_other_pass() -> None:
+    """On seed 4's brief world whose path comes back along the chain (`--revisit`; a
+    development seed), the default (`sparse_place_pool` 4, junctions) finds more of the
+    corridor's scans taken turning on the spot than session 27's default (place_pool 0) in
+    runs a and b, and the rooms (and their short stays) exactly as many (measured, runs a /
+    b: the turning scans 0.18 / 0.10 -> 0.28 / 0.17, rooms 0.78 / 0.79 and short stays 0.25 /
+    0.29 both)."""
+    from tests.features.test_sparse_protocol import found_shares, gt_poses
+    from toolkit.features.evaluate import worlds
+    from toolkit.features.fitting import fit
+    from toolkit.features.regions import spans_from_frame, training_indices
+
+    runs = worlds(4, 1.0, 0.5, entered=True, brief=True, revisit=True)
+    a = runs["a"]
+    spans = spans_from_frame(a.regions, a.dataset.t)
+    taught = training_indices(spans)
+    model = fit(a.dataset.ranges, a.dataset.laser, taught, Config(), spans, gt_poses(a))
+    assert model.config.place_pool == 4.0  # a sparse log: the default's revisits pooled
+    models = {"now": model, "before": replace(model, config=replace(model.config, place_pool=0.0))}
+    for key in "ab":
+        found = found_shares(models, runs[key], taught if key == "a" else None)
+        assert found["turns"]["now"] > found["turns"]["before"] + 0.05
+        assert found["rooms"]["now"] == found["rooms"]["before"] > 0.7
+        assert found["stays"]["now"] == found["stays"]["before"]
