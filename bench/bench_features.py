@@ -9,7 +9,8 @@ kernel over scans in parallel; tempered posteriors); with the HMM forward filter
 path (streaming); the per-beam model's forward-backward with the evidence length (the former
 default); the last default (descriptors, logistic regression, per-beam term); the default
 (descriptors and their context along the path, extremely randomised trees; docs/places.md)
-alone and with the per-beam term; and `--none-model surroundings` (lateral 2), with one and two components per
+alone, with the per-beam term and with the evidence pooled by position over the log (an
+expert setting: the tiled log passes every spot 250 times); and `--none-model surroundings` (lateral 2), with one and two components per
 feature.
 Median of 3 runs after a warm-up on a small slice (compiles the kernels).
 """
@@ -70,6 +71,7 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         ("last default: descriptors, logistic regression + per-beam term, HMM", LOGISTIC, poses),
         ("toolkit default: descriptors + context, trees, HMM", Config(), poses),
         ("toolkit default + per-beam term 1", dataclasses.replace(Config(), beam_term=1.0), poses),
+        ("toolkit default + revisits pooled by position (place_pool 4, all scans taking them)", dataclasses.replace(Config(), place_pool=4.0, place_pool_into="all"), poses),
         ("--none-model surroundings (lateral 2, as its spans choose)", LATERAL2, poses),
         ("--none-model surroundings, two components per feature", LATERAL2, poses),
 ]  # fmt: skip

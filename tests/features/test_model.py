@@ -308,6 +308,11 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     assert (old.sparse_turn_pool, old.turn_pool_rule, old.turn_pool_reach) == (None, "mean", 0.0)
     assert old.turn_pool_door == 0 < Config().turn_pool_door
     assert Config().sparse_turn_pool == 0.3 and Config().turn_pool == 0.0  # dense: none
+    # before session 28, no revisit was pooled (a model then has neither field)
+    unvisited = {k: v for k, v in now.items() if "place_pool" not in k}
+    old = Config.from_dict(unvisited)
+    assert (old.sparse_place_pool, old.place_pool) == (None, 0.0)
+    assert Config().sparse_place_pool == 4.0 and Config().place_pool == 0.0  # dense: none
 
 
 def test_background_density_integrates_to_one() -> None:

@@ -273,6 +273,176 @@ def pool_turns(
     return out
 
 
+@numba.njit(cache=True)
+def _own_pass(
+    cell: np.ndarray, valid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
+    """Per scan i, the first and last index of its pass: the run of consecutive scans around
+    it whose cells (`cell`, S x 2 integer cell coordinates) lie within one cell of its own.
+    Recomputed only where the cell changes (a scan in its predecessor's cell has its pass),
+    so a robot standing in one cell costs one walk, not one per scan."""
+    n = len(cell)
+    first = np.empty(n, dtype=np.int64)
+    last = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        if not valid[i]:
+            first[i] = i
+            continue
+        if i > 0 and valid[i - 1] and cell[i - 1, 0] == cell[i, 0] and cell[i - 1, 1] == cell[i, 1]:
+            first[i] = first[i - 1]
+            continue
+        j = i
+        while (
+            j > 0
+            and valid[j - 1]
+            and abs(cell[j - 1, 0] - cell[i, 0]) <= 1
+            and abs(cell[j - 1, 1] - cell[i, 1]) <= 1
+        ):
+            j -= 1
+        first[i] = j
+    for i in range(n - 1, -1, -1):
+        if not valid[i]:
+            last[i] = i
+            continue
+        if (
+            i < n - 1
+            and valid[i + 1]
+            and cell[i + 1, 0] == cell[i, 0]
+            and cell[i + 1, 1] == cell[i, 1]
+        ):
+            last[i] = last[i + 1]
+            continue
+        j = i
+        while (
+            j < n - 1
+            and valid[j + 1]
+            and abs(cell[j + 1, 0] - cell[i, 0]) <= 1
+            and abs(cell[j + 1, 1] - cell[i, 1]) <= 1
+        ):
+            j += 1
+        last[i] = j
+    return first, last
+
+
+#: the cells around a scan's own (and itself) whose scans are its neighbours in `pool_places`
+BLOCK = [(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+
+
+def pool_places(
+    config: Config,
+    scores: np.ndarray,
+    poses: np.ndarray | None,
+    ranges: np.ndarray | None = None,
+) -> np.ndarray:
+    """The evidence (S x K log-probabilities) of a scan mixed with that of the scans taken at
+    the same spot on other passes: a place is where the robot is, so a junction driven
+    through on one lap and turned in on another is one place. The plane is cut into square
+    cells of `place_pool` m; a scan's neighbours are the scans in its cell and the eight
+    around it (between `place_pool` and twice that from it) that are not on its own pass (the
+    run of consecutive scans around it inside those cells: its own turn and its own drive
+    past are its own evidence, counted once). Each neighbour weighs the path it drove to get
+    there (`evidence_weights` with turning free) and brings its turn's mean (`turn_groups`
+    over `TURN_SPOT`: a turn on the spot is one view, weighing its arrival's step); the
+    scan's evidence becomes (own + share x the neighbours' weighted sum) / (1 + share x
+    their weight), `place_pool_share` the share. Which scans take it: `place_pool_into`
+    (`pool_receivers`). One pass of cell sums and a compiled walk for the passes: linear in
+    the scans. Unchanged without poses or with `place_pool` 0. The poses must be consistent
+    over the log (ground truth, a SLAM trajectory): with drifting odometry a lap's revisit
+    lands elsewhere."""
+    n = len(scores)
+    if not config.place_pool or poses is None or len(poses) != n or n == 0:
+        return scores
+    xy = np.asarray(poses[:, :2], dtype=np.float64)
+    valid = np.asarray(np.isfinite(xy).all(axis=1))
+    if not valid.any():
+        return scores
+    cell = np.floor(xy / config.place_pool)  # cells on the frame's origin
+    cell -= (cell.min(axis=0) if valid.all() else cell[valid].min(axis=0)) - 1
+    cell[~valid] = 0.0
+    cell = cell.astype(np.int64)  # from 1: the cells around stay >= 0
+    width, height = (int(v) + 2 for v in cell.max(axis=0))
+    key = cell[:, 0] * height + cell[:, 1]
+    # each scan brings its turn's mean log-probability, weighted by the path it drove
+    group = turn_groups(poses, TURN_SPOT)  # a NaN pose starts a turn of its own
+    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    size = np.diff(np.r_[first, n])
+    weight = evidence_weights(replace(config, turn_length=0.0), n, poses) * valid
+    brought = np.empty((n, scores.shape[1] + 1))  # per scan: evidence x weight, weight
+    brought[:, :-1] = (np.add.reduceat(scores, first, axis=0) / size[:, None])[group]
+    brought[:, :-1] *= weight[:, None]
+    brought[:, -1] = weight
+    block = _block_sums(key, brought, width, height, n)
+    start, end = _own_pass(cell, valid)
+    along = np.zeros((n + 1, brought.shape[1]))
+    np.cumsum(brought, axis=0, out=along[1:])
+    own = along[end + 1] - along[start]  # the scan's pass, in the block too
+    other = block - own
+    out = (scores + config.place_pool_share * other[:, :-1]) / (
+        1.0 + config.place_pool_share * other[:, -1:]
+    )
+    revisit = valid & (other[:, -1] > REVISIT_WEIGHT)  # else its own, to the bit
+    revisit &= pool_receivers(config, poses, ranges, group, first)
+    return np.asarray(np.where(revisit[:, None], out, scores))
+
+
+def _block_sums(
+    key: np.ndarray, brought: np.ndarray, width: int, height: int, n: int
+) -> np.ndarray:
+    """Per scan, the sum of `brought` (S x C) over the scans in its cell (`key`, column-major
+    over `width` x `height` cells with an empty border) and the eight around it: a dense grid
+    of bincounts shifted nine times where the cells are few (4 per scan or fewer), else the
+    occupied cells alone (np.unique) looked up nine times."""
+    columns = brought.shape[1]
+    if width * height <= max(4 * n, 1 << 16):
+        grid = np.stack(
+            [np.bincount(key, brought[:, c], width * height) for c in range(columns)], axis=1
+        ).reshape(width, height, columns)
+        block = sum(np.roll(grid, (dx, dy), axis=(0, 1)) for dx, dy in BLOCK)
+        return np.asarray(np.reshape(block, (width * height, columns))[key])
+    cells, at = np.unique(key, return_inverse=True)
+    per_cell = np.stack([np.bincount(at, brought[:, c], len(cells)) for c in range(columns)], 1)
+    around = np.zeros_like(per_cell)
+    for dx, dy in BLOCK:  # nine shifted look-ups of the occupied cells, not per scan
+        want = cells - (dx * height + dy)
+        near = np.minimum(np.searchsorted(cells, want), len(cells) - 1)
+        hit = cells[near] == want
+        around[hit] += per_cell[near[hit]]
+    return np.asarray(around[at])
+
+
+def pool_receivers(
+    config: Config,
+    poses: np.ndarray,
+    ranges: np.ndarray | None,
+    group: np.ndarray,
+    first: np.ndarray,
+) -> np.ndarray:
+    """Per scan, whether `pool_places` gives it the other passes' evidence
+    (`place_pool_into`): "all"; "far", a scan of a turn (`group`, from `first`; a scan
+    driven past is a turn of one) that sees past `turn_pool_reach` with no enclosed turn
+    among the `turn_pool_door` before or after it (`pool_turns`' junction rule: not a
+    doorway's nor a room's scans, whose place changes within a cell); "junctions", those
+    of such turns on the spot (two scans or more): the corridor seen across, which looks
+    like a room. Without `ranges` only "all" pools."""
+    n = len(group)
+    if config.place_pool_into == "all":
+        return np.ones(n, dtype=bool)
+    if ranges is None or len(ranges) != n:
+        return np.zeros(n, dtype=bool)
+    far = turn_reach(ranges, first) > config.turn_pool_reach
+    take = doorway_free(far, config.turn_pool_door)
+    if config.place_pool_into == "junctions":
+        take &= np.diff(np.r_[first, n]) >= 2
+    return np.asarray(take[group])
+
+
+#: m: the scans within this of a turn's first are that turn (`pool_places`' view of a spot)
+TURN_SPOT = 0.3
+#: the other passes' weight (steps of `evidence_length`) under which a scan keeps its own
+#: evidence in `pool_places`: the sums' rounding where no other pass is near
+REVISIT_WEIGHT = 1e-9
+
+
 def smooth(emit: np.ndarray, eps: np.ndarray, how: str, stages: int = 1) -> np.ndarray:
     """HMM over places: forward filter (the map so far) or forward-backward; with `stages`
     > 1, each place a chain of that many states (`_forward_backward_stages`)."""
@@ -302,6 +472,8 @@ def classify(
     model.check_laser(_laser_like(model, ranges))
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
+    if cfg.smoothing != "forward":  # the other passes: later ones too, not streaming
+        scores = pool_places(cfg, scores, poses, ranges)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
         scores = pool_turns(cfg, scores, poses, ranges)
     elif cfg.smoothing != "none" and cfg.evidence_length:

@@ -169,7 +169,7 @@ def fit(
         # opening's length along the path is not described without it; the fit report says so)
         # and the HMM's dwell of `sparse_dwell_stages`: a place of one scan is unlikely
         # (and its path's turning counted by `sparse_turn_length`, its turns pooled over
-        # `sparse_turn_pool`)
+        # `sparse_turn_pool`, its revisits over `sparse_place_pool`)
         config = replace(
             config,
             context=0.0,
@@ -182,6 +182,9 @@ def fit(
             turn_pool=config.turn_pool
             if config.sparse_turn_pool is None
             else config.sparse_turn_pool,
+            place_pool=config.place_pool
+            if config.sparse_place_pool is None
+            else config.sparse_place_pool,
         )
     if not training:
         raise ToolkitError("no features to learn")

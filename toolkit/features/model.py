@@ -85,6 +85,7 @@ Classifier = Literal["trees", "logistic"]
 OpenSet = Literal["auto", "always", "never"]
 CanonicalHow = Literal["rescale", "stretch"]
 TurnPool = Literal["mean", "max"]
+PlacePoolInto = Literal["junctions", "far", "all"]
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,17 @@ class Config:
     # last scans) is not pooled either: its room-facing headings keep their weight for the
     # room's short stay (0: off, the default until session 27; 2 also reaches past a room's
     # last scan that sees out of its door; nothing with `turn_pool_reach` 0)
+    place_pool: float = 0.0  # m: before the HMM, a scan's evidence mixed with that of the
+    # scans taken within one cell of this size of it on other passes (a revisit, at any time
+    # and heading): a place is where the robot is (classify.pool_places; 0: off). Poses
+    # consistent over the log find the true revisits; with drifting odometry about 0.6 of
+    # the gain stays (a junction's turn takes the corridor passed near it; session 28)
+    place_pool_share: float = 1.0  # with `place_pool`: the weight of a neighbour's evidence
+    # per `evidence_length` of path it drove, against the scan's own at 1
+    place_pool_into: PlacePoolInto = "junctions"  # with `place_pool`, the scans that take
+    # the other passes' evidence: "junctions", a turn on the spot that sees far and is not at
+    # a doorway (`turn_pool_reach`, `turn_pool_door`: pool_turns' rule); "far", such a turn
+    # of any size (a scan driven past too); "all" (classify.pool_receivers)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -200,6 +212,14 @@ class Config:
     # far apart for the context (None: `turn_pool`, the default until session 27): a turn on
     # the spot one view where it sees far and is not at a doorway (docs/journal/places.md,
     # session 27)
+    sparse_place_pool: float | None = 4.0  # `place_pool` where the scans are too far apart
+    # for the context (None: `place_pool`, the default until session 28): a junction's turn
+    # on the spot takes the evidence of the other passes within the 3 x 3 cells of 4 m around
+    # it. On brief worlds that come back along their path (`evaluate --revisit`) BA +0.012 /
+    # +0.007 / +0.006 (seeds 0-19, 2000-2019) and +0.011 / +0.008 / +0.005 (50-69, 200-219),
+    # ECE -0.007 to -0.020, rooms +0.000; the Intel corridor 0.611 -> 0.689, rooms 0.832
+    # (docs/journal/places.md, session 28, space28). Not on dense logs: "junctions" tells a
+    # turn on the spot by scans within 0.3 m of its first, any few consecutive scans there
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -321,6 +341,7 @@ class Config:
             ("open_set", OpenSet),
             ("canonical_how", CanonicalHow),
             ("turn_pool_rule", TurnPool),
+            ("place_pool_into", PlacePoolInto),
         ):
             value, allowed = getattr(self, name), get_args(kind)
             if value not in allowed:
@@ -337,6 +358,8 @@ class Config:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
         if self.turn_pool_door < 0:
             raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
+        if self.place_pool < 0 or self.place_pool_share < 0 or (self.sparse_place_pool or 0) < 0:
+            raise ToolkitError("place_pool, sparse_place_pool, place_pool_share: 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
@@ -387,7 +410,7 @@ class Config:
 #: and kept a window call where a room was seen beside the laser (one saved after session 24
 #: names its glass and room places, ("window", "door"), in its config: applied as before);
 #: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
-#: expert's) took the mean over every turn
+#: expert's) took the mean over every turn; one saved before session 28 pooled no revisit
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -407,6 +430,7 @@ LEGACY: dict[str, Any] = {
     "turn_pool_rule": "mean",
     "turn_pool_reach": 0.0,
     "turn_pool_door": 0,
+    "sparse_place_pool": None,
 }
 
 
