@@ -308,6 +308,9 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     assert (old.sparse_turn_pool, old.turn_pool_rule, old.turn_pool_reach) == (None, "mean", 0.0)
     assert old.turn_pool_door == 0 < Config().turn_pool_door
     assert Config().sparse_turn_pool == 0.3 and Config().turn_pool == 0.0  # dense: none
+    # before session 28, a junction's long turn beside an enclosed turn was not pooled
+    unjunctioned = {k: v for k, v in now.items() if k != "turn_pool_junction"}
+    assert Config.from_dict(unjunctioned).turn_pool_junction == 0 < Config().turn_pool_junction
 
 
 def test_background_density_integrates_to_one() -> None:

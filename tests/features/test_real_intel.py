@@ -92,7 +92,11 @@ def test_intel_corridor_and_room(real: Path, tmp_path: Path, monkeypatch, capsys
     # (docs/journal/places.md, session 23)
     assert model["config"]["dwell_stages"] == 2
     assert model["config"]["turn_pool"] == 0.3 and model["config"]["turn_pool_door"] == 2
-    assert found("corridor", corridor) > 0.6  # measured 0.611 (0.584 without the pooled turn)
+    # and a junction's long turn (7 scans or more, two ways out) pooled beside an enclosed
+    # turn: all 8 of the corridor's long turns, none of the rooms' (session 28, junc28)
+    assert model["config"]["turn_pool_junction"] == 7
+    # measured 0.615 (0.611 without the junction rule, 0.584 without the pooled turn)
+    assert found("corridor", corridor) > 0.6
     assert found("corridor", corridor) > 2.5 * found("corridor", room)
     assert found("room", room) >= 0.8  # issue 16's target (measured 0.832; 0.815 before session 23)
     assert labels.loc[corridor, "p_corridor"].mean() > labels.loc[room, "p_corridor"].mean()

@@ -131,6 +131,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + on a sparse log, pool26's pooled turn (sparse_turn_pool 0.3, turn_pool_rule max) only where the turn sees far, a tenth of some scan's beams past 6 m; an enclosed turn as without pooling, a turn at a doorway pooled (turn_pool_reach 6, turn_pool_door 0; junction26, session 26)", dataclasses.replace(FULL, sparse_turn_pool=0.3, turn_pool_rule="max", turn_pool_reach=6.0, turn_pool_door=0)),
     ("alternative: + on a sparse log, junction26's pooled turn (sparse_turn_pool 0.3, turn_pool_rule max, turn_pool_reach 6) not pooled either where only the previous or next turn is enclosed (turn_pool_door 1, the default 2; places27, session 27)", dataclasses.replace(FULL, sparse_turn_pool=0.3, turn_pool_rule="max", turn_pool_reach=6.0, turn_pool_door=1)),
     ("alternative: session 26's default, no turn pooled on a sparse log (sparse_turn_pool None; the default pools a turn that sees far past 6 m with no enclosed turn among the two before or after it: turn_pool_door 2, places27, session 27)", dataclasses.replace(FULL, sparse_turn_pool=None)),
+    ("alternative: session 27's default, a junction's long turn not pooled beside an enclosed turn (turn_pool_junction 0; the default pools a turn of 7 scans or more on the spot that sees past 6 m down two ways out 60 degrees apart in spite of turn_pool_door: junc28, session 28)", dataclasses.replace(FULL, turn_pool_junction=0)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))

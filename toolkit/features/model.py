@@ -129,6 +129,10 @@ class Config:
     # last scans) is not pooled either: its room-facing headings keep their weight for the
     # room's short stay (0: off, the default until session 27; 2 also reaches past a room's
     # last scan that sees out of its door; nothing with `turn_pool_reach` 0)
+    turn_pool_junction: int = 7  # scans: with `turn_pool_door`, a turn of at least this many
+    # scans that sees far (`turn_pool_reach`) down two or more ways out `JUNCTION_SPREAD` apart
+    # or more (a junction's long turn, where corridors cross) is pooled even with an enclosed
+    # turn beside it (classify.junction_turns; 0: off, the default until session 28)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -327,6 +331,8 @@ class Config:
             raise ToolkitError(f"turn_pool_reach {self.turn_pool_reach}: m, 0 or more")
         if self.turn_pool_door < 0:
             raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
+        if self.turn_pool_junction < 0:
+            raise ToolkitError(f"turn_pool_junction {self.turn_pool_junction}: scans, 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
@@ -373,7 +379,8 @@ class Config:
 #: and kept a window call where a room was seen beside the laser (one saved after session 24
 #: names its glass and room places, ("window", "door"), in its config: applied as before);
 #: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
-#: expert's) took the mean over every turn
+#: expert's) took the mean over every turn; one saved before session 28 pooled no junction's
+#: long turn beside an enclosed one
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -393,6 +400,7 @@ LEGACY: dict[str, Any] = {
     "turn_pool_rule": "mean",
     "turn_pool_reach": 0.0,
     "turn_pool_door": 0,
+    "turn_pool_junction": 0,
 }
 
 
