@@ -313,6 +313,9 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     old = Config.from_dict(unvisited)
     assert (old.sparse_place_pool, old.place_pool) == (None, 0.0)
     assert Config().sparse_place_pool == 4.0 and Config().place_pool == 0.0  # dense: none
+    # before session 28, a junction's long turn beside an enclosed turn was not pooled
+    unjunctioned = {k: v for k, v in now.items() if k != "turn_pool_junction"}
+    assert Config.from_dict(unjunctioned).turn_pool_junction == 0 < Config().turn_pool_junction
 
 
 def test_background_density_integrates_to_one() -> None:

@@ -235,11 +235,61 @@ def doorway_free(far: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(far & ~near)
 
 
+#: headings (rad) two ways out of a turn must be apart, centre to centre (a junction's
+#: corridors: 90 degrees, less the spread of a way out seen from off its axis)
+JUNCTION_SPREAD = np.pi / 3
+#: heading bins round the circle in which a turn's beams are pooled (10 degrees each)
+JUNCTION_BINS = 36
+
+
+def junction_turns(
+    ranges: np.ndarray,
+    poses: np.ndarray,
+    angles: np.ndarray,
+    first: np.ndarray,
+    reach: float,
+    n_scans: int,
+) -> np.ndarray:
+    """Per turn (its scans from `first`), whether it is a junction's long turn: `n_scans`
+    scans or more with two or more ways out `JUNCTION_SPREAD` apart or more. A way out is a
+    run of heading bins (world frame, `JUNCTION_BINS`) in which most of the turn's beams
+    reach past `reach` m (no return: far), between bins where most do not (bins no beam saw
+    are skipped): ways down two corridors; a room seen out of its door has one.
+    `angles`: the beams' bearings on the robot."""
+    size = np.diff(np.r_[first, len(ranges)])
+    out = np.zeros(len(first), dtype=bool)
+    width = 2 * np.pi / JUNCTION_BINS
+    for t in np.flatnonzero(size >= n_scans):  # a loop over the few long turns
+        part = slice(first[t], first[t] + size[t])
+        far = ~(np.asarray(ranges[part], dtype=np.float64) <= reach)  # NaN / inf: far
+        heading = np.mod(poses[part, 2, None] + angles[None, :], 2 * np.pi)
+        b = np.minimum((heading / width).astype(np.int64), JUNCTION_BINS - 1).ravel()
+        seen = np.bincount(b, minlength=JUNCTION_BINS)
+        share = np.bincount(b, far.ravel(), minlength=JUNCTION_BINS)
+        keep = np.flatnonzero(seen)
+        wide = share[keep] * 2 > seen[keep]
+        if wide.all() or not wide.any():
+            continue
+        k = int(np.flatnonzero(~wide)[0])  # start on a near bin: runs do not wrap
+        wide, keep = np.roll(wide, -k), np.roll(keep, -k)
+        edge = np.diff(np.r_[0, wide.astype(np.int64), 0])
+        start, stop = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1) - 1
+        if len(start) < 2:
+            continue
+        mid = np.angle(
+            np.exp(1j * (keep[start] + 0.5) * width) + np.exp(1j * (keep[stop] + 0.5) * width)
+        )
+        apart = np.abs(np.angle(np.exp(1j * (mid[:, None] - mid[None, :]))))
+        out[t] = bool((apart >= JUNCTION_SPREAD - 1e-9).any())
+    return out
+
+
 def pool_turns(
     config: Config,
     scores: np.ndarray,
     poses: np.ndarray | None,
     ranges: np.ndarray | None = None,
+    angles: np.ndarray | None = None,
 ) -> np.ndarray:
     """The HMM's evidence (S x K log-probabilities) with each turn on the spot
     (`turn_groups` over `turn_pool` m) pooled: every scan of a turn gets the turn's mean (or,
@@ -269,7 +319,12 @@ def pool_turns(
     out = np.asarray(pooled[group] * share[group, None])
     if config.turn_pool_reach and ranges is not None and len(ranges) == n:
         far = turn_reach(ranges, first) > config.turn_pool_reach
-        out = np.where(doorway_free(far, config.turn_pool_door)[group, None], out, own)
+        pooled_ok = doorway_free(far, config.turn_pool_door)
+        if config.turn_pool_junction and angles is not None:
+            pooled_ok |= far & junction_turns(
+                ranges, poses, angles, first, config.turn_pool_reach, config.turn_pool_junction
+            )
+        out = np.where(pooled_ok[group, None], out, own)
     return out
 
 
@@ -475,7 +530,7 @@ def classify(
     if cfg.smoothing != "forward":  # the other passes: later ones too, not streaming
         scores = pool_places(cfg, scores, poses, ranges)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
-        scores = pool_turns(cfg, scores, poses, ranges)
+        scores = pool_turns(cfg, scores, poses, ranges, model.laser.angles + model.laser.yaw)
     elif cfg.smoothing != "none" and cfg.evidence_length:
         scores *= evidence_weights(cfg, len(scores), poses)[:, None]
     prob = softmax(scores)

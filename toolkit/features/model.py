@@ -141,6 +141,10 @@ class Config:
     # the other passes' evidence: "junctions", a turn on the spot that sees far and is not at
     # a doorway (`turn_pool_reach`, `turn_pool_door`: pool_turns' rule); "far", such a turn
     # of any size (a scan driven past too); "all" (classify.pool_receivers)
+    turn_pool_junction: int = 7  # scans: with `turn_pool_door`, a turn of at least this many
+    # scans that sees far (`turn_pool_reach`) down two or more ways out `JUNCTION_SPREAD` apart
+    # or more (a junction's long turn, where corridors cross) is pooled even with an enclosed
+    # turn beside it (classify.junction_turns; 0: off, the default until session 28)
     lateral_weight: float | None = 0.0  # beams weighted by |sin(bearing)|^this (0: all
     # alike; None: chosen among LATERAL_CHOICES by leave-one-span-out when learning)
     switch_per_scan: float = 0.02  # switching probability per scan when there are no poses
@@ -360,6 +364,8 @@ class Config:
             raise ToolkitError(f"turn_pool_door {self.turn_pool_door}: turns, 0 or more")
         if self.place_pool < 0 or self.place_pool_share < 0 or (self.sparse_place_pool or 0) < 0:
             raise ToolkitError("place_pool, sparse_place_pool, place_pool_share: 0 or more")
+        if self.turn_pool_junction < 0:
+            raise ToolkitError(f"turn_pool_junction {self.turn_pool_junction}: scans, 0 or more")
         if self.sparse_dwell_stages < 0:
             raise ToolkitError(f"sparse_dwell_stages {self.sparse_dwell_stages}: 0 or more")
         if not 0.0 < self.claim_quantile < 1.0:
@@ -411,6 +417,7 @@ class Config:
 #: names its glass and room places, ("window", "door"), in its config: applied as before);
 #: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
 #: expert's) took the mean over every turn; one saved before session 28 pooled no revisit
+#: and no junction's long turn beside an enclosed one
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -431,6 +438,7 @@ LEGACY: dict[str, Any] = {
     "turn_pool_reach": 0.0,
     "turn_pool_door": 0,
     "sparse_place_pool": None,
+    "turn_pool_junction": 0,
 }
 
 
