@@ -26,6 +26,7 @@ from toolkit.features.places import (
     SUPPORT_NEIGHBOURS,
     Forest,
     PlaceClassifier,
+    fit_places,
     resemblance,
     support_rows,
 )
@@ -125,6 +126,30 @@ def test_forest_as_arrays_equals_scikit_learn(world) -> None:  # type: ignore[no
     trees = ExtraTreesClassifier(20, min_samples_leaf=2, random_state=0).fit(x[::3], y[::3])
     ours = Forest.from_dict(Forest.from_sklearn(trees).to_dict())
     assert np.allclose(ours.predict_proba(x), trees.predict_proba(x), atol=1e-12)
+
+
+def test_views_apart_are_their_own_class_and_summed_into_their_place() -> None:
+    """`fit_places(apart=...)`: copies labelled "a (seen turned)" are a class of the trees
+    and not of the model (its classes are the places), their shares added to "a": a scan
+    like them is "a" (and the log's scans like them are self-trained as "a"), the leaves'
+    shares still sum to 1. Without `apart` the views' shares are no place's."""
+    rng = np.random.default_rng(0)
+    x = np.vstack([rng.normal(0.0, 1.0, (20, 3)), rng.normal(5.0, 1.0, (20, 3))])
+    y = np.array(["a"] * 20 + ["b"] * 20)
+    groups = np.repeat([0, 1, 2, 3], 10)
+    seen = rng.normal(12.0, 1.0, (20, 3))  # the views: far from both places
+    extra = (seen, np.full(20, "a (seen turned)"), np.ones(20))
+    log = np.vstack([x, rng.normal(12.0, 1.0, (30, 3))])
+    model = fit_places(
+        x, y, groups, unlabelled=log, extra=extra, apart={"a (seen turned)": "a"},
+        open_set="never",
+    )  # fmt: skip
+    assert model.classes == ["a", "b"]
+    assert model.forest is not None and np.allclose(model.forest.value.sum(axis=1), 1.0)
+    p = np.exp(model.log_proba(rng.normal(12.0, 1.0, (10, 3)), none=False))
+    assert (p[:, 0] > 0.8).all()
+    alone = fit_places(x, y, groups, extra=extra, open_set="never")  # not summed into "a"
+    assert (np.exp(alone.log_proba(rng.normal(12.0, 1.0, (10, 3)), none=False))[:, 0] < 0.6).all()
 
 
 @pytest.mark.parametrize("seed", [50])  # not a tuning seed (0-29) nor a held-out one (100-119)

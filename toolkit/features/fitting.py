@@ -348,19 +348,22 @@ def _fit_places(
                 config.local_map, ahead, config.opening, factor, config.reach_metres,
             )  # fmt: skip
             taken = np.isin(idx, rows)
-            extra.append(
-                (xa[idx][taken], y[taken], np.full(int(taken.sum()), config.augment_turned))
-            )
+            labels = np.char.add(y[taken], TURNED) if config.turned_apart else y[taken]
+            extra.append((xa[idx][taken], labels, np.full(int(taken.sum()), config.augment_turned)))
+    apart = {k + TURNED: k for k in dict.fromkeys(y)} if views_on and config.turned_apart else None
     return fit_places(
         x[idx], y, groups, config.descriptor_c, None, x[rest], config.self_training,
         config.priors, forest=config.classifier == "trees", gate=own_width,
         open_set=open_set, claim=claim, leaf_mix=config.leaf_mix,
         extra=tuple(np.concatenate(v) for v in zip(*extra, strict=True)) if extra else None,
         claim_quantile=config.claim_quantile, along=along[rest], stay_edge=config.stay_edge,
-        leaf_weight=config.leaf_weight,
+        leaf_weight=config.leaf_weight, apart=apart,
     )  # fmt: skip
 
 
+#: the label of a place's turned views in the trees with `Config.turned_apart` (the place's
+#: name and this), merged into the place after the fit
+TURNED = " (seen turned)"
 #: rad: a taught span that turns less than this over its scans is driven straight (with
 #: `Config.turned_spans` "straight", only such spans' views are rendered)
 TURN_STRAIGHT = 0.5

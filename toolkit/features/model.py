@@ -287,6 +287,9 @@ class Config:
     turned_spans: str = "all"  # with `augment_turned`, every taught span; "straight": only
     # those turning less than fitting.TURN_STRAIGHT (a span that turns has its own views:
     # lost more rooms, -0.20 / -0.16 / -0.14 against -0.13 / -0.09 / -0.08, session 28)
+    turned_apart: bool = False  # with `augment_turned`, each place's views a class of its
+    # own in the trees, its shares added to the place's after the fit (places.fit_places
+    # `apart`; session 28, across28: measured, off)
     glass_to: tuple[str, ...] | None = None  # (glass place, room place): a call of the
     # first at a scan whose beams square to the path see, on either side, returns from 1 to
     # 5 m past that side's usual wall (a room behind an opening) goes to the second

@@ -535,6 +535,7 @@ def fit_places(
     along: np.ndarray | None = None,
     stay_edge: float = 0.0,
     leaf_weight: float = 0.0,
+    apart: dict[str, str] | None = None,
 ) -> PlaceClassifier:
     """Learn from descriptors `x` (n, D) of training scans, their places `y` (n,) and their
     spans `groups` (n,: scans of one span share a number), on the descriptors `columns`.
@@ -598,6 +599,19 @@ def fit_places(
         return LogisticRegression(C=c, max_iter=2000)
 
     za, ya, wa = np.zeros((0, z.shape[1])), np.zeros(0, dtype=str), np.zeros(0)
+    apart = apart or {}
+
+    def merged(p: np.ndarray, names: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Shares `p` over the trees' classes `names`, each `apart` class's added to its
+        place's; and the classes left."""
+        if not apart:
+            return p, names
+        own = ~np.isin(names, list(apart))
+        out, left = p[:, own].copy(), list(names[own])
+        for j in np.flatnonzero(~own):
+            out[:, left.index(apart[str(names[j])])] += p[:, j]
+        return out, names[own]
+
     if extra is not None and forest:
         za = (extra[0][:, columns] - scaler.mean_) / scale
         ya, wa = np.asarray(extra[1]).astype(str), np.asarray(extra[2], dtype=np.float64)
@@ -616,7 +630,8 @@ def fit_places(
         claimed, testable = log_claims(cz, y, groups, cu, claim_quantile)
         # a place taught by one span has no new spot to calibrate its claim by (its halves
         # look alike): the scans the trees give it are its own
-        top = est.predict_proba(zu)[:, [list(est.classes_).index(k) for k in classes]]
+        prob, names = merged(est.predict_proba(zu), est.classes_)
+        top = prob[:, [list(names).index(k) for k in classes]]
         claimed |= ~np.array([k in testable for k in classes])[top.argmax(axis=1)]
     claimed_share = float(claimed.mean()) if len(zu) else 1.0
     if open_set == "auto" and claimed_share >= BACKGROUND_SHARE:
@@ -625,8 +640,8 @@ def fit_places(
     learnt_z, learnt_y = np.vstack([z, za]), np.r_[y, ya]  # what the last fit learnt from
     if len(zu):
         for _ in range(max(rounds, int(learn_none))):  # "none" is learnt even without rounds
-            prob = est.predict_proba(zu)
-            label, sure = est.classes_[prob.argmax(axis=1)], prob.max(axis=1)
+            prob, names = merged(est.predict_proba(zu), est.classes_)
+            label, sure = names[prob.argmax(axis=1)], prob.max(axis=1)
             zs, ys, ws = [z, za], [y, ya], [np.ones(len(y)), wa]
             core = stay_cores(label, along, stay_edge)
             for k in classes if rounds > 0 else ():
@@ -644,13 +659,14 @@ def fit_places(
                 ws.append(np.full(len(rest), len(y) / len(classes) / len(rest)))
             learnt_z, learnt_y, w = np.concatenate(zs), np.concatenate(ys), np.concatenate(ws)
             est = learner(float(w.sum())).fit(learnt_z, learnt_y, sample_weight=w)
-    order = [list(est.classes_).index(k) for k in classes]
+    names = merged(np.zeros((0, len(est.classes_))), est.classes_)[1]
+    order = [list(names).index(k) for k in classes]
     trees = None
     if forest:
         trees = Forest.from_sklearn(est)
-        if NONE in est.classes_:
-            order.append(list(est.classes_).index(NONE))
-        trees.value = trees.value[:, order]
+        if NONE in names:
+            order.append(list(names).index(NONE))
+        trees.value = merged(trees.value, est.classes_)[0][:, order]
         trees.value = (1.0 - leaf_mix) * trees.value + leaf_mix / trees.value.shape[1]
         coef, intercept = np.zeros((len(classes), 0)), np.zeros(len(classes))
     else:
@@ -672,7 +688,8 @@ def fit_places(
     )  # fmt: skip
     model.reach = _reach(model, zg, y, classes)
     if forest and trees is not None:
-        rows, where = support_rows(learnt_y, classes)
+        named = np.array([apart.get(k, k) for k in learnt_y]) if apart else learnt_y
+        rows, where = support_rows(named, classes)
         model.support_leaves = est.apply(learnt_z[rows]).astype(np.int64) + trees.roots
         model.support_place = where
     if forest and open_set != "never" and len(zu):
