@@ -132,6 +132,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: + on a sparse log, junction26's pooled turn (sparse_turn_pool 0.3, turn_pool_rule max, turn_pool_reach 6) not pooled either where only the previous or next turn is enclosed (turn_pool_door 1, the default 2; places27, session 27)", dataclasses.replace(FULL, sparse_turn_pool=0.3, turn_pool_rule="max", turn_pool_reach=6.0, turn_pool_door=1)),
     ("alternative: session 26's default, no turn pooled on a sparse log (sparse_turn_pool None; the default pools a turn that sees far past 6 m with no enclosed turn among the two before or after it: turn_pool_door 2, places27, session 27)", dataclasses.replace(FULL, sparse_turn_pool=None)),
     ("alternative: + on a sparse log, the taught scans also taught as seen from their poses turned on the spot by 45 and 90 degrees either way, rendered from the scans around their span (augment_turned 1, turned_by 45, -45, 90, -90, turned_spans all; aug28, session 28: the corridor found far more, the rooms less)", dataclasses.replace(FULL, augment_turned=1.0)),
+    ("alternative: + aug28's turned views (row 53) as classes of their own in the trees, one per place, their shares added to the place's after the fit (augment_turned 1, turned_apart; across28, session 28: the rooms lost more than row 53's)", dataclasses.replace(FULL, augment_turned=1.0, turned_apart=True)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))
