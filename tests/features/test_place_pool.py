@@ -60,18 +60,26 @@ def test_pooled_by_position_as_written_out_scan_by_scan() -> None:
     assert np.allclose(pool_places(config, scores, far), _brute_force(config, scores, far))
 
 
-def test_a_turn_passed_again_driving_takes_the_drive_s_evidence() -> None:
-    """A corridor spot turned in on the way out (eight headings that look like a room) and
-    driven through on the way back (0.5 m steps that say corridor): pooled at 0.5 m, the
-    turn's scans take the three scans of the drive past within a cell and lean to the
-    corridor; the turn counts once (its mean, its arrival's step) for the drive past, not
-    eight times; a spot passed once is unchanged; off (0) nothing changes."""
+def _turned_then_driven_through() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Poses and scores of a spot turned in on the way out (eight headings that look like a
+    room) and driven through on the way back (0.5 m steps that say corridor); and the two
+    scores."""
     out_way = np.c_[np.arange(0.0, 5.0), np.zeros(5), np.zeros(5)]
     turn = np.c_[np.full(8, 5.0), np.zeros(8), np.arange(8) * 0.5]
     back = np.c_[np.arange(7.25, 0.0, -0.5), np.full(15, 0.1), np.full(15, np.pi)]
     poses = np.r_[out_way, turn, back]
     corridor, room = np.log([0.8, 0.2]), np.log([0.2, 0.8])
     scores = np.r_[np.tile(corridor, (5, 1)), np.tile(room, (8, 1)), np.tile(corridor, (15, 1))]
+    return poses, scores, corridor, room
+
+
+def test_a_turn_passed_again_driving_takes_the_drive_s_evidence() -> None:
+    """A corridor spot turned in on the way out (eight headings that look like a room) and
+    driven through on the way back (0.5 m steps that say corridor): pooled at 0.5 m, the
+    turn's scans take the three scans of the drive past within a cell and lean to the
+    corridor; the turn counts once (its mean, its arrival's step) for the drive past, not
+    eight times; a spot passed once is unchanged; off (0) nothing changes."""
+    poses, scores, corridor, room = _turned_then_driven_through()
     config = Config(place_pool=0.5, place_pool_into="all")
     out = pool_places(config, scores, poses)
     assert np.allclose(out[5:13], (room + 3 * corridor) / 4)  # x 5.75, 5.25, 4.75 on the way back
@@ -90,12 +98,7 @@ def test_only_a_far_seeing_turn_away_from_doorways_takes_it_by_default() -> None
     drive past's evidence, and only while the turn sees past `turn_pool_reach` (6 m) and no
     enclosed turn is among the two before or after it; "far" gives it to the drive past too
     (a turn of one scan that sees far); without ranges nothing is pooled but with "all"."""
-    out_way = np.c_[np.arange(0.0, 5.0), np.zeros(5), np.zeros(5)]
-    turn = np.c_[np.full(8, 5.0), np.zeros(8), np.arange(8) * 0.5]
-    back = np.c_[np.arange(7.25, 0.0, -0.5), np.full(15, 0.1), np.full(15, np.pi)]
-    poses = np.r_[out_way, turn, back]
-    corridor, room = np.log([0.8, 0.2]), np.log([0.2, 0.8])
-    scores = np.r_[np.tile(corridor, (5, 1)), np.tile(room, (8, 1)), np.tile(corridor, (15, 1))]
+    poses, scores, _, _ = _turned_then_driven_through()
     far = np.full((len(poses), 20), 9.0)  # every scan sees 9 m
     config = Config(place_pool=0.5)
     assert config.place_pool_into == "junctions"
