@@ -149,3 +149,42 @@ def test_a_revisit_world_s_junction_turns_found_by_the_other_pass() -> None:
         assert found["turns"]["now"] > found["turns"]["before"] + 0.05
         assert found["rooms"]["now"] == found["rooms"]["before"] > 0.7
         assert found["stays"]["now"] == found["stays"]["before"]
+
+
+def test_seen_only_pools_the_scans_in_view() -> None:
+    """`place_pool_seen`: with beams that reach everywhere it pools as without it (to 1e-12,
+    the random walk above) and with every beam stopping at 0.5 m it does not; two scans
+    facing each other across a wall keep their own, with the beam between them clear they
+    pool, and back to back (no beam either way) they pool."""
+    rng = np.random.default_rng(1)
+    n = 300
+    poses = np.c_[np.cumsum(rng.normal(0, 0.4, (n, 2)), axis=0) % 5.0, rng.uniform(-3, 3, n)]
+    poses[50:60, :2] = poses[49, :2]
+    poses[[7, 100], :2] = np.nan
+    scores = np.log(rng.dirichlet(np.ones(3), n))
+    angles = np.linspace(-np.pi, np.pi, 181, endpoint=False)  # all round
+    config = Config(place_pool=0.7, place_pool_share=0.8, place_pool_into="all")
+    seen = replace(config, place_pool_seen=True)
+    open_ = np.full((n, 181), np.inf)
+    want = pool_places(config, scores, poses, open_)
+    assert np.allclose(pool_places(seen, scores, poses, open_, angles), want, atol=1e-12)
+    walled = np.full((n, 181), 0.5)
+    got = pool_places(seen, scores, poses, walled, angles)
+    assert np.abs(got - want).max() > 1e-3
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)  # a half-circle laser from here
+    # two passes 1 m apart (a room's scan and the corridor's), both facing each other
+    two = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 0.0], [1.0, 0.0, np.pi]])
+    s3 = np.log(np.array([[0.8, 0.1, 0.1], [0.3, 0.3, 0.4], [0.1, 0.1, 0.8]]))
+    far = Config(place_pool=2.0, place_pool_into="all", place_pool_seen=True)
+    wall = np.full((3, 181), 0.4)
+    assert np.array_equal(pool_places(far, s3, two, wall, angles), s3)
+    clear = wall.copy()
+    clear[:, 90] = 3.0  # the beam straight ahead reaches past the other
+    out = pool_places(far, s3, two, clear, angles)
+    assert not np.allclose(out[[0, 2]], s3[[0, 2]]) and np.array_equal(out[1], s3[1])
+    # back to back (out along a corridor and back), neither beam looks at the other: counts
+    back = two.copy()
+    back[0, 2] = np.pi
+    back[2, 2] = 0.0
+    out = pool_places(far, s3, back, wall, angles)
+    assert not np.allclose(out[[0, 2]], s3[[0, 2]])

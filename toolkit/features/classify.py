@@ -388,6 +388,7 @@ def pool_places(
     scores: np.ndarray,
     poses: np.ndarray | None,
     ranges: np.ndarray | None = None,
+    angles: np.ndarray | None = None,
 ) -> np.ndarray:
     """The evidence (S x K log-probabilities) of a scan mixed with that of the scans taken at
     the same spot on other passes: a place is where the robot is, so a junction driven
@@ -403,7 +404,9 @@ def pool_places(
     (`pool_receivers`). One pass of cell sums and a compiled walk for the passes: linear in
     the scans. Unchanged without poses or with `place_pool` 0. The poses must be consistent
     over the log (ground truth, a SLAM trajectory): with drifting odometry a lap's revisit
-    lands elsewhere."""
+    lands elsewhere. With `place_pool_seen` (and `ranges`, `angles`: the beams' bearings on
+    the robot), a neighbour counts only if the two positions see each other (`_seen_sums`):
+    a room's scans behind the wall from the corridor in front of its door are two places."""
     n = len(scores)
     if not config.place_pool or poses is None or len(poses) != n or n == 0:
         return scores
@@ -426,18 +429,109 @@ def pool_places(
     brought[:, :-1] = (np.add.reduceat(scores, first, axis=0) / size[:, None])[group]
     brought[:, :-1] *= weight[:, None]
     brought[:, -1] = weight
-    block = _block_sums(key, brought, width, height, n)
     start, end = _own_pass(cell, valid)
-    along = np.zeros((n + 1, brought.shape[1]))
-    np.cumsum(brought, axis=0, out=along[1:])
-    own = along[end + 1] - along[start]  # the scan's pass, in the block too
-    other = block - own
+    take = pool_receivers(config, poses, ranges, group, first)
+    seen = config.place_pool_seen and ranges is not None and len(ranges) == n
+    if seen and angles is not None:
+        order = np.argsort(key, kind="stable")
+        bearing = np.mod(np.asarray(angles, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi
+        beams = np.argsort(bearing, kind="stable")  # ascending in (-pi, pi]
+        r = np.asarray(ranges, dtype=np.float64)[:, beams]
+        other = _seen_sums(
+            np.ascontiguousarray(poses[:, :3], dtype=np.float64),
+            np.ascontiguousarray(np.where(np.isfinite(r), r, np.inf)),  # no return: reaches
+            np.ascontiguousarray(bearing[beams]),
+            key,
+            order,
+            key[order],
+            height,
+            start,
+            end,
+            valid & take,
+            brought,
+        )
+    else:
+        block = _block_sums(key, brought, width, height, n)
+        along = np.zeros((n + 1, brought.shape[1]))
+        np.cumsum(brought, axis=0, out=along[1:])
+        own = along[end + 1] - along[start]  # the scan's pass, in the block too
+        other = block - own
     out = (scores + config.place_pool_share * other[:, :-1]) / (
         1.0 + config.place_pool_share * other[:, -1:]
     )
     revisit = valid & (other[:, -1] > REVISIT_WEIGHT)  # else its own, to the bit
-    revisit &= pool_receivers(config, poses, ranges, group, first)
+    revisit &= take
     return np.asarray(np.where(revisit[:, None], out, scores))
+
+
+#: m: `place_pool_seen`'s margin: a beam toward a neighbour that stops this short of it
+#: still sees it (the poses' and the ranges' noise)
+SEEN_MARGIN = 0.2
+
+
+@numba.njit(cache=True)
+def _beam_reaches(
+    pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, x: float, y: float
+) -> int:  # pragma: no cover - numba
+    """Whether the scan at `pose` sees (x, y): 1 if its beam nearest that bearing reaches
+    past the distance less `SEEN_MARGIN`, 0 if it stops short, -1 if no beam looks that way
+    (outside the field of view by more than half a beam's step)."""
+    dx, dy = x - pose[0], y - pose[1]
+    dist = np.hypot(dx, dy)
+    if dist <= SEEN_MARGIN:
+        return 1
+    rel = np.arctan2(dy, dx) - pose[2]
+    rel = (rel + np.pi) % (2 * np.pi) - np.pi
+    m = len(angles)
+    half = 0.5 * abs(angles[-1] - angles[0]) / max(m - 1, 1)
+    k = np.searchsorted(angles, rel)
+    if k == m or (k > 0 and rel - angles[k - 1] < angles[k] - rel):
+        k -= 1
+    if abs(rel - angles[k]) > half + 1e-9:
+        return -1
+    return 1 if ranges[k] >= dist - SEEN_MARGIN else 0
+
+
+@numba.njit(cache=True)
+def _seen_sums(
+    poses: np.ndarray,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    key: np.ndarray,
+    order: np.ndarray,
+    sorted_key: np.ndarray,
+    height: int,
+    start: np.ndarray,
+    end: np.ndarray,
+    take: np.ndarray,
+    brought: np.ndarray,
+) -> np.ndarray:  # pragma: no cover - numba
+    """Per taking scan (`take`), the sum of `brought` over the scans in its 3 x 3 cells
+    (`key`, sorted by `order` into `sorted_key`) off its own pass (`start`..`end`) but those
+    behind a wall: the taker's beam toward it stops short, or, where it has no beam that way,
+    the neighbour's toward it does (`_beam_reaches`; two scans back to back, neither looking
+    at the other, count: a revisit on the way back along a corridor). The pairs come from the
+    cells: each taker walks its nine cells' scans, the others cost nothing."""
+    n, columns = brought.shape
+    out = np.zeros((n, columns))
+    for i in range(n):
+        if not take[i]:
+            continue
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                want = key[i] + dx * height + dy
+                lo = np.searchsorted(sorted_key, want)
+                hi = np.searchsorted(sorted_key, want, side="right")
+                for q in range(lo, hi):
+                    j = order[q]
+                    if start[i] <= j <= end[i] or not np.isfinite(poses[j, 0]):
+                        continue
+                    see = _beam_reaches(poses[i], ranges[i], angles, poses[j, 0], poses[j, 1])
+                    if see < 0:
+                        see = _beam_reaches(poses[j], ranges[j], angles, poses[i, 0], poses[i, 1])
+                    if see != 0:  # no beam either way: nothing seen between, it counts
+                        out[i] += brought[j]
+    return out
 
 
 def _block_sums(
@@ -528,7 +622,7 @@ def classify(
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
     if cfg.smoothing != "forward":  # the other passes: later ones too, not streaming
-        scores = pool_places(cfg, scores, poses, ranges)
+        scores = pool_places(cfg, scores, poses, ranges, model.laser.angles + model.laser.yaw)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too
         scores = pool_turns(cfg, scores, poses, ranges, model.laser.angles + model.laser.yaw)
     elif cfg.smoothing != "none" and cfg.evidence_length:

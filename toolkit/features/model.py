@@ -141,6 +141,10 @@ class Config:
     # the other passes' evidence: "junctions", a turn on the spot that sees far and is not at
     # a doorway (`turn_pool_reach`, `turn_pool_door`: pool_turns' rule); "far", such a turn
     # of any size (a scan driven past too); "all" (classify.pool_receivers)
+    place_pool_seen: bool = False  # with `place_pool`: a neighbour does not count where a
+    # wall is seen between the two positions (the taker's beam toward it, or the neighbour's
+    # toward the taker when out of view, stops short of their distance less `SEEN_MARGIN`):
+    # two places (classify.pool_places; wall28, session 28)
     turn_pool_junction: int = 7  # scans: with `turn_pool_door`, a turn of at least this many
     # scans that sees far (`turn_pool_reach`) down two or more ways out `JUNCTION_SPREAD` apart
     # or more (a junction's long turn, where corridors cross) is pooled even with an enclosed
