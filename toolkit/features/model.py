@@ -141,10 +141,11 @@ class Config:
     # the other passes' evidence: "junctions", a turn on the spot that sees far and is not at
     # a doorway (`turn_pool_reach`, `turn_pool_door`: pool_turns' rule); "far", such a turn
     # of any size (a scan driven past too); "all" (classify.pool_receivers)
-    place_pool_seen: bool = False  # with `place_pool`: a neighbour does not count where a
+    place_pool_seen: bool = True  # with `place_pool`: a neighbour does not count where a
     # wall is seen between the two positions (the taker's beam toward it, or the neighbour's
     # toward the taker when out of view, stops short of their distance less `SEEN_MARGIN`):
-    # two places (classify.pool_places; wall28, session 28)
+    # two places (classify.pool_places; wall28, session 28; False: every neighbour, as
+    # space28's)
     turn_pool_junction: int = 7  # scans: with `turn_pool_door`, a turn of at least this many
     # scans that sees far (`turn_pool_reach`) down two or more ways out `JUNCTION_SPREAD` apart
     # or more (a junction's long turn, where corridors cross) is pooled even with an enclosed
@@ -421,7 +422,8 @@ class Config:
 #: names its glass and room places, ("window", "door"), in its config: applied as before);
 #: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
 #: expert's) took the mean over every turn; one saved before session 28 pooled no revisit
-#: and no junction's long turn beside an enclosed one
+#: and no junction's long turn beside an enclosed one (and, with an expert's revisit
+#: pooling, took a neighbour behind a wall)
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -442,6 +444,7 @@ LEGACY: dict[str, Any] = {
     "turn_pool_reach": 0.0,
     "turn_pool_door": 0,
     "sparse_place_pool": None,
+    "place_pool_seen": False,
     "turn_pool_junction": 0,
 }
 
