@@ -71,7 +71,7 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         ("last default: descriptors, logistic regression + per-beam term, HMM", LOGISTIC, poses),
         ("toolkit default: descriptors + context, trees, HMM", Config(), poses),
         ("toolkit default + per-beam term 1", dataclasses.replace(Config(), beam_term=1.0), poses),
-        ("toolkit default + revisits pooled by position (place_pool 4, all scans taking them)", dataclasses.replace(Config(), place_pool=4.0, place_pool_into="all"), poses),
+        ("toolkit default + revisits pooled by position (place_pool 4, all scans taking them, walls not looked for)", dataclasses.replace(Config(), place_pool=4.0, place_pool_into="all", place_pool_seen=False), poses),
         ("--none-model surroundings (lateral 2, as its spans choose)", LATERAL2, poses),
         ("--none-model surroundings, two components per feature", LATERAL2, poses),
 ]  # fmt: skip

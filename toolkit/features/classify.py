@@ -405,8 +405,10 @@ def pool_places(
     the scans. Unchanged without poses or with `place_pool` 0. The poses must be consistent
     over the log (ground truth, a SLAM trajectory): with drifting odometry a lap's revisit
     lands elsewhere. With `place_pool_seen` (and `ranges`, `angles`: the beams' bearings on
-    the robot), a neighbour counts only if the two positions see each other (`_seen_sums`):
-    a room's scans behind the wall from the corridor in front of its door are two places."""
+    the robot), a neighbour behind a wall seen between does not count (`_seen_sums`): two
+    places. That walks each taker's pairs: linear in the takers times their neighbours, so
+    quadratic in the passes over a spot (the Intel log 13 ms; a dense log tiled 25 times,
+    100,000 scans, junctions: 56 s against 1.1 s without)."""
     n = len(scores)
     if not config.place_pool or poses is None or len(poses) != n or n == 0:
         return scores
