@@ -49,7 +49,7 @@ import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 import pandas as pd
@@ -347,25 +347,29 @@ def teaches_two(runs: dict[str, Any]) -> bool:
     return bool(runs["a"].regions["feature"].nunique() >= 2)
 
 
+class WorldKind(TypedDict, total=False):
+    """`worlds`' options after the seed, as `protocol` passes them on."""
+
+    spacing: float
+    turn: float
+    entered: bool
+    brief: bool
+    revisit: bool
+    crossings: bool
+
+
 def protocol(
-    configs: list[tuple[str, Config]],
-    seeds: tuple[int, ...],
-    spacing: float = 0.0,
-    turn: float = 0.0,
-    entered: bool = False,
-    brief: bool = False,
-    revisit: bool = False,
-    crossings: bool = False,
+    configs: list[tuple[str, Config]], seeds: tuple[int, ...], **kind: Unpack[WorldKind]
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The protocol's table (a row per configuration) and, for the first configuration
-    marked default (else the first), precision and recall per place and run. With `spacing`
-    (and `turn`) the runs are thinned, with `entered` they enter rooms and are taught as the
-    Intel log (`worlds`); then only taught places are scored, and seeds teaching fewer than
-    two places left out."""
+    marked default (else the first), precision and recall per place and run, on the worlds
+    of `kind` (`worlds`' options). With `spacing` (and `turn`) the runs are thinned, with
+    `entered` they enter rooms and are taught as the Intel log; then only taught places are
+    scored, and seeds teaching fewer than two places left out."""
     results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
-    partial = spacing > 0 or entered
+    partial = kind.get("spacing", 0.0) > 0 or kind.get("entered", False)
     for seed in seeds:
-        runs = worlds(seed, spacing, turn, entered, brief, revisit, crossings)
+        runs = worlds(seed, **kind)
         if partial and not teaches_two(runs):
             continue
         for name, config in configs:
@@ -504,12 +508,12 @@ def main() -> None:
     table, places = protocol(
         configs,
         args.seeds,
-        args.spacing,
-        args.turn,
-        args.entered,
-        args.brief,
-        args.revisit,
-        args.crossings,
+        spacing=args.spacing,
+        turn=args.turn,
+        entered=args.entered,
+        brief=args.brief,
+        revisit=args.revisit,
+        crossings=args.crossings,
     )
     text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)})"
     if args.entered:
