@@ -329,16 +329,13 @@ def pool_turns(
 
 
 @numba.njit(cache=True)
-def _own_pass(
-    cell: np.ndarray, valid: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - numba
-    """Per scan i, the first and last index of its pass: the run of consecutive scans around
-    it whose cells (`cell`, S x 2 integer cell coordinates) lie within one cell of its own.
+def _pass_starts(cell: np.ndarray, valid: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+    """Per scan i, the first index of its pass: the run of consecutive scans before it whose
+    cells (`cell`, S x 2 integer cell coordinates) lie within one cell of its own.
     Recomputed only where the cell changes (a scan in its predecessor's cell has its pass),
     so a robot standing in one cell costs one walk, not one per scan."""
     n = len(cell)
     first = np.empty(n, dtype=np.int64)
-    last = np.empty(n, dtype=np.int64)
     for i in range(n):
         if not valid[i]:
             first[i] = i
@@ -355,28 +352,15 @@ def _own_pass(
         ):
             j -= 1
         first[i] = j
-    for i in range(n - 1, -1, -1):
-        if not valid[i]:
-            last[i] = i
-            continue
-        if (
-            i < n - 1
-            and valid[i + 1]
-            and cell[i + 1, 0] == cell[i, 0]
-            and cell[i + 1, 1] == cell[i, 1]
-        ):
-            last[i] = last[i + 1]
-            continue
-        j = i
-        while (
-            j < n - 1
-            and valid[j + 1]
-            and abs(cell[j + 1, 0] - cell[i, 0]) <= 1
-            and abs(cell[j + 1, 1] - cell[i, 1]) <= 1
-        ):
-            j += 1
-        last[i] = j
-    return first, last
+    return first
+
+
+def _own_pass(cell: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per scan, the first and last index of its pass (`_pass_starts` forward, and on the
+    log read backwards for the last)."""
+    n = len(cell)
+    back = _pass_starts(np.ascontiguousarray(cell[::-1]), np.ascontiguousarray(valid[::-1]))
+    return _pass_starts(cell, valid), (n - 1 - back)[::-1]
 
 
 #: the cells around a scan's own (and itself) whose scans are its neighbours in `pool_places`

@@ -369,8 +369,6 @@ def _fit_places(
 TURN_STRAIGHT = 0.5
 #: m of path either side of a taught span whose scans also draw its map for the views
 TURN_AROUND = 3.0
-#: a view with more than this share of its beams leaving what the span's map saw is left out
-TURN_UNSEEN = 1.0
 
 
 def turned_copies(
@@ -384,8 +382,8 @@ def turned_copies(
     and their views from their poses turned by it (`augment.turned_views`), rendered from
     the scans within `TURN_AROUND` m of path of their span; of the places `turned_of`
     (empty: all), of the spans `turned_spans` ("straight": those turning less than
-    `TURN_STRAIGHT` over their scans), views with a share over `TURN_UNSEEN` of their beams
-    unseen left out."""
+    `TURN_STRAIGHT` over their scans). Every view is kept, however much of it the span's map
+    did not see (leaving such views out gained nothing: docs/journal/places.md, aug28)."""
     along = path_length(len(ranges), poses)
     theta = np.unwrap(np.asarray(poses, dtype=np.float64)[:, 2])
     spans = []
@@ -399,14 +397,9 @@ def turned_copies(
     out = []
     for degrees in config.turned_by:
         turn = float(np.radians(degrees))
-        rendered = [turned_views(ranges, laser, poses, src, idx, turn) for src, idx in spans]
-        rows = [
-            idx[u.mean(axis=1) <= TURN_UNSEEN]
-            for (_, idx), (_, u) in zip(spans, rendered, strict=True)
-        ]
-        views = [v[u.mean(axis=1) <= TURN_UNSEEN] for v, u in rendered]
-        if any(len(r) for r in rows):
-            out.append((turn, np.concatenate(rows), np.concatenate(views)))
+        views = [turned_views(ranges, laser, poses, src, idx, turn)[0] for src, idx in spans]
+        if spans:
+            out.append((turn, np.concatenate([idx for _, idx in spans]), np.concatenate(views)))
     return out
 
 
