@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import gc
 
-from toolkit.app.startup import imports_kept
+from toolkit.app.startup import ends_now, imports_kept
 
 
 def main() -> None:
@@ -56,3 +56,5 @@ def main() -> None:
         # by reference counting, and the standard streams flushed, as usual.
         gc.disable()
         gc.freeze()
+    if signals.received is None and ends_now():  # outputs committed: exit handlers, the end
+        signals.end_now(0)

@@ -120,7 +120,7 @@ def map_command(
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
-    from toolkit.app.startup import imports_kept, numba_tables
+    from toolkit.app.startup import end_without_teardown, imports_kept, numba_tables
 
     with imports_kept():
         from toolkit.mapping import has_odometry, map_run
@@ -139,6 +139,7 @@ def map_command(
         settings = map_settings(config, set_, method, loops, _odometry(paths))
     if found is not None:
         _map_each(found, out, method, voxel, force, scheduler, quiet, loops, settings)
+        end_without_teardown()  # every run committed
         return
     dataset = datasets[0]
     match_config, slam_config = (
@@ -169,6 +170,7 @@ def map_command(
                 loops,
                 slam_config=slam_config,
             )
+    end_without_teardown()  # the run directory committed (atomic_dir), every file closed
     if quiet:
         return
     metrics = run.metrics
