@@ -52,19 +52,22 @@ def end_without_teardown() -> None:
 
 
 def ends_now() -> bool:
-    """Whether `toolkit.app.entry` may end the process now (after the exit handlers and the
-    streams' flush, `signals.end_now`), without the teardown: the command asked for it, no
-    other thread runs that Python would wait for, and nothing traces or profiles the process
-    (coverage, cProfile: they write their results after the command returns) or keeps it
-    for inspection (`python -i`)."""
+    """Whether `toolkit.app.entry` may end the process now, without the teardown: the command
+    asked for it and nothing traces or profiles the process (coverage, cProfile: they write
+    their results after the command returns) or keeps it for inspection (`python -i`). If
+    so, first what Python's exit does before its teardown: the threads it waits for joined
+    (the writers' pool, left to end on its own) and threading's exit callbacks run
+    (`threading._shutdown`, as `Py_FinalizeEx` calls it); then `signals.end_now` runs the
+    exit handlers, flushes the streams and ends."""
     import sys  # noqa: PLC0415
     import threading  # noqa: PLC0415
 
-    others = [t for t in threading.enumerate() if t is not threading.main_thread()]
-    return (
+    if not (
         _TEARDOWN_SKIPPABLE
-        and all(t.daemon for t in others)
         and sys.gettrace() is None
         and sys.getprofile() is None
         and not sys.flags.inspect
-    )
+    ):
+        return False
+    threading._shutdown()  # type: ignore[attr-defined]
+    return True
