@@ -1,5 +1,6 @@
-"""What a command does about its start: `imports_kept` around its imports (`toolkit.app.entry`
-for typer's, `toolkit.app.cli.map_cmd` for the mapper's), and in the mapper's `numba_tables`."""
+"""What a command does about its start and its end: `imports_kept` around its imports
+(`toolkit.app.entry` for typer's, `toolkit.app.cli.map_cmd` for the mapper's), in the mapper's
+`numba_tables`, and at the mapper's end `end_without_teardown` (`ends_now` in the entry)."""
 
 from __future__ import annotations
 
@@ -45,8 +46,8 @@ _TEARDOWN_SKIPPABLE = False
 def end_without_teardown() -> None:
     """Called by a command at its end, every output written, closed and committed: the
     process may then end without the interpreter's teardown (`ends_now`), which after a map
-    run frees every object numba, LLVM and the libraries made, one by one: 0.03-0.07 s of
-    a 5,000-scan `toolkit map` (session 29), nothing any output depends on."""
+    run frees every object numba, LLVM and the libraries made, one by one: 0.05-0.07 s of
+    `toolkit map` (session 29, corridor and 5,000-scan building), nothing an output needs."""
     global _TEARDOWN_SKIPPABLE
     _TEARDOWN_SKIPPABLE = True
 
