@@ -30,7 +30,13 @@ from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.slam import graph as pg
 from toolkit.slam.localmap import sequential
 from toolkit.slam.loops import Loop, is_false_loop
-from toolkit.slam.pipeline import SlamConfig, SlamResult, close_loops, mend_blind
+from toolkit.slam.pipeline import (
+    SlamConfig,
+    SlamResult,
+    close_loops,
+    mend_blind,
+    mend_excursions,
+)
 from toolkit.slam.relations import RELATIONS, relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
 from toolkit.slam.scanmap import scan_to_map
@@ -135,6 +141,9 @@ def slam_trajectory(
         step_fit = result.matches.agreement  # the inlier share of each scan's fit
     if slam.front_end == "map" and wheels is not None and result.matches is not None:
         before = mend_blind(ds.ranges, result.matches.agreement, before, wheels, slam)
+        before = mend_excursions(
+            ds.ranges, ds.laser, result.matches.agreement, before, wheels, slam
+        )
     poses, keys, edges, loops, timings, before = close_loops(
         ds, before, slam, step_cov, odometry, step_fit
     )
