@@ -316,6 +316,10 @@ def test_a_config_saved_before_its_fields_existed_applies_as_it_did() -> None:
     # before session 28, a junction's long turn beside an enclosed turn was not pooled
     unjunctioned = {k: v for k, v in now.items() if k != "turn_pool_junction"}
     assert Config.from_dict(unjunctioned).turn_pool_junction == 0 < Config().turn_pool_junction
+    # before session 29, a sparse log's trees did not take the view ahead
+    blinkered = {k: v for k, v in now.items() if k != "sparse_view_ahead"}
+    assert not Config.from_dict(blinkered).sparse_view_ahead and Config().sparse_view_ahead
+    assert not Config().view_ahead  # dense: the place's columns alone
 
 
 def test_background_density_integrates_to_one() -> None:

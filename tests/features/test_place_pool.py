@@ -134,8 +134,8 @@ def test_a_revisit_world_s_junction_turns_found_by_the_other_pass() -> None:
     corridor's scans taken turning on the spot than session 27's default (place_pool 0) in
     runs a and b, and the rooms (and their short stays) exactly as many (measured, runs a /
     b: the turning scans 0.18 / 0.10 -> 0.28 / 0.17, rooms 0.78 / 0.79 and short stays 0.25 /
-    0.29 both)."""
-    from tests.features.test_sparse_protocol import found_shares, gt_poses
+    0.29 both; measured on session 28's default, without session 29's view ahead)."""
+    from tests.features.test_sparse_protocol import BASE28, found_shares, gt_poses
     from toolkit.features.evaluate import worlds
     from toolkit.features.fitting import fit
     from toolkit.features.regions import spans_from_frame, training_indices
@@ -144,7 +144,7 @@ def test_a_revisit_world_s_junction_turns_found_by_the_other_pass() -> None:
     a = runs["a"]
     spans = spans_from_frame(a.regions, a.dataset.t)
     taught = training_indices(spans)
-    model = fit(a.dataset.ranges, a.dataset.laser, taught, Config(), spans, gt_poses(a))
+    model = fit(a.dataset.ranges, a.dataset.laser, taught, BASE28, spans, gt_poses(a))
     assert model.config.place_pool == 4.0  # a sparse log: the default's revisits pooled
     models = {"now": model, "before": replace(model, config=replace(model.config, place_pool=0.0))}
     for key in "ab":

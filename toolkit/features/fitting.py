@@ -169,11 +169,13 @@ def fit(
         # opening's length along the path is not described without it; the fit report says so)
         # and the HMM's dwell of `sparse_dwell_stages`: a place of one scan is unlikely
         # (and its path's turning counted by `sparse_turn_length`, its turns pooled over
-        # `sparse_turn_pool`, its revisits over `sparse_place_pool`)
+        # `sparse_turn_pool`, its revisits over `sparse_place_pool`; with `sparse_view_ahead`
+        # the view ahead described too)
         config = replace(
             config,
             context=0.0,
             local_map=config.sparse_local_map,
+            view_ahead=config.view_ahead or config.sparse_view_ahead,
             augment_open=0.0,
             dwell_stages=config.sparse_dwell_stages or config.dwell_stages,
             turn_length=config.turn_length
@@ -276,9 +278,13 @@ def _fit_places(
         # on what is beside the laser: Mozos et al.'s whole-scan shape (the differences,
         # gaps, polygon and ellipse) is the view to the range limit, and where a place is
         # most of the log its claim learnt from that view what sets the taught spots' view
-        # apart from the rest of the place (docs/journal/places.md, session 17)
-        shape = np.isin(columns, mozos_columns())
-        own = columns if config.claim_shape or shape.all() else columns[~shape]
+        # apart from the rest of the place (docs/journal/places.md, session 17); nor on the
+        # view ahead (`view_ahead`), for the same reason: with it the claims of brief worlds
+        # left most of the corridor unclaimed, taught as none (session 29, axis29)
+        beside = chosen_columns(False, config.mozos, config.absolute_reach, config.glass_ahead)
+        base = columns[np.isin(columns, beside)]
+        shape = np.isin(base, mozos_columns())
+        own = base if config.claim_shape or shape.all() else base[~shape]
         wide = rescaled(describe(ranges, laser, CLAIM_BESIDE)[:, own], own, factor)
         claim = (wide[idx], wide[rest])
     # the taught scans' copies with the less open side of the path closed (or opened): what

@@ -224,6 +224,15 @@ class Config:
     # ECE -0.007 to -0.020, rooms +0.000; the Intel corridor 0.611 -> 0.689, rooms 0.832
     # (docs/journal/places.md, session 28, space28). Not on dense logs: "junctions" tells a
     # turn on the spot by scans within 0.3 m of its first, any few consecutive scans there
+    sparse_view_ahead: bool = True  # where the scans are too far apart for the context:
+    # also the descriptors of the view ahead (`view_ahead`: the end points' major axis, the
+    # ranges' mean and spread, the range histogram, the forward sectors; False until session
+    # 29). The place columns miss a corridor seen across from a junction's turn, which still
+    # spans metres along its axis (Intel, long turns against rooms: AUC 0.91 for the major
+    # axis). Brief worlds, seeds 0-19 and 2000-2019, BA +0.036 / +0.039 / +0.043 with
+    # crossings, +0.011 / +0.014 / +0.039 with revisits, +0.019 / +0.028 / +0.038 plain (all
+    # beyond 2 SE; confirmed on 50-69, 200-219); rooms within noise; the Intel corridor
+    # 0.693 -> 0.798, rooms 0.832 -> 0.870 (docs/journal/places.md, session 29, axis29)
     sparse_dwell_stages: int = 2  # the HMM's `dwell_stages` where the scans are too far
     # apart for the context (0: `dwell_stages`): at 1 m a scan and `place_length` 1 m the
     # geometric dwell switches place at 0.63 of the scans, leaking a share to every other
@@ -417,7 +426,8 @@ class Config:
 #: names its glass and room places, ("window", "door"), in its config: applied as before);
 #: one saved before session 27 pooled no turn on a sparse log, and its pooled turn (an
 #: expert's) took the mean over every turn; one saved before session 28 pooled no revisit
-#: and no junction's long turn beside an enclosed one
+#: and no junction's long turn beside an enclosed one; one saved before session 29 did not
+#: describe the view ahead on a sparse log
 LEGACY: dict[str, Any] = {
     "canonical_width": 0.0,
     "canonical_how": "stretch",
@@ -439,6 +449,7 @@ LEGACY: dict[str, Any] = {
     "turn_pool_door": 0,
     "sparse_place_pool": None,
     "turn_pool_junction": 0,
+    "sparse_view_ahead": False,
 }
 
 
