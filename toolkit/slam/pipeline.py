@@ -394,12 +394,14 @@ def mend_excursions(
     stretches mended are returned unchanged (the same array)."""
     if config.excursion_mend <= 0:
         return before
-    from scipy.spatial import cKDTree  # noqa: PLC0415
-
     cfg = config.scan_map
     d = se2.wrap(
         se2.between(before[:-1], before[1:])[:, 2] - se2.between(odometry[:-1], odometry[1:])[:, 2]
     )
+    if not np.any(np.abs(d) > config.excursion_mend):
+        return before  # no return: scipy.spatial not loaded (0.3-0.5 s on a map's start)
+    from scipy.spatial import cKDTree  # noqa: PLC0415
+
     weak = np.asarray(step_fit) < cfg.min_inliers
     out = before
     last = 0  # a stretch is mended once: the next return looks only after it
