@@ -326,19 +326,9 @@ def mend_blind(
             continue
         worst = np.where(np.eye(len(turns), dtype=bool), np.abs(turns + c), np.abs(turns))
         steps[int(np.argmin(worst.max(axis=1))), 2] += c
-        head = before[a, 2] + np.concatenate([[0.0], np.cumsum(steps[:, 2])])
-        cos, sin = np.cos(head[:-1]), np.sin(head[:-1])
-        moves = np.stack(
-            [cos * steps[:, 0] - sin * steps[:, 1], sin * steps[:, 0] + cos * steps[:, 1]], 1
-        )
-        xy = before[a, :2] + np.concatenate([[[0.0, 0.0]], np.cumsum(moves, axis=0)])
-        length = np.concatenate([[0.0], np.cumsum(np.hypot(moves[:, 0], moves[:, 1]))])
-        share = length / length[-1] if length[-1] > 0 else np.linspace(0.0, 1.0, len(length))
-        xy += share[:, None] * (before[b, :2] - xy[-1])
         if out is before:
             out = before.copy()
-        out[s:b, :2] = xy[1:-1]
-        out[s:b, 2] = se2.wrap(head[1:-1])
+        out[s:b] = _rederive(before, a, b, steps)[1:-1]
     return out
 
 
