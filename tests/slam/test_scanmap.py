@@ -272,12 +272,15 @@ def test_real_a_heading_lost_beyond_the_search_is_found_on_the_full_circle(real:
     step, beyond the search's +-57 degrees: nothing within it fits (3-16% of the returns)
     and its winner is not clear. Searched over the full circle, the winner is clear
     (ambiguity 0.79) and the step right; without, the front end ended 5.4 m off (held out in
-    session 13, one of the runs that broke)."""
+    session 13, one of the runs that broke). `turn_check` (session 29) mends the same slip on
+    its own: only with both off does the step stay wrong."""
     ds = drifted_carmen(real, "orebro", seed=9)
     default = scan_to_map(ds).poses
     assert _step_heading_error_deg(ds, default, 193) < 1.0
     assert _ate(default, ds) < 1.0
-    without = scan_to_map(ds, MapConfig(lost=0.0)).poses
+    checked = scan_to_map(ds, MapConfig(lost=0.0)).poses
+    assert _step_heading_error_deg(ds, checked, 193) < 1.0
+    without = scan_to_map(ds, MapConfig(lost=0.0, turn_check=0.0)).poses
     assert _step_heading_error_deg(ds, without, 193) > 80.0
     assert _ate(without, ds) > 4.0
 
@@ -436,10 +439,11 @@ def test_real_a_whole_turn_slip_the_searches_miss_is_found_with_the_turn_taken_o
     infinite-corridor scan 82 (55 degrees) both searches' winner is an alias 90 degrees off at
     a junction, whose fit slides out of the window. Without `unturned` (0, until session 21)
     the front end keeps 87 / 55 degrees; by default it refits from the prediction with the
-    step's turn taken out and finds the right heading on both (73-99% of the returns)."""
+    step's turn taken out and finds the right heading on both (73-99% of the returns).
+    `turn_check` (session 29) mends orebro's on its own: both are off for the before."""
     for name, k in (("orebro", 30), ("infinite-corridor", 82)):
         ds = drifted_carmen(real, name, seed=37)
-        before = scan_to_map(ds, MapConfig(unturned=0.0)).poses
+        before = scan_to_map(ds, MapConfig(unturned=0.0, turn_check=0.0)).poses
         assert _step_heading_error_deg(ds, before, k) > 50.0, name
         poses = scan_to_map(ds).poses
         assert _step_heading_error_deg(ds, poses, k) < 1.0, name
