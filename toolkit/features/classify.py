@@ -879,7 +879,9 @@ def class_scores(
     in blocks of `SCANS_PER_STEP` scans, `progress(m)` after each."""
     cfg = model.config
     out = np.empty((len(ranges), len(model.classes)))
-    columns = chosen_columns(cfg.view_ahead, cfg.mozos, cfg.absolute_reach, cfg.glass_ahead)
+    columns = chosen_columns(
+        cfg.view_ahead, cfg.mozos, cfg.absolute_reach, cfg.glass_ahead, cfg.view_ahead_near_bins
+    )
     along = path_length(len(ranges), poses)
     factor = 1.0  # the log's widths rescaled to the canonical one, or the log stretched
     if cfg.descriptors and model.places is not None:

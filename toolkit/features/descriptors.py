@@ -103,6 +103,10 @@ WIDTH_LIKE = ("log_side_width", "log_width_beside", *ABSOLUTE, "log_minor_axis")
 #: the no-returns that see glass ahead of the place: the whole scan's return fraction and the
 #: no-return share at 30-60 degrees reach a window 0.5-2 m before the robot is beside it
 #: (docs/journal/places.md, session 14); the place's own no-returns are those at 60-90 degrees
+#: the view ahead's range-histogram bins under 2 m: the share of a scan's beams ending near
+#: the laser, which in a hall taught from 10 scans of one world is that hall's furniture of
+#: walls, not the place's (`Config.view_ahead_near_bins`; session 29, thin29)
+NEAR_BINS = ("hist_0_0.5m", "hist_0.5_1m", "hist_1_1.5m", "hist_1.5_2m")
 GLASS_AHEAD = ("return_fraction", "no_return_30_45deg", "no_return_45_60deg")
 
 
@@ -511,15 +515,20 @@ def _window_moments(  # pragma: no cover - numba
 
 
 def chosen_columns(
-    view_ahead: bool = False, mozos: bool = False, absolute: bool = True, glass_ahead: bool = False
+    view_ahead: bool = False,
+    mozos: bool = False,
+    absolute: bool = True,
+    glass_ahead: bool = False,
+    near_bins: bool = True,
 ) -> np.ndarray:
-    """The descriptors a classifier uses: Mozos et al.'s alone, all, or those of the place
-    (`absolute`: with the reach beside the laser in metres; `glass_ahead`: with the
-    no-returns ahead, `GLASS_AHEAD`)."""
+    """The descriptors a classifier uses: Mozos et al.'s alone, all (`near_bins` False: all
+    but `NEAR_BINS`), or those of the place (`absolute`: with the reach beside the laser in
+    metres; `glass_ahead`: with the no-returns ahead, `GLASS_AHEAD`)."""
     if mozos:
         return mozos_columns()
     if view_ahead:
-        return np.arange(len(names()))
+        every = np.arange(len(names()))
+        return every if near_bins else every[~np.isin(names(), NEAR_BINS)]
     return place_columns(absolute, glass_ahead)
 
 

@@ -261,7 +261,11 @@ def _fit_places(
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
     columns = chosen_columns(
-        config.view_ahead, config.mozos, config.absolute_reach, config.glass_ahead
+        config.view_ahead,
+        config.mozos,
+        config.absolute_reach,
+        config.glass_ahead,
+        config.view_ahead_near_bins,
     )
     along = path_length(len(ranges), poses)
     ahead = config.ahead(laser)
