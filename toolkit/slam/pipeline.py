@@ -318,7 +318,7 @@ def mend_blind(
     for s, e in zip(np.flatnonzero(edge == 1), np.flatnonzero(edge == -1), strict=True):
         if s < 1 or e >= len(before):
             continue  # no fitted scan on one side
-        a, b = s - 1, e
+        a, b = int(s) - 1, int(e)
         steps = se2.between(odometry[a:b], odometry[a + 1 : b + 1])
         turns = steps[:, 2]
         c = float(se2.wrap(se2.between(before[a], before[b])[2] - turns.sum()))
