@@ -726,9 +726,7 @@ class MapMatcher:
         of the whole step's turn (orebro drift seed 37, scan 30: 93 degrees) puts the right
         heading beyond search_turn, and the full-circle search's winner is not clear there
         (a corridor's reverse heading), or an alias 90 degrees off (infinite-corridor, scan 82)."""
-        start = predicted.copy()
-        start[2] = self._last[2]
-        res, c = _heading_free_fit(fit, start, info)
+        res, c = self._from_last_heading(fit, predicted, info)
         if res[4] >= self.config.unturned and res[4] > out[4]:
             out[:] = res
             cov[:, :] = c
@@ -748,12 +746,22 @@ class MapMatcher:
         turn = predicted[2] - self._last[2]
         if abs(math.atan2(math.sin(turn), math.cos(turn))) <= self.config.turn_check:
             return
-        start = predicted.copy()
-        start[2] = self._last[2]
-        res, c = _heading_free_fit(fit, start, info)
+        res, c = self._from_last_heading(fit, predicted, info)
         if res[4] >= out[4] + self.config.turn_gain:
             out[:] = res
             cov[:, :] = c
+
+    def _from_last_heading(
+        self,
+        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
+        predicted: np.ndarray,
+        info: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The fit from the prediction turned back to the previous scan's heading, the
+        heading free (`_unturned`, `_turn_check`): the odometry's step turn taken out."""
+        start = predicted.copy()
+        start[2] = self._last[2]
+        return _heading_free_fit(fit, start, info)
 
     def _slip_free(
         self,
