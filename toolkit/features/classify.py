@@ -23,7 +23,7 @@ import pandas as pd
 
 from toolkit.dataset import LaserGeometry
 from toolkit.features.augment import canonical
-from toolkit.features.descriptors import chosen_columns, features, path_length
+from toolkit.features.descriptors import features, path_length
 from toolkit.features.likelihood import CHUNK, loglik, per_class, softmax
 from toolkit.features.model import Config, FeatureModel
 from toolkit.features.places import RESEMBLE_SKIP, resemblance
@@ -879,9 +879,7 @@ def class_scores(
     in blocks of `SCANS_PER_STEP` scans, `progress(m)` after each."""
     cfg = model.config
     out = np.empty((len(ranges), len(model.classes)))
-    columns = chosen_columns(
-        cfg.view_ahead, cfg.mozos, cfg.absolute_reach, cfg.glass_ahead, cfg.view_ahead_near_bins
-    )
+    columns = cfg.columns()
     along = path_length(len(ranges), poses)
     factor = 1.0  # the log's widths rescaled to the canonical one, or the log stretched
     if cfg.descriptors and model.places is not None:

@@ -35,7 +35,6 @@ from toolkit.features.augment import (
 from toolkit.features.classify import learn_opening_places
 from toolkit.features.descriptors import (
     CLAIM_BESIDE,
-    chosen_columns,
     context_windows,
     describe,
     features,
@@ -260,13 +259,7 @@ def _fit_places(
     idx = np.concatenate([i for _, i in components])
     y = np.concatenate([[name] * len(i) for name, i in components])
     groups = np.concatenate([[k] * len(i) for k, (_, i) in enumerate(components)])
-    columns = chosen_columns(
-        config.view_ahead,
-        config.mozos,
-        config.absolute_reach,
-        config.glass_ahead,
-        config.view_ahead_near_bins,
-    )
+    columns = config.columns()
     along = path_length(len(ranges), poses)
     ahead = config.ahead(laser)
     x = features(
@@ -285,7 +278,7 @@ def _fit_places(
         # apart from the rest of the place (docs/journal/places.md, session 17); nor on the
         # view ahead (`view_ahead`), for the same reason: with it the claims of brief worlds
         # left most of the corridor unclaimed, taught as none (session 29, axis29)
-        beside = chosen_columns(False, config.mozos, config.absolute_reach, config.glass_ahead)
+        beside = replace(config, view_ahead=False).columns()
         base = columns[np.isin(columns, beside)]
         shape = np.isin(base, mozos_columns())
         own = base if config.claim_shape or shape.all() else base[~shape]

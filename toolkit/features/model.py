@@ -63,7 +63,7 @@ import numpy as np
 from toolkit.atomic import atomic_file
 from toolkit.dataset import LaserGeometry
 from toolkit.errors import FormatError, ToolkitError
-from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP, context_ahead
+from toolkit.features.descriptors import BESIDE, SPARSE_LOCAL_MAP, chosen_columns, context_ahead
 from toolkit.features.places import C_DEFAULT, CLAIM_QUANTILE, LEAF_MIX, PlaceClassifier
 
 #: 9: the no-returns ahead of the place left out (`glass_ahead`, descriptors.GLASS_AHEAD);
@@ -404,6 +404,16 @@ class Config:
         object.__setattr__(self, "turned_of", tuple(self.turned_of))
         if self.augment_turned < 0 or self.turned_spans not in ("straight", "all"):
             raise ToolkitError("augment_turned: 0 or more; turned_spans: straight or all")
+
+    def columns(self) -> np.ndarray:
+        """The descriptor columns its classifier uses (`descriptors.chosen_columns`)."""
+        return chosen_columns(
+            self.view_ahead,
+            self.mozos,
+            self.absolute_reach,
+            self.glass_ahead,
+            self.view_ahead_near_bins,
+        )
 
     def ahead(self, laser: LaserGeometry) -> float | None:
         """m of path the context window reaches ahead of a scan (None: `context`)."""

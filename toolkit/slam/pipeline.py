@@ -31,6 +31,7 @@ import numpy as np
 from toolkit import se2
 from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, LaserGeometry
+from toolkit.raster import world_points
 from toolkit.slam import consistency, recognition
 from toolkit.slam import graph as pg
 from toolkit.slam.consistency import CHI2_3DOF_99
@@ -349,19 +350,15 @@ def _rederive(before: np.ndarray, a: int, b: int, steps: np.ndarray) -> np.ndarr
     return out
 
 
-def _world_points(
+def _returns_within(
     ranges: np.ndarray, laser: LaserGeometry, poses: np.ndarray, limit: float
 ) -> np.ndarray:
     """The returns (within `limit`) of scans `ranges` (N x B) at robot poses `poses` (N x 3),
-    in the world frame, as one P x 2 array."""
-    lp = se2.laser_poses(poses, laser)
-    angle = lp[:, 2:3] + laser.angles[None, :]
+    in the world frame, as one P x 2 array (`toolkit.raster.world_points`)."""
     r = np.asarray(ranges, dtype=np.float64)
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(r) & (r > 0) & (r <= limit)
-    x = lp[:, 0:1] + r * np.cos(angle)
-    y = lp[:, 1:2] + r * np.sin(angle)
-    return np.column_stack([x[ok], y[ok]])
+        r = np.where((r > 0) & (r <= limit), r, np.nan)
+    return world_points(r, poses, laser)[0]
 
 
 def mend_excursions(
@@ -406,7 +403,7 @@ def mend_excursions(
         if len(entries) == 0:
             continue
         ctx = np.arange(b, min(b + config.excursion_context + 1, len(out)))
-        tree = cKDTree(_world_points(ranges[ctx], laser, out[ctx], cfg.max_range))
+        tree = cKDTree(_returns_within(ranges[ctx], laser, out[ctx], cfg.max_range))
         best, most = None, 0
         for e in entries:
             a = int(e)
@@ -416,7 +413,7 @@ def mend_excursions(
             mended = _rederive(out, a, b, steps)[1:-1]
             fits = []
             for poses in (out[a + 1 : b], mended):
-                pts = _world_points(ranges[a + 1 : b], laser, poses, cfg.max_range)
+                pts = _returns_within(ranges[a + 1 : b], laser, poses, cfg.max_range)
                 fits.append(
                     np.isfinite(tree.query(pts, distance_upper_bound=cfg.inlier_distance)[0])
                 )
