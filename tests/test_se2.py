@@ -145,3 +145,30 @@ def test_numba_keyframe_rule_equals_se2() -> None:
             key = k
     assert list(sc.keyframes(odo, distance, angle)) == want
     assert len(set(want)) > 20  # the rule fired, by distance and by turn
+
+
+def test_results_filled_in_place_equal_numpy_stack() -> None:
+    """`compose` / `inverse` fill their (..., 3) result in place (`_stacked`): the bits and
+    dtype `np.stack` gave, for one pose, N x 3, broadcast against one pose, and float32."""
+
+    def stacked(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return np.stack([x, y, t], axis=-1)
+
+    many, other = random_poses(300, 3), random_poses(300, 4)
+    cases = [
+        (many[0], other[0]),
+        (many, other),
+        (many[5], other),
+        (many.astype(np.float32), other.astype(np.float32)),
+    ]
+    for a, b in cases:
+        got = (se2.compose(a, b), se2.inverse(a), se2.between(a, b))
+        original = se2._stacked
+        se2._stacked = stacked
+        try:
+            want = (se2.compose(a, b), se2.inverse(a), se2.between(a, b))
+        finally:
+            se2._stacked = original
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == w.dtype and g.shape == w.shape
+            assert g.tobytes() == w.tobytes()

@@ -125,7 +125,7 @@ def test_fine_window_stamping_equals_the_exact_distance_transform(drifted: Datas
     cells = np.floor((pts - lo) / res).astype(np.int64)
     w, h = (cells.max(axis=0) + 12).tolist()
     cells = np.concatenate([cells, [[0, 0], [w - 1, h - 1]]])  # the corners: the edges
-    for r in (1, 4, 15):
+    for r in (1, 4, 15, 16):  # 16: squared distances past a byte
         far = r * r + 1
         table = np.arange(far + 1, dtype=np.float32)  # the squared distance itself
         dist, like_t = _disc_field(np.ascontiguousarray(cells), h, w, r, table, -table)

@@ -336,7 +336,6 @@ def _raster_cells(
             ij[k, c] = math.floor((pts[k, c] - lo[c]) / resolution)
 
 
-@nb.njit(cache=True, nogil=True)
 def _disc_field(
     cells: np.ndarray, h: int, w: int, r: int, dist_of: np.ndarray, like_of: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -347,12 +346,30 @@ def _disc_field(
     An occupied cell stamps its disc only where no occupied neighbour is nearer: a cell p
     with (p - c) . e >= 1 for a side neighbour c + e (>= 2 for a diagonal one) is strictly
     nearer that neighbour, so the nearest occupied cell of every p still stamps it and the
-    result is the same minimum; along a wall a cell stamps a line, not a disc."""
+    result is the same minimum; along a wall a cell stamps a line, not a disc. The squared
+    distances are kept in bytes when they fit (r <= 15: the grids' radii, 10 and 15), which
+    with a branch-free minimum lets the stamping vectorise (-22% of the call, session 30)."""
+    far = r * r + 1
+    d2 = np.full((h, w), far, dtype=np.uint8 if far <= 255 else np.int32)
+    return _disc_stamp(cells, d2, r, dist_of, like_of)
+
+
+@nb.njit(cache=True, nogil=True)
+def _disc_stamp(
+    cells: np.ndarray, d2: np.ndarray, r: int, dist_of: np.ndarray, like_of: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`_disc_field` into `d2` (H x W, every cell r * r + 1: beyond the disc)."""
+    h, w = d2.shape
     far = r * r + 1
     occ = np.zeros((h + 2, w + 2), dtype=np.bool_)  # one cell of border, never occupied
     for k in range(cells.shape[0]):
         occ[cells[k, 1] + 1, cells[k, 0] + 1] = True
-    d2 = np.full((h, w), far, dtype=np.int32)
+    half_w = np.empty(r + 1, dtype=np.int64)  # the disc's half width on a row dj away
+    for dj in range(r + 1):
+        m = r
+        while m * m + dj * dj > r * r:
+            m -= 1
+        half_w[dj] = m
     for k in range(cells.shape[0]):
         ci, cj = cells[k, 0], cells[k, 1]
         if d2[cj, ci] == 0:
@@ -370,9 +387,7 @@ def _disc_field(
             j = cj + dj
             if j < 0 or j >= h:
                 continue
-            m = r
-            while m * m + dj * dj > r * r:
-                m -= 1
+            m = half_w[abs(dj)]
             lo, hi = -m, m
             if east:
                 hi = min(hi, 0)
@@ -387,10 +402,11 @@ def _disc_field(
             if sw:  # -dx - dy <= 1
                 lo = max(lo, -dj - 1)
             row = d2[j]
+            dd = dj * dj
             for i in range(max(ci + lo, 0), min(ci + hi + 1, w)):
-                d = (i - ci) * (i - ci) + dj * dj
-                if d < row[i]:
-                    row[i] = d
+                d = np.int32((i - ci) * (i - ci) + dd)  # <= r * r: fits d2's type
+                now = np.int32(row[i])
+                row[i] = d if d < now else now
     # cells beyond r keep the tables' last entry: only those within it are written (the
     # transposed writes of every cell cost more than the stamping)
     dist = np.full((h, w), dist_of[far], dtype=np.float32)
