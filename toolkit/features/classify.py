@@ -496,6 +496,24 @@ def smooth(emit: np.ndarray, eps: np.ndarray, how: str, stages: int = 1) -> np.n
 # ---------------------------------------------------------------- the whole classification
 
 
+def near_enclosed(
+    model: FeatureModel, ranges: np.ndarray, poses: np.ndarray, scores: np.ndarray, chunk: int
+) -> np.ndarray:
+    """`scores` (S x K) with those of the scans of far-seeing turns (`turn_groups` over
+    `turn_pool` m, `turn_reach` past `turn_pool_reach`) taken from `places_far`, the
+    classifier without the view ahead's near bins (`Config.view_ahead_near_enclosed`). Why:
+    in a small room seen turning in it, enclosed, the near bins tell it from the corridor; in
+    a junction's turn they are the walls beside it, and the corridor looks like a room."""
+    cfg = model.config
+    group = turn_groups(poses, cfg.turn_pool)
+    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    far = (turn_reach(ranges, first) > cfg.turn_pool_reach)[group]
+    if not far.any():
+        return scores
+    other = replace(model, places=model.places_far, config=replace(cfg, view_ahead_near_bins=False))
+    return np.where(far[:, None], class_scores(other, ranges, chunk, None, poses), scores)
+
+
 def classify(
     model: FeatureModel,
     ranges: np.ndarray,
@@ -511,6 +529,8 @@ def classify(
     model.check_laser(_laser_like(model, ranges))
     cfg = model.config
     scores = class_scores(model, ranges, chunk, progress, poses)
+    if model.places_far is not None and poses is not None and len(poses) == len(ranges):
+        scores = near_enclosed(model, ranges, poses, scores, chunk)
     if cfg.smoothing != "forward":  # the other passes: later ones too, not streaming
         scores = pool_places(cfg, scores, poses, ranges)
     if cfg.turn_pool and cfg.smoothing == "forward-backward":  # a turn's later scans too

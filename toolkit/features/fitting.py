@@ -208,6 +208,9 @@ def fit(
     _calibrate(model, ranges, components, held)
     if config.descriptors:
         model.places = _fit_places(ranges, laser, components, config, poses)
+        if config.view_ahead and config.view_ahead_near_bins and config.view_ahead_near_enclosed:
+            without = replace(config, view_ahead_near_bins=False)  # for the far-seeing turns
+            model.places_far = _fit_places(ranges, laser, components, without, poses)
         model.fit_report["descriptor_temperature"] = round(model.places.temperature, 4)
         model.fit_report.update(model.places.report)
     if sparse:

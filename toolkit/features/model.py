@@ -158,6 +158,15 @@ class Config:
     # default -0.001 / +0.017 / +0.035 +- 0.049; seed 12 (c) 0.50 -> 0.95) and the Intel log
     # finds more (corridor 0.798 -> 0.837, rooms 0.870 -> 0.902); the brief worlds not yet
     # confirmed (docs/journal/places.md, session 29, thin29)
+    view_ahead_near_enclosed: bool = False  # with `view_ahead` and its near bins, and poses:
+    # a second place classifier without the near bins (`view_ahead_near_bins` False) scores
+    # the scans of the turns on the spot that see far (`turn_pool` m, `turn_pool_reach`:
+    # classify.turn_reach), the first the others. A small room seen turning in it keeps its
+    # near walls; a junction's turn loses what are, there, walls beside it. An expert setting:
+    # against the default, brief crossing worlds BA +0.005 / +0.004 / +0.017 (rooms -0.008,
+    # beyond 2 SE; without the near bins -0.027), plain brief worlds -0.006 / -0.003 / +0.012,
+    # the thinned halls kept; Intel corridor 0.848, rooms 0.842 (docs/journal/places.md,
+    # session 30, near30)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
     absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
@@ -523,6 +532,9 @@ class FeatureModel:
     spans: list[dict[str, Any]] = field(default_factory=list)
     fit_report: dict[str, Any] = field(default_factory=dict)
     places: PlaceClassifier | None = None  # the classifier on scan descriptors
+    # with `Config.view_ahead_near_enclosed`: the classifier without the view ahead's near
+    # bins, for the turns that see far
+    places_far: PlaceClassifier | None = None
     # the places the opening rules apply to, learnt when fitting ("beside", "narrow"; and
     # "glass", "room" for `glass_to`: classify.learn_opening_places; used where the config's
     # tuples are None)
@@ -570,6 +582,8 @@ class FeatureModel:
         }
         if self.places is not None:
             out["places"] = self.places.to_dict()
+        if self.places_far is not None:
+            out["places_far"] = self.places_far.to_dict()
         if self.opening_places:
             out["opening_places"] = {k: list(v) for k, v in self.opening_places.items()}
         if self.background is not None:
@@ -623,6 +637,9 @@ class FeatureModel:
                 spans=list(d.get("training_spans", [])),
                 fit_report=dict(d.get("fit_report", {})),
                 places=PlaceClassifier.from_dict(d["places"]) if "places" in d else None,
+                places_far=PlaceClassifier.from_dict(d["places_far"])
+                if "places_far" in d
+                else None,
                 opening_places={
                     str(k): tuple(map(str, v)) for k, v in d.get("opening_places", {}).items()
                 },
