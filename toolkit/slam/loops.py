@@ -20,7 +20,10 @@ the rest of its local map, or the query fits that scan alone, 0.3 m from where t
 put it (`anchor`, `anchor_match`); a corridor loop, trusted in heading, is refused when
 scan a agrees poorly with the rest of its local map (`anchor_agree`), and withdrawn when the
 optimum puts scan b metres along its axis from the match (`corridor_slide`: it matched another
-stretch of the corridor; `corridor_rematch`: b matched again there). Whether the loops agree
+stretch of the corridor; `corridor_rematch`: b matched again there). A winner on the search
+window's edge is searched again from itself and refused when it moves (`edge_check`: the best
+pose may lie beyond the window), and a loop on a scan a that fits its local map turned is
+refused (`anchor_slip_turn`). Whether the loops agree
 with each other is `toolkit.slam.consistency`'s test (`consistency_along`: a corridor loop's
 spread along its axis there). The mapper runs these rounds with its own windows
 (`toolkit.slam.pipeline`: a first round, smaller ones from the optimised trajectory, and a
