@@ -497,6 +497,11 @@ def _scan_points(
     return out
 
 
+def _wrap(angle: float) -> float:
+    """An angle wrapped to [-pi, pi], in scalar arithmetic (the per-scan path)."""
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
 def slipped(odometry_step: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, float]:
     """The step a heading slip makes of the odometry's that comes nearest to `step` (both x, y,
     theta from the previous pose): `step`'s heading, the odometry's translation turned by
@@ -505,10 +510,10 @@ def slipped(odometry_step: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, fl
     and the rest of the step with it, by at most that much; it does not move the robot
     sideways by a metre. The search's aliases in a sparse map do (freiburg-campus: 0.2-1.9 m
     off a prediction right within 3 cm, with a heading change of a few degrees)."""
-    dth = math.atan2(math.sin(step[2] - odometry_step[2]), math.cos(step[2] - odometry_step[2]))
+    dth = _wrap(step[2] - odometry_step[2])
     lo, hi = min(0.0, dth), max(0.0, dth)
     free = math.atan2(step[1], step[0]) - math.atan2(odometry_step[1], odometry_step[0])
-    free = math.atan2(math.sin(free), math.cos(free))
+    free = _wrap(free)
     best, near = math.inf, np.asarray(step, dtype=np.float64).copy()
     for a in (min(max(free, lo), hi), lo, hi):
         candidate = _turned(odometry_step, a, step[2])
@@ -516,10 +521,6 @@ def slipped(odometry_step: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, fl
         if d < best:
             best, near = d, candidate
     return near, best
-
-
-def _wrap(angle: float) -> float:
-    return math.atan2(math.sin(angle), math.cos(angle))
 
 
 def _turned(step: np.ndarray, angle: float, heading: float) -> np.ndarray:
@@ -815,7 +816,7 @@ class MapMatcher:
         refit on every turned fit, docs/maps.md)."""
         cfg = self.config
         turned = out[2] - predicted[2]
-        turned = math.atan2(math.sin(turned), math.cos(turned))
+        turned = _wrap(turned)
         if abs(turned) * math.sqrt(info[2]) <= cfg.slip_sigmas:
             return
         free, cov_free = _heading_free_fit(fit, out[:3].copy(), info)
@@ -850,7 +851,7 @@ class MapMatcher:
 
         def stray(pose: np.ndarray) -> float:
             e = pose[:3] - predicted
-            e[2] = math.atan2(math.sin(e[2]), math.cos(e[2]))
+            e[2] = _wrap(e[2])
             return float(e @ (info * e))
 
         def tight(pose: np.ndarray) -> float:
