@@ -580,7 +580,7 @@ def test_the_near_bins_kept_only_for_enclosed_turns_keeps_a_small_room(tmp_path:
     # classifiers' probabilities, elsewhere the first's scores untouched
     own = class_scores(model, a.dataset.ranges, CHUNK, None, poses)
     alone = near_enclosed(model, a.dataset.ranges, poses, own, CHUNK)
-    model.config = replace(config, view_ahead_near_average=True)
+    model.config = replace(model.config, view_ahead_near_average=True)
     mean = near_enclosed(model, a.dataset.ranges, poses, own, CHUNK)
     far = np.any(alone != own, axis=1)
     assert far.sum() > 10 and np.array_equal(mean[~far], own[~far])

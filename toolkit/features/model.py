@@ -169,8 +169,10 @@ class Config:
     # session 30, near30)
     view_ahead_near_average: bool = False  # with `view_ahead_near_enclosed`: on the far-seeing
     # turns, the mean of the two classifiers' probabilities rather than the second's alone
-    # (near30's lead: the second classifier alone loses small rooms' far-seeing turns).
-    # An expert setting (docs/journal/places.md, session 30, avg30)
+    # (near30's lead). An expert setting: against the default, brief crossing worlds BA (c)
+    # +0.009 and +0.010 (confirming), beyond 2 SE, but rooms (a) -0.004 beyond 2 SE (the
+    # second classifier alone -0.008); Intel corridor 0.819, rooms 0.870 (docs/journal/
+    # places.md, session 30, avg30)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
     absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
