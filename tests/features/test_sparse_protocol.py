@@ -14,8 +14,10 @@ import pytest
 from toolkit.errors import ToolkitError
 from toolkit.features import Config, classify
 from toolkit.features.classify import (
+    class_scores,
     evidence_weights,
     junction_turns,
+    near_enclosed,
     path_steps,
     pool_turns,
     switch_probability,
@@ -25,6 +27,7 @@ from toolkit.features.classify import (
 from toolkit.features.descriptors import path_length
 from toolkit.features.evaluate import protocol, protocol_scores, teaches_two, thinned, worlds
 from toolkit.features.fitting import _sparse, fit
+from toolkit.features.likelihood import CHUNK, softmax
 from toolkit.features.model import FeatureModel
 from toolkit.features.regions import spans_from_frame, training_indices
 from toolkit.sim import Simulation, simulate
@@ -573,3 +576,12 @@ def test_the_near_bins_kept_only_for_enclosed_turns_keeps_a_small_room(tmp_path:
     assert np.array_equal(
         classify(model, a.dataset.ranges, poses).prob, classify(again, a.dataset.ranges, poses).prob
     )
+    # `view_ahead_near_average` (avg30): on the far-seeing turns the mean of the two
+    # classifiers' probabilities, elsewhere the first's scores untouched
+    own = class_scores(model, a.dataset.ranges, CHUNK, None, poses)
+    alone = near_enclosed(model, a.dataset.ranges, poses, own, CHUNK)
+    model.config = replace(model.config, view_ahead_near_average=True)
+    mean = near_enclosed(model, a.dataset.ranges, poses, own, CHUNK)
+    far = np.any(alone != own, axis=1)
+    assert far.sum() > 10 and np.array_equal(mean[~far], own[~far])
+    assert np.allclose(np.exp(mean[far]), (softmax(alone[far]) + softmax(own[far])) / 2)

@@ -20,6 +20,7 @@ from typing import Any
 import numba
 import numpy as np
 import pandas as pd
+from scipy.special import log_softmax
 
 from toolkit.dataset import LaserGeometry
 from toolkit.features.augment import canonical
@@ -511,7 +512,10 @@ def near_enclosed(
     if not far.any():
         return scores
     other = replace(model, places=model.places_far, config=replace(cfg, view_ahead_near_bins=False))
-    return np.where(far[:, None], class_scores(other, ranges, chunk, None, poses), scores)
+    alt = class_scores(other, ranges, chunk, None, poses)
+    if cfg.view_ahead_near_average:  # log of the two posteriors' mean (`view_ahead_near_average`)
+        alt = np.logaddexp(log_softmax(alt, axis=1), log_softmax(scores, axis=1)) - np.log(2.0)
+    return np.where(far[:, None], alt, scores)
 
 
 def classify(

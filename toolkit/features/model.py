@@ -167,6 +167,12 @@ class Config:
     # beyond 2 SE; without the near bins -0.027), plain brief worlds -0.006 / -0.003 / +0.012,
     # the thinned halls kept; Intel corridor 0.848, rooms 0.842 (docs/journal/places.md,
     # session 30, near30)
+    view_ahead_near_average: bool = False  # with `view_ahead_near_enclosed`: on the far-seeing
+    # turns, the mean of the two classifiers' probabilities rather than the second's alone
+    # (near30's lead). An expert setting: against the default, brief crossing worlds BA (c)
+    # +0.009 and +0.010 (confirming), beyond 2 SE, but rooms (a) -0.004 beyond 2 SE (the
+    # second classifier alone -0.008); Intel corridor 0.819, rooms 0.870 (docs/journal/
+    # places.md, session 30, avg30)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
     absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
