@@ -135,6 +135,14 @@ class MapConfig:
     # The default since session 30 (ore30; 0: off): ATE 4.83 -> 0.15 m and 13.47 -> 0.45 m;
     # of 130,915 turn checks on the ten logs x drift seeds 0-110 it acts on those two only
     # (the nearest tied, apart refit fits 0.22 fewer: a true turn, fhw scan 57 on 7 seeds)
+    turn_refused: bool = True  # `turn_check` also weighs the +-`search_turn` search's winner
+    # that was refused for being unclear and fitting under `lost` (it fits 0.1 more than the
+    # fit held): taken if it lies more than `turn_check` from the fit held and turns the step
+    # less. On a sparse outdoor scan every fit is poor, the right one too, so the inlier share
+    # decides nothing and the refused winner is the witness against the slip (freiburg-campus
+    # drift seed 127, scan 1641: a 0.79 rad slip held at 0.03, the winner 0.02 rad off the
+    # truth's step at 0.16; scan 1648: 1.08 rad held at 0.07, the winner 0.01 rad off at 0.18).
+    # Session 30 (fc30): ATE 2.82 -> 0.33 m; see docs/journal/maps.md for where else it acts
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
     # most this share of its own (the loop closer's test)
     edge_grow: float = 2.0  # a search whose winner lies on its window's edge (within 0.1 m)
@@ -689,6 +697,7 @@ class MapMatcher:
 
         fit(predicted, info, out, cov)
         tied = False  # the fit held is a search's winner that was not clear
+        refused: tuple[np.ndarray, np.ndarray] | None = None  # an unclear winner not taken
         if by_odometry and cfg.slip_sigmas > 0 and out[4] >= cfg.min_inliers:
             self._slip_free(fit, predicted, info, out, cov)
         if out[4] < cfg.min_inliers and len(pts) >= SEARCH_MIN:
@@ -710,6 +719,8 @@ class MapMatcher:
                 # fitting 15% over a right prediction fitting 3%)
                 out, cov = out2, cov2
                 tied = not clear
+            elif not clear:
+                refused = (out2, cov2)
             if not clear and out[4] < cfg.lost:
                 # no clear winner within search_turn and no fit: the heading may have slipped
                 # further (orebro's drifted odometry turned 96 degrees in one 2 m step). Without
@@ -724,7 +735,7 @@ class MapMatcher:
             if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
                 tied = tied and not self._unturned(fit, predicted, info, out, cov)
         if logged and by_odometry and cfg.turn_check > 0 and len(pts) >= SEARCH_MIN:
-            self._turn_check(fit, predicted, info, out, cov, tied)
+            self._turn_check(fit, predicted, info, out, cov, tied, refused)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(pts, predicted, info, out, cov)
         self.stats = out
@@ -760,13 +771,17 @@ class MapMatcher:
         out: np.ndarray,
         cov: np.ndarray,
         tied: bool = False,
+        refused: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         """A step whose odometry turns more than `turn_check` fitted again from the previous
         heading with the heading free; `out` and `cov` take it if it fits `turn_gain` more of
         the returns, or (`turn_tie`) over a search's unclear winner (`tied`) if it fits within
         `turn_tie` of it, lies more than `turn_check` from it and turns the step less. A slip
         of a whole radian can leave the turned scan on an alias that fits well enough for no
-        search (a building's right angles), or the search on one it cannot tell from another."""
+        search (a building's right angles), or the search on one it cannot tell from another.
+        Else (`turn_refused`) the search's unclear winner that `lost` refused (`refused`) is
+        taken if it fits 0.1 more, lies more than `turn_check` from the fit held and turns the
+        step less: on a sparse scan every fit is poor and the turn is the witness."""
         cfg = self.config
 
         def turned(pose: np.ndarray) -> float:
@@ -785,6 +800,16 @@ class MapMatcher:
         if res[4] >= out[4] + cfg.turn_gain or tie:
             out[:] = res
             cov[:, :] = c
+            return
+        if cfg.turn_refused and refused is not None:
+            won, won_cov = refused
+            if (
+                won[4] >= out[4] + 0.1
+                and abs(_wrap(won[2] - out[2])) > cfg.turn_check
+                and turned(won) < turned(out)
+            ):
+                out[:] = won
+                cov[:, :] = won_cov
 
     def _from_last_heading(
         self,
