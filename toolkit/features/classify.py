@@ -212,6 +212,12 @@ def turn_groups(poses: np.ndarray, radius: float) -> np.ndarray:
     return np.cumsum(_turn_starts(xy, float(radius))) - 1
 
 
+def turns(poses: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """`turn_groups` per scan, and each turn's first scan (for `np.*.reduceat` over turns)."""
+    group = turn_groups(poses, radius)
+    return group, np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+
+
 #: quantile of a scan's ranges whose largest over a turn tells a turn that sees far (a tenth
 #: of the beams: a few headings along a way out, not one beam through a gap)
 REACH_QUANTILE = 0.9
@@ -308,8 +314,7 @@ def pool_turns(
     own = np.asarray(scores * evidence_weights(config, n, poses)[:, None])
     if poses is None or len(poses) != n or n == 0 or not config.turn_pool:
         return own
-    group = turn_groups(poses, config.turn_pool)
-    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    group, first = turns(poses, config.turn_pool)
     size = np.diff(np.r_[first, n])
     if config.turn_pool_rule == "max":
         pooled = np.maximum.reduceat(scores, first, axis=0)
@@ -403,8 +408,7 @@ def pool_places(
     width, height = (int(v) + 2 for v in cell.max(axis=0))
     key = cell[:, 0] * height + cell[:, 1]
     # each scan brings its turn's mean log-probability, weighted by the path it drove
-    group = turn_groups(poses, TURN_SPOT)  # a NaN pose starts a turn of its own
-    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    group, first = turns(poses, TURN_SPOT)  # a NaN pose starts a turn of its own
     size = np.diff(np.r_[first, n])
     weight = evidence_weights(replace(config, turn_length=0.0), n, poses) * valid
     brought = np.empty((n, scores.shape[1] + 1))  # per scan: evidence x weight, weight
@@ -506,8 +510,7 @@ def near_enclosed(
     in a small room seen turning in it, enclosed, the near bins tell it from the corridor; in
     a junction's turn they are the walls beside it, and the corridor looks like a room."""
     cfg = model.config
-    group = turn_groups(poses, cfg.turn_pool)
-    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    group, first = turns(poses, cfg.turn_pool)
     far = (turn_reach(ranges, first) > cfg.turn_pool_reach)[group]
     if not far.any():
         return scores

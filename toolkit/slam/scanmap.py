@@ -176,6 +176,8 @@ class MapConfig:
 # ---------------------------------------------------------------- the kernel
 
 SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
+FITS_MORE = 0.1  # a share of the returns by which one fit beats another outright (a search
+# over the fit held, the wider search over the narrow one, `turn_refused`)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
 _SLIDE = (0.2, 0.1)  # a search's fit may move this far (m, rad) beyond the volume searched
@@ -713,7 +715,7 @@ class MapMatcher:
             out2, cov2, clear = self._search_fit(
                 fit, pts, predicted, info, base, window, cfg.search_turn, by_odometry
             )
-            if out2[4] > out[4] + 0.1 and (clear or out2[4] >= cfg.lost):
+            if out2[4] > out[4] + FITS_MORE and (clear or out2[4] >= cfg.lost):
                 # a winner that is not clear and fits fewer than `lost` of the returns
                 # verifies nothing (freiburg-campus seed 9, scan 931: a 46 degree alias
                 # fitting 15% over a right prediction fitting 3%)
@@ -729,7 +731,7 @@ class MapMatcher:
                 out3, cov3, clear = self._search_fit(
                     fit, pts, predicted, info, base, window, math.pi, by_odometry
                 )
-                if clear and out3[4] > out[4] + 0.1:
+                if clear and out3[4] > out[4] + FITS_MORE:
                     out, cov = out3, cov3
                     tied = False
             if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
@@ -780,8 +782,8 @@ class MapMatcher:
         of a whole radian can leave the turned scan on an alias that fits well enough for no
         search (a building's right angles), or the search on one it cannot tell from another.
         Else (`turn_refused`) the search's unclear winner that `lost` refused (`refused`) is
-        taken if it fits 0.1 more, lies more than `turn_check` from the fit held and turns the
-        step less: on a sparse scan every fit is poor and the turn is the witness."""
+        taken if it fits `FITS_MORE` more, lies more than `turn_check` from the fit held and
+        turns the step less: on a sparse scan every fit is poor and the turn is the witness."""
         cfg = self.config
 
         def turned(pose: np.ndarray) -> float:
@@ -789,27 +791,31 @@ class MapMatcher:
 
         if turned(predicted) <= cfg.turn_check:
             return
+
+        def another_turning_less(pose: np.ndarray) -> bool:
+            """Another solution than the fit held, and one that turns the step less."""
+            return abs(_wrap(pose[2] - out[2])) > cfg.turn_check and turned(pose) < turned(out)
+
         res, c = self._from_last_heading(fit, predicted, info)
         tie = (
             tied
             and cfg.turn_tie > 0
             and res[4] >= out[4] - cfg.turn_tie
-            and abs(_wrap(res[2] - out[2])) > cfg.turn_check
-            and turned(res) < turned(out)
+            and another_turning_less(res)
         )
         if res[4] >= out[4] + cfg.turn_gain or tie:
-            out[:] = res
-            cov[:, :] = c
+            taken = (res, c)
+        elif (
+            cfg.turn_refused
+            and refused is not None
+            and refused[0][4] >= out[4] + FITS_MORE
+            and another_turning_less(refused[0])
+        ):
+            taken = refused
+        else:
             return
-        if cfg.turn_refused and refused is not None:
-            won, won_cov = refused
-            if (
-                won[4] >= out[4] + 0.1
-                and abs(_wrap(won[2] - out[2])) > cfg.turn_check
-                and turned(won) < turned(out)
-            ):
-                out[:] = won
-                cov[:, :] = won_cov
+        out[:] = taken[0]
+        cov[:, :] = taken[1]
 
     def _from_last_heading(
         self,
