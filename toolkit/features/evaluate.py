@@ -15,6 +15,11 @@ row of the ablation adds one part to the one before; the default row is `Config(
 
     python -m toolkit.features.evaluate [--seeds 100-119] [--scenarios] [--spacing 1.0]
         [--turn 0.5] [--entered] [--brief] [--revisit] [--crossings] [--out table.md]
+    python -m toolkit.features.evaluate --seeds 0-19,2000-2019 --paired '{"context": 0}'
+
+`--paired` measures one change: the default and the variant on the same worlds, each measure's
+change per world averaged, with twice its standard error (a change beyond it is told from the
+worlds' spread; the sessions' journals quote these tables).
 
 With `--spacing` (m) every run is thinned to scans that far apart along the true path, as
 in a log whose scans are far apart (the Intel log's are about 1 m apart, and the sparse-scan
@@ -46,6 +51,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -412,6 +418,59 @@ def protocol(
     return pd.DataFrame(rows), pd.DataFrame(places)
 
 
+def paired(
+    variant: Config, seeds: tuple[int, ...], **kind: Unpack[WorldKind]
+) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
+    """The default against `variant`, paired per world on the worlds of `kind`: per run a, b,
+    c and measure (balanced accuracy, ECE, each place's recall), the mean of the worlds'
+    changes (variant minus default) with twice its standard error, and the worlds where the
+    two score alike; and the per-world scores themselves. Paired, a change of a few scans is
+    told from the worlds' spread, which two protocol tables side by side cannot do."""
+    partial = kind.get("spacing", 0.0) > 0 or kind.get("entered", False)
+    per_world: list[dict[str, Any]] = []
+    for seed in seeds:
+        runs = worlds(seed, **kind)
+        if partial and not teaches_two(runs):
+            continue
+        per_world.append(
+            {
+                "seed": seed,
+                "default": protocol_scores(FULL, runs, taught_only=partial),
+                "variant": protocol_scores(variant, runs, taught_only=partial),
+            }
+        )
+    rows = []
+    for key in "abc":
+        pairs = [(w["default"][key], w["variant"][key]) for w in per_world]
+        measures: dict[str, list[tuple[float, float]]] = {
+            "BA": [(d["ba"], v["ba"]) for d, v in pairs],
+            "ECE": [(d["ece"], v["ece"]) for d, v in pairs],
+        }
+        for place in sorted({p for d, _ in pairs for p in d["recall"]}):
+            measures[f"{place} recall"] = [
+                (d["recall"][place], v["recall"][place])
+                for d, v in pairs
+                if place in d["recall"] and place in v["recall"]
+            ]
+        for name, values in measures.items():
+            before, after = np.array(values).T if values else (np.zeros(0), np.zeros(0))
+            change = after - before
+            spread = 2 * change.std(ddof=1) / np.sqrt(len(change)) if len(change) > 1 else np.nan
+            rows.append(
+                {
+                    "run": key,
+                    "measure": name,
+                    "worlds": len(change),
+                    "default": round(float(before.mean()), 4) if len(change) else np.nan,
+                    "variant": round(float(after.mean()), 4) if len(change) else np.nan,
+                    "change": round(float(change.mean()), 4) if len(change) else np.nan,
+                    "2 SE": round(float(spread), 4),
+                    "equal": int(np.sum(change == 0)),
+                }
+            )
+    return pd.DataFrame(rows), per_world
+
+
 def _mean_per_place(per_seed: list[dict[str, Any]], key: str, what: str) -> dict[str, float]:
     values: dict[str, list[float]] = {}
     for r in per_seed:
@@ -439,23 +498,41 @@ def scenarios_table(
     return pd.DataFrame(rows)
 
 
-def markdown(table: pd.DataFrame) -> str:
+def markdown(table: pd.DataFrame, digits: int = 3) -> str:
     """A pipe table (no extra dependency)."""
     cols = [str(c) for c in table.columns]
     lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
     for row in table.itertuples(index=False):
         lines.append(
-            "| " + " | ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row) + " |"
+            "| "
+            + " | ".join(f"{v:.{digits}f}" if isinstance(v, float) else str(v) for v in row)
+            + " |"
         )
     return "\n".join(lines)
 
 
 def _seeds(text: str) -> tuple[int, ...]:
-    """'100-119' or '0,3,5' or '7'."""
-    if "-" in text:
-        lo, hi = text.split("-")
-        return tuple(range(int(lo), int(hi) + 1))
-    return tuple(int(v) for v in text.split(","))
+    """'100-119' or '0,3,5' or '7' or '0-19,2000-2019'."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        if "-" in part:
+            lo, hi = part.split("-")
+            seeds += range(int(lo), int(hi) + 1)
+        else:
+            seeds.append(int(part))
+    return tuple(seeds)
+
+
+def _variant(text: str) -> Config:
+    """A JSON object of Config fields over the default."""
+    fields = json.loads(text)
+    if not isinstance(fields, dict):
+        raise argparse.ArgumentTypeError("a JSON object of Config fields, e.g. '{\"context\": 0}'")
+    known = {f.name for f in dataclasses.fields(Config)}
+    unknown = sorted(set(fields) - known)
+    if unknown:
+        raise argparse.ArgumentTypeError(f"no Config field {unknown[0]!r}")
+    return dataclasses.replace(FULL, **fields)
 
 
 def main() -> None:
@@ -499,18 +576,23 @@ def main() -> None:
         action="store_true",
         help="worlds with side corridors across the chain, the paths spinning where they cross",
     )
-    parser.add_argument("--out", type=Path)
+    parser.add_argument(
+        "--paired",
+        type=_variant,
+        metavar="JSON",
+        help="instead of the ablation: the default against this variant (Config fields as a"
+        " JSON object), paired per world: each measure's mean change and 2 SE",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="also write the table here (and, with"
+        " --paired, the per-world scores beside it as .json)",
+    )
     args = parser.parse_args()
     if args.brief and not args.entered:
         parser.error("--brief needs --entered")
-    wrong = [i for i in args.rows or () if not 0 <= i < len(ABLATION)]
-    if wrong:
-        parser.error(f"--rows: no ablation row {wrong[0]} (rows 0-{len(ABLATION) - 1})")
-    configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
-    started = time.perf_counter()
-    table, places = protocol(
-        configs,
-        args.seeds,
+    kind = WorldKind(
         spacing=args.spacing,
         turn=args.turn,
         entered=args.entered,
@@ -518,6 +600,22 @@ def main() -> None:
         revisit=args.revisit,
         crossings=args.crossings,
     )
+    if args.paired is not None:
+        started = time.perf_counter()
+        table, per_world = paired(args.paired, args.seeds, **kind)
+        text = f"The default against the variant, paired per world, {len(per_world)} worlds:\n\n"
+        text += markdown(table, digits=4) + f"\n\n({time.perf_counter() - started:.0f} s)"
+        print(text)
+        if args.out:
+            args.out.write_text(text + "\n")
+            args.out.with_suffix(".json").write_text(json.dumps(per_world))
+        return
+    wrong = [i for i in args.rows or () if not 0 <= i < len(ABLATION)]
+    if wrong:
+        parser.error(f"--rows: no ablation row {wrong[0]} (rows 0-{len(ABLATION) - 1})")
+    configs = [ABLATION[i] for i in args.rows] if args.rows else ABLATION
+    started = time.perf_counter()
+    table, places = protocol(configs, args.seeds, **kind)
     text = f"Random worlds, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)})"
     if args.entered:
         text += ", paths entering rooms, taught as the Intel log"
