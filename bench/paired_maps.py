@@ -1,0 +1,156 @@
+"""The mapper's default against a variant, paired per log and drift seed (and KISS-ICP beside).
+
+    python -m bench.paired_maps --logs all --seeds 0-40 --set loop.edge_check=0
+    python -m bench.paired_maps --logs intel,fhw --seeds 161-190 --kiss   # a held-out set
+
+Each real CARMEN log (its corrected poses as the truth) with its odometry drifted by
+`toolkit.poses.with_drift(ds, seed)`, mapped by `toolkit map`'s default and, with `--set`,
+by the default with those settings changed (`slam.NAME`, `loop.NAME` or `map.NAME`: a field of
+SlamConfig, LoopConfig or MapConfig, the value as JSON). Per run: ATE, loops, false loops and
+whether the poses equal the default's to the bit; with `--kiss`, KISS-ICP seeded by the same
+odometry (best of voxel 0.1 / 0.3 m, `bench_slam.kiss_best`). The summary: runs equal to the
+bit, the paired ATE change (mean and 2 SE), false loops both ways, and every run that moved.
+How each default of the mapper was judged (docs/journal/maps.md); the csv keeps every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from bench.bench_slam import kiss_best, real_logs
+from toolkit.metrics import evaluate
+from toolkit.poses import truth_poses, with_drift
+from toolkit.slam.pipeline import SlamConfig
+
+
+def seeds(text: str) -> list[int]:
+    """'0-40' or '3,7' or '0-10,50-60'."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += range(int(lo), int(hi or lo) + 1)
+    return out
+
+
+def variant(settings: list[str]) -> SlamConfig:
+    """The default SlamConfig with `group.name=json` settings changed."""
+    base = SlamConfig()
+    changed: dict[str, dict[str, Any]] = {"slam": {}, "loop": {}, "map": {}}
+    names = {
+        group: {f.name for f in fields(config)}
+        for group, config in (("slam", base), ("loop", base.loop), ("map", base.scan_map))
+    }
+    for setting in settings:
+        key, _, value = setting.partition("=")
+        group, _, name = key.partition(".")
+        if name not in names.get(group, ()):
+            raise SystemExit(f"--set {setting}: no setting {key!r} (slam., loop. or map. NAME)")
+        parsed = json.loads(value)
+        changed[group][name] = tuple(parsed) if isinstance(parsed, list) else parsed
+    return replace(
+        base,
+        loop=replace(base.loop, **changed["loop"]),
+        scan_map=replace(base.scan_map, **changed["map"]),
+        **changed["slam"],
+    )
+
+
+def truth(ds: Any) -> np.ndarray:  # noqa: ANN401
+    poses = truth_poses(ds)
+    assert poses is not None, "the real logs' corrected poses are their truth"
+    return poses
+
+
+def mapped(ds: Any, config: SlamConfig) -> dict[str, Any]:  # noqa: ANN401
+    from toolkit.slam.run import slam_trajectory
+
+    t0 = time.perf_counter()
+    result, slam = slam_trajectory(ds, slam=config)
+    m = slam.metrics(ds)
+    return {
+        "ate": float(evaluate(result.poses, truth(ds))["ate"]["rmse"]),
+        "loops": int(m["loops"]),
+        "false": int(m.get("false_loops") or 0),
+        "s": time.perf_counter() - t0,
+        "sha": hashlib.sha1(np.ascontiguousarray(result.poses).tobytes()).hexdigest(),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--logs", default="all", help="comma list of log names, or all")
+    parser.add_argument("--seeds", type=seeds, default=seeds("0-2"), help="drift seeds, e.g. 0-40")
+    parser.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=JSON")
+    parser.add_argument("--kiss", action="store_true", help="KISS-ICP beside (slower)")
+    parser.add_argument("--out", type=Path, default=Path("out/paired_maps.csv"))
+    args = parser.parse_args()
+    changed = variant(args.set) if args.set else None
+    wanted = None if args.logs == "all" else set(args.logs.split(","))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    for name, log in real_logs():
+        if wanted is not None and name not in wanted:
+            continue
+        for seed in args.seeds:
+            ds = with_drift(log, seed)
+            row: dict[str, Any] = {"log": name, "seed": seed}
+            row |= {f"default_{k}": v for k, v in mapped(ds, SlamConfig()).items()}
+            if changed is not None:
+                row |= {f"variant_{k}": v for k, v in mapped(ds, changed).items()}
+                row["equal"] = row["variant_sha"] == row["default_sha"]
+            if args.kiss:
+                poses, seconds, extra = kiss_best(ds)
+                row["kiss_ate"] = float(evaluate(poses, truth(ds))["ate"]["rmse"])
+                row["kiss_s"], row["kiss_voxel"] = seconds, extra["voxel"]
+            rows.append(row)
+            shown = {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}
+            print({k: v for k, v in shown.items() if not k.endswith("sha")}, flush=True)
+            pd.DataFrame(rows).to_csv(args.out, index=False)
+    summary(pd.DataFrame(rows))
+
+
+def summary(frame: pd.DataFrame) -> None:
+    """Per log and in all: median ATE, <= 0.3 / 0.5 m, false loops; paired change; KISS-ICP."""
+    if frame.empty:
+        return
+    ate = frame["default_ate"]
+    print(
+        f"\n{len(frame)} runs: default median ATE {ate.median():.3f} m, <= 0.3 m "
+        f"{(ate <= 0.3).sum()}, <= 0.5 m {(ate <= 0.5).sum()}, "
+        f"false loops {frame['default_false'].sum()}"
+    )
+    if "variant_ate" in frame:
+        change = frame["variant_ate"] - ate
+        spread = 2 * change.std(ddof=1) / np.sqrt(len(change)) if len(change) > 1 else np.nan
+        print(
+            f"variant: equal to the bit {int(frame['equal'].sum())} / {len(frame)}, paired ATE "
+            f"{change.mean():+.4f} +- {spread:.4f} m, false loops "
+            f"{frame['default_false'].sum()} -> {frame['variant_false'].sum()}"
+        )
+        for r in frame[~frame["equal"]].itertuples():
+            print(
+                f"  {r.log} {r.seed}: {r.default_ate:.3f} -> {r.variant_ate:.3f} m, "
+                f"false {r.default_false} -> {r.variant_false}"
+            )
+    if "kiss_ate" in frame:
+        lower = (ate < frame["kiss_ate"]).sum()
+        print(
+            f"KISS-ICP median {frame['kiss_ate'].median():.3f} m; default lower on {lower} / {len(frame)}"
+        )
+        for r in frame[ate >= frame["kiss_ate"]].itertuples():
+            print(f"  {r.log} {r.seed}: {r.default_ate:.3f} against KISS-ICP {r.kiss_ate:.3f} m")
+    per_log = frame.groupby("log")["default_ate"].agg(["median", "max"]).round(3)
+    print(per_log.to_string())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,44 @@
+"""`python -m bench.paired_maps`: the mapper's default against a variant on the same drifted
+real logs, run by run, as each of its defaults was judged (docs/journal/maps.md)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from bench.paired_maps import seeds, variant
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_settings_and_seeds_are_read_as_written() -> None:
+    assert seeds("0-2,7") == [0, 1, 2, 7]
+    config = variant(["loop.edge_check=0", "map.turn_tie=0.1", "slam.loops=false"])
+    assert config.loop.edge_check == 0 and config.scan_map.turn_tie == 0.1 and not config.loops
+
+
+def test_a_variant_is_paired_run_by_run(real: Path, tmp_path: Path) -> None:
+    out = tmp_path / "paired.csv"
+    done = subprocess.run(
+        [sys.executable, "-m", "bench.paired_maps", "--logs", "intel", "--seeds", "0",
+         "--set", "slam.loops=false", "--out", str(out)],
+        cwd=ROOT, capture_output=True, text=True, check=True,
+        env={"TOOLKIT_REAL_DATA": str(real), "PATH": ""},
+    )  # fmt: skip
+    row = pd.read_csv(out).iloc[0]
+    # without loops the Intel map keeps the front end's drift: larger, and no loop counted
+    assert row["default_loops"] > 50 and row["variant_loops"] == 0
+    assert row["variant_ate"] > row["default_ate"] and not row["equal"]
+    assert "equal to the bit 0 / 1" in done.stdout and "intel 0:" in done.stdout
+
+
+def test_an_unknown_setting_is_one_line() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "bench.paired_maps", "--set", "loop.nope=1"],
+        cwd=ROOT, capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 1 and done.stderr.strip().endswith("(slam., loop. or map. NAME)")
+    assert "Traceback" not in done.stderr
