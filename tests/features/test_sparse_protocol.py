@@ -540,26 +540,32 @@ def test_the_view_ahead_without_its_near_bins_keeps_a_thinned_hall() -> None:
     view ahead without its range histogram's bins under 2 m. In thinned world 12 the hall is
     taught from 10 scans, and with those bins the hall of the other world (run c) is lost
     (measured BA 0.95 with the view ahead off, 0.50 with it, 0.95 without the near bins); the
-    corridor of runs a and b stays found."""
+    corridor of runs a and b stays found. Session 31's default (a second classifier without
+    the near bins for the far-seeing turns, the mean of the two) finds a part of it (0.60)."""
     runs = worlds(12, 1.0)
     assert teaches_two(runs)
-    default = protocol_scores(Config(), runs, taught_only=True)
-    near_off = protocol_scores(Config(view_ahead_near_bins=False), runs, taught_only=True)
-    assert default["c"]["ba"] < 0.6 and near_off["c"]["ba"] > 0.9
+    one = Config(view_ahead_near_enclosed=False)  # session 30's default: one classifier
+    with_bins = protocol_scores(one, runs, taught_only=True)
+    near_off = protocol_scores(replace(one, view_ahead_near_bins=False), runs, taught_only=True)
+    assert with_bins["c"]["ba"] < 0.55 and near_off["c"]["ba"] > 0.9
     assert near_off["a"]["recall"]["corridor"] > 0.95 and near_off["b"]["ba"] > 0.9
+    default = protocol_scores(Config(), runs, taught_only=True)
+    assert with_bins["c"]["ba"] + 0.05 < default["c"]["ba"] < near_off["c"]["ba"] - 0.2
 
 
 def test_the_near_bins_kept_only_for_enclosed_turns_keeps_a_small_room(tmp_path: Path) -> None:
-    """`view_ahead_near_enclosed` (an expert setting, session 30, near30): the scans of turns
-    that see far are scored by a second classifier without the view ahead's near bins. In
-    brief crossing world 2000 the view ahead without its near bins loses the small rooms
-    entered briefly (run a, rooms found: measured 0.959 with the default, 0.673 without the
-    bins); the setting keeps them (0.959), since the robot turns in them enclosed, and finds
-    more corridor (0.884 -> 0.913). The second classifier travels in the saved model."""
+    """`view_ahead_near_enclosed` (session 30, near30; the default since session 31): the
+    scans of turns that see far are scored by a second classifier without the view ahead's
+    near bins too. In brief crossing world 2000 the view ahead without its near bins loses the
+    small rooms entered briefly (run a, rooms found: measured 0.959 with one classifier, 0.673
+    without the bins); the second classifier alone keeps them (0.959), since the robot turns
+    in them enclosed, and finds more corridor (0.884 -> 0.913). The second classifier travels
+    in the saved model."""
     runs = worlds(2000, 1.0, 0.5, True, True, False, True)
-    default = protocol_scores(Config(), runs, taught_only=True)
-    near_off = protocol_scores(Config(view_ahead_near_bins=False), runs, taught_only=True)
-    enclosed = protocol_scores(Config(view_ahead_near_enclosed=True), runs, taught_only=True)
+    one = Config(view_ahead_near_enclosed=False)  # session 30's default
+    default = protocol_scores(one, runs, taught_only=True)
+    near_off = protocol_scores(replace(one, view_ahead_near_bins=False), runs, taught_only=True)
+    enclosed = protocol_scores(Config(view_ahead_near_average=False), runs, taught_only=True)
     room = {
         k: v["a"]["recall"]["room"] for k, v in (("d", default), ("o", near_off), ("e", enclosed))
     }
@@ -568,7 +574,7 @@ def test_the_near_bins_kept_only_for_enclosed_turns_keeps_a_small_room(tmp_path:
     a = runs["a"]
     spans = spans_from_frame(a.regions, a.dataset.t)
     poses = a.dataset.groundtruth[["x", "y", "theta"]].to_numpy()
-    config = Config(view_ahead_near_enclosed=True)
+    config = Config(view_ahead_near_average=False)
     model = fit(a.dataset.ranges, a.dataset.laser, training_indices(spans), config, spans, poses)
     assert model.places_far is not None
     again = FeatureModel.load(model.save(tmp_path / "model.json"))
@@ -576,8 +582,8 @@ def test_the_near_bins_kept_only_for_enclosed_turns_keeps_a_small_room(tmp_path:
     assert np.array_equal(
         classify(model, a.dataset.ranges, poses).prob, classify(again, a.dataset.ranges, poses).prob
     )
-    # `view_ahead_near_average` (avg30): on the far-seeing turns the mean of the two
-    # classifiers' probabilities, elsewhere the first's scores untouched
+    # `view_ahead_near_average` (avg30, the default since session 31): on the far-seeing
+    # turns the mean of the two classifiers' probabilities, elsewhere the first's untouched
     own = class_scores(model, a.dataset.ranges, CHUNK, None, poses)
     alone = near_enclosed(model, a.dataset.ranges, poses, own, CHUNK)
     model.config = replace(model.config, view_ahead_near_average=True)

@@ -158,21 +158,19 @@ class Config:
     # default -0.001 / +0.017 / +0.035 +- 0.049; seed 12 (c) 0.50 -> 0.95) and the Intel log
     # finds more (corridor 0.798 -> 0.837, rooms 0.870 -> 0.902); the brief worlds not yet
     # confirmed (docs/journal/places.md, session 29, thin29)
-    view_ahead_near_enclosed: bool = False  # with `view_ahead` and its near bins, and poses:
-    # a second place classifier without the near bins (`view_ahead_near_bins` False) scores
-    # the scans of the turns on the spot that see far (`turn_pool` m, `turn_pool_reach`:
-    # classify.turn_reach), the first the others. A small room seen turning in it keeps its
-    # near walls; a junction's turn loses what are, there, walls beside it. An expert setting:
-    # against the default, brief crossing worlds BA +0.005 / +0.004 / +0.017 (rooms -0.008,
-    # beyond 2 SE; without the near bins -0.027), plain brief worlds -0.006 / -0.003 / +0.012,
-    # the thinned halls kept; Intel corridor 0.848, rooms 0.842 (docs/journal/places.md,
-    # session 30, near30)
-    view_ahead_near_average: bool = False  # with `view_ahead_near_enclosed`: on the far-seeing
-    # turns, the mean of the two classifiers' probabilities rather than the second's alone
-    # (near30's lead). An expert setting: against the default, brief crossing worlds BA (c)
-    # +0.009 and +0.010 (confirming), beyond 2 SE, but rooms (a) -0.004 beyond 2 SE (the
-    # second classifier alone -0.008); Intel corridor 0.819, rooms 0.870 (docs/journal/
-    # places.md, session 30, avg30)
+    view_ahead_near_enclosed: bool = True  # with `view_ahead` and its near bins, and poses:
+    # a second place classifier without the near bins (`view_ahead_near_bins` False) for the
+    # scans of the turns on the spot that see far (`turn_pool` m, `turn_pool_reach`:
+    # classify.turn_reach), the first alone for the others. A small room seen turning in it
+    # keeps its near walls; a junction's turn loses what are, there, walls beside it. The
+    # default since session 31, with `view_ahead_near_average` (near30, avg30; held out on
+    # brief worlds 2280-2339 and thinned 2340-2359: no BA change worse than 2 SE, crossings
+    # (b) +0.008 beyond it; dense worlds equal; Intel corridor 0.798 -> 0.819, rooms 0.870:
+    # docs/journal/places.md, session 31)
+    view_ahead_near_average: bool = True  # with `view_ahead_near_enclosed`: on the far-seeing
+    # turns, the mean of the two classifiers' probabilities. False (expert): the second's
+    # alone, Intel corridor 0.848 but rooms 0.842, brief crossing worlds' rooms (a) -0.008
+    # beyond 2 SE (near30; the mean halves both the gains and the losses: avg30)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
     absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
