@@ -137,6 +137,7 @@ ABLATION: list[tuple[str, Config]] = [
     ("alternative: the default without the view ahead on a sparse log (sparse_view_ahead off, session 28's default; the default also describes there the end points' major axis, the ranges' mean and spread, the range histogram, the forward sectors: a corridor seen across from a junction's turn still spans metres along it, axis29, session 29)", dataclasses.replace(FULL, sparse_view_ahead=False)),
     ("alternative: + on a sparse log, a second place classifier without the view ahead's range-histogram bins under 2 m for the turns on the spot that see past 6 m (view_ahead_near_enclosed: a small room seen turning in it keeps its near walls, a junction's turn does not; near30, session 30)", dataclasses.replace(FULL, view_ahead_near_enclosed=True)),
     ("alternative: row 57 with, on the far-seeing turns, the mean of the two classifiers' probabilities (view_ahead_near_average; avg30, session 30)", dataclasses.replace(FULL, view_ahead_near_enclosed=True, view_ahead_near_average=True)),
+    ("alternative: row 57 with the second classifier only on the far-seeing turns not at a doorway, no enclosed turn among the two before or after (view_ahead_near_door_free, turn_pool_door: a room's last scans at its door keep the first classifier; reach31, session 31)", dataclasses.replace(FULL, view_ahead_near_enclosed=True, view_ahead_near_door_free=True)),
 ]  # fmt: skip
 TRANSFER = 1000  # protocol (c): the world of seed + this
 DEVELOPMENT_SEEDS = tuple(range(10))
