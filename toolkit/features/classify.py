@@ -508,10 +508,14 @@ def near_enclosed(
     `turn_pool` m, `turn_reach` past `turn_pool_reach`) taken from `places_far`, the
     classifier without the view ahead's near bins (`Config.view_ahead_near_enclosed`). Why:
     in a small room seen turning in it, enclosed, the near bins tell it from the corridor; in
-    a junction's turn they are the walls beside it, and the corridor looks like a room."""
+    a junction's turn they are the walls beside it, and the corridor looks like a room. With
+    `view_ahead_near_door_free`, only the turns not at a doorway (`doorway_free`)."""
     cfg = model.config
     group, first = turns(poses, cfg.turn_pool)
-    far = (turn_reach(ranges, first) > cfg.turn_pool_reach)[group]
+    far_turn = turn_reach(ranges, first) > cfg.turn_pool_reach
+    if cfg.view_ahead_near_door_free:  # not at a doorway (`view_ahead_near_door_free`)
+        far_turn = doorway_free(far_turn, cfg.turn_pool_door)
+    far = far_turn[group]
     if not far.any():
         return scores
     other = replace(model, places=model.places_far, config=replace(cfg, view_ahead_near_bins=False))

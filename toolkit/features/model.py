@@ -171,6 +171,14 @@ class Config:
     # turns, the mean of the two classifiers' probabilities. False (expert): the second's
     # alone, Intel corridor 0.848 but rooms 0.842, brief crossing worlds' rooms (a) -0.008
     # beyond 2 SE (near30; the mean halves both the gains and the losses: avg30)
+    view_ahead_near_door_free: bool = False  # with `view_ahead_near_enclosed`: only the
+    # far-seeing turns with no enclosed turn among the `turn_pool_door` turns before or after
+    # (`pool_turns`' doorway rule, classify.doorway_free) take the second classifier; a room's
+    # last scans at its door keep the first. An expert setting, measured with
+    # `view_ahead_near_average` False: against session 30's default, brief crossing worlds BA
+    # (c) +0.008 and +0.011 (confirming), beyond 2 SE, no room lost on the brief worlds (the
+    # mean: -0.004); revisit (a) -0.002 beyond 2 SE on one set; Intel corridor 0.804, rooms
+    # 0.870 (docs/journal/places.md, session 31, reach31)
     mozos: bool = False  # only the descriptors of Mozos et al. 2005 (the peer baseline)
     classifier: Classifier = "trees"  # "logistic": the regression with a temperature
     absolute_reach: bool = True  # also the reach beside the laser in metres, not only in
