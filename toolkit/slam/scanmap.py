@@ -143,6 +143,15 @@ class MapConfig:
     # drift seed 127, scan 1641: a 0.79 rad slip held at 0.03, the winner 0.02 rad off the
     # truth's step at 0.16; scan 1648: 1.08 rad held at 0.07, the winner 0.01 rad off at 0.18).
     # Session 30 (fc30): ATE 2.82 -> 0.33 m; see docs/journal/maps.md for where else it acts
+    turn_circle: bool = True  # `turn_check` also weighs the full circle's search winner
+    # (run when the +-`search_turn` one is unclear and under `lost`), refused for being
+    # unclear, as `turn_refused` weighs the +-`search_turn` one: taken if it fits 0.1 more
+    # than the fit held, lies more than `turn_check` from it and turns the step less. A slip
+    # of more than `search_turn` leaves the right heading to the full circle's search, whose
+    # unclear win the inlier share alone cannot take (orebro drift seed 64, scan 221: the
+    # odometry turns 1.79 rad, the truth 0.57; held 0.07 of the returns, 1.31 rad off; the
+    # full circle's winner 0.50, 0.03 rad off). Session 31 (slip31): ATE 1.75 -> 0.16 m; see
+    # docs/journal/maps.md for where else it acts
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
     # most this share of its own (the loop closer's test)
     edge_grow: float = 2.0  # a search whose winner lies on its window's edge (within 0.1 m)
@@ -177,7 +186,7 @@ class MapConfig:
 
 SEARCH_MIN = 20  # a scan with fewer returns is not searched (too few to tell aliases apart)
 FITS_MORE = 0.1  # a share of the returns by which one fit beats another outright (a search
-# over the fit held, the wider search over the narrow one, `turn_refused`)
+# over the fit held, the wider search over the narrow one, `turn_refused`, `turn_circle`)
 _OUT = 8  # result slots: x, y, theta, sigma, inliers share, used, degenerate, rounds
 _HEADING_FREE = np.array([1.0, 1.0, 1e-3])  # a restart's prior: the heading is the search's
 _SLIDE = (0.2, 0.1)  # a search's fit may move this far (m, rad) beyond the volume searched
@@ -700,6 +709,7 @@ class MapMatcher:
         fit(predicted, info, out, cov)
         tied = False  # the fit held is a search's winner that was not clear
         refused: tuple[np.ndarray, np.ndarray] | None = None  # an unclear winner not taken
+        circled: tuple[np.ndarray, np.ndarray] | None = None  # ... of the full circle's search
         if by_odometry and cfg.slip_sigmas > 0 and out[4] >= cfg.min_inliers:
             self._slip_free(fit, predicted, info, out, cov)
         if out[4] < cfg.min_inliers and len(pts) >= SEARCH_MIN:
@@ -734,10 +744,12 @@ class MapMatcher:
                 if clear and out3[4] > out[4] + FITS_MORE:
                     out, cov = out3, cov3
                     tied = False
+                elif not clear:
+                    circled = (out3, cov3)
             if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
                 tied = tied and not self._unturned(fit, predicted, info, out, cov)
         if logged and by_odometry and cfg.turn_check > 0 and len(pts) >= SEARCH_MIN:
-            self._turn_check(fit, predicted, info, out, cov, tied, refused)
+            self._turn_check(fit, predicted, info, out, cov, tied, refused, circled)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(pts, predicted, info, out, cov)
         self.stats = out
@@ -774,6 +786,7 @@ class MapMatcher:
         cov: np.ndarray,
         tied: bool = False,
         refused: tuple[np.ndarray, np.ndarray] | None = None,
+        circled: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         """A step whose odometry turns more than `turn_check` fitted again from the previous
         heading with the heading free; `out` and `cov` take it if it fits `turn_gain` more of
@@ -783,7 +796,9 @@ class MapMatcher:
         search (a building's right angles), or the search on one it cannot tell from another.
         Else (`turn_refused`) the search's unclear winner that `lost` refused (`refused`) is
         taken if it fits `FITS_MORE` more, lies more than `turn_check` from the fit held and
-        turns the step less: on a sparse scan every fit is poor and the turn is the witness."""
+        turns the step less: on a sparse scan every fit is poor and the turn is the witness.
+        Else (`turn_circle`) the full circle's unclear winner (`circled`) on the same terms: a
+        slip beyond `search_turn` that only the full circle's search reaches."""
         cfg = self.config
 
         def turned(pose: np.ndarray) -> float:
@@ -812,6 +827,13 @@ class MapMatcher:
             and another_turning_less(refused[0])
         ):
             taken = refused
+        elif (
+            cfg.turn_circle
+            and circled is not None
+            and circled[0][4] >= out[4] + FITS_MORE
+            and another_turning_less(circled[0])
+        ):
+            taken = circled
         else:
             return
         out[:] = taken[0]
