@@ -637,14 +637,14 @@ def close_loops(
                         f"slid: the optimum puts scan {lp.b} {moved:.1f} m along the corridor"
                         f" from the match (> {config.loop.corridor_slide:g})"
                     )
-                    if config.loop.corridor_rematch and (lp.a, lp.b) not in rematched:
+                    if config.loop.corridor_rematch and lp.pair not in rematched:
                         rematch.append(lp)
             accepted = [lp for lp in accepted if lp.accepted]
         timings["optimisation"] += time.perf_counter() - t0
         if rematch:  # matched again where the optimum puts b: the stretch it really saw
             placed = hang(keys, before, current)
             for lp in rematch:
-                rematched.add((lp.a, lp.b))
+                rematched.add(lp.pair)
                 # the earlier keyframe nearest b where the optimum puts it: the stretch b saw
                 early = keys[along[lp.b] - along[keys] > config.loop.gap]
                 if len(early) == 0:
@@ -680,7 +680,7 @@ def close_loops(
         next_at = along[keys[q]] + loop_cfg.every
         if lp is None:
             continue
-        found[(lp.a, lp.b)] = lp
+        found[lp.pair] = lp
         if lp.accepted and config.incremental:
             moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
             if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
@@ -696,7 +696,7 @@ def close_loops(
         t0 = time.perf_counter()
         closed = np.array([lp.b for lp in found.values() if lp.accepted], dtype=np.int64)
         for lp in recognition.find(closer, keys, poses, along, loop_cfg, skip=closed, known=found):
-            found.setdefault((lp.a, lp.b), lp)
+            found.setdefault(lp.pair, lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
     # further rounds from the optimised trajectory where no loop closed yet: smaller windows,
@@ -718,7 +718,7 @@ def close_loops(
         closed = np.array(skip, dtype=np.int64)
         # a pair verified before keeps its first verdict: not verified again
         for lp in closer.find(keys, poses, round_cfg, closed, known=found.keys()):
-            found.setdefault((lp.a, lp.b), lp)
+            found.setdefault(lp.pair, lp)
         timings["loops"] += time.perf_counter() - t0
         poses = solve()
     if odo_edges and config.odometry_reach > 0:
