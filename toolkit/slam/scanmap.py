@@ -818,23 +818,23 @@ class MapMatcher:
             and res[4] >= out[4] - cfg.turn_tie
             and another_turning_less(res)
         )
+        taken: tuple[np.ndarray, np.ndarray] | None = None
         if res[4] >= out[4] + cfg.turn_gain or tie:
             taken = (res, c)
-        elif (
-            cfg.turn_refused
-            and refused is not None
-            and refused[0][4] >= out[4] + FITS_MORE
-            and another_turning_less(refused[0])
-        ):
-            taken = refused
-        elif (
-            cfg.turn_circle
-            and circled is not None
-            and circled[0][4] >= out[4] + FITS_MORE
-            and another_turning_less(circled[0])
-        ):
-            taken = circled
-        else:
+        else:  # the searches' unclear winners, the +-search_turn one's first
+            unclear = ((cfg.turn_refused, refused), (cfg.turn_circle, circled))
+            taken = next(
+                (
+                    winner
+                    for on, winner in unclear
+                    if on
+                    and winner is not None
+                    and winner[0][4] >= out[4] + FITS_MORE
+                    and another_turning_less(winner[0])
+                ),
+                None,
+            )
+        if taken is None:
             return
         out[:] = taken[0]
         cov[:, :] = taken[1]
