@@ -13,6 +13,7 @@ alone, with the per-beam term and with the evidence pooled by position over the 
 expert setting: the tiled log passes every spot 250 times); and `--none-model surroundings` (lateral 2), with one and two components per
 feature.
 Median of 3 runs after a warm-up on a small slice (compiles the kernels).
+`BENCH_FEATURES_ROWS="toolkit default:"` runs only the rows whose name holds that text.
 """
 
 from __future__ import annotations
@@ -75,7 +76,10 @@ def run(out: Path, quick: bool) -> list[dict[str, object]]:
         ("--none-model surroundings (lateral 2, as its spans choose)", LATERAL2, poses),
         ("--none-model surroundings, two components per feature", LATERAL2, poses),
 ]  # fmt: skip
+    wanted = os.environ.get("BENCH_FEATURES_ROWS", "")  # e.g. "toolkit default:" (a substring)
     for name, config, scan_poses in configs:
+        if wanted and wanted not in name:
+            continue
         components = spans if "two components" in name else None
         model = fit(ds.ranges, ds.laser, training, config, components, poses[: ds.n_scans])
         classify(model, ranges[:2000], None if scan_poses is None else scan_poses[:2000])
