@@ -152,6 +152,14 @@ class MapConfig:
     # odometry turns 1.79 rad, the truth 0.57; held 0.07 of the returns, 1.31 rad off; the
     # full circle's winner 0.50, 0.03 rad off). Session 31 (slip31): ATE 1.75 -> 0.16 m; see
     # docs/journal/maps.md for where else it acts
+    turn_past: bool = True  # `turn_tie` also takes the refit, whatever its share above
+    # `lost`, over a search's unclear winner that turns the step more than the odometry's own
+    # (already over `turn_check`) turn by more than `turn_check`: the search carried the
+    # slipped heading further on, onto an alias (infinite-corridor drift seed 180, scan 117:
+    # the odometry turns 1.37 rad, the truth 0.69; the winner turns 2.26 fitting 0.93 of the
+    # returns, a junction's 90 degree alias; the refit 0.01 rad off the truth fitting 0.77,
+    # 0.16 fewer). Session 31 (fail31): ATE 9.86 -> 0.48 m; see docs/journal/maps.md for where
+    # else it acts
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
     # most this share of its own (the loop closer's test)
     edge_grow: float = 2.0  # a search whose winner lies on its window's edge (within 0.1 m)
@@ -791,7 +799,9 @@ class MapMatcher:
         """A step whose odometry turns more than `turn_check` fitted again from the previous
         heading with the heading free; `out` and `cov` take it if it fits `turn_gain` more of
         the returns, or (`turn_tie`) over a search's unclear winner (`tied`) if it fits within
-        `turn_tie` of it, lies more than `turn_check` from it and turns the step less. A slip
+        `turn_tie` of it (or, `turn_past`, fits `lost` and the winner turns the step more than
+        the prediction by over `turn_check`), lies more than `turn_check` from it and turns the
+        step less. A slip
         of a whole radian can leave the turned scan on an alias that fits well enough for no
         search (a building's right angles), or the search on one it cannot tell from another.
         Else (`turn_refused`) the search's unclear winner that `lost` refused (`refused`) is
@@ -812,10 +822,14 @@ class MapMatcher:
             return abs(_wrap(pose[2] - out[2])) > cfg.turn_check and turned(pose) < turned(out)
 
         res, c = self._from_last_heading(fit, predicted, info)
+        past = (
+            cfg.turn_past
+            and res[4] >= cfg.lost
+            and turned(out) > turned(predicted) + cfg.turn_check
+        )
         tie = (
             tied
-            and cfg.turn_tie > 0
-            and res[4] >= out[4] - cfg.turn_tie
+            and ((cfg.turn_tie > 0 and res[4] >= out[4] - cfg.turn_tie) or past)
             and another_turning_less(res)
         )
         taken: tuple[np.ndarray, np.ndarray] | None = None
