@@ -14,10 +14,12 @@ from toolkit.poses import truth_poses
 from toolkit.slam.scanmap import MapConfig, scan_to_map
 
 
-def _mended(real: Path, seed: int, step: int, without: MapConfig) -> tuple[float, float]:
-    """orebro drift `seed`: how far step `step` -> `step + 1` turns off the truth's turn without
-    the setting (`without`) and with the default; every scan before it placed alike."""
-    ds = drifted_carmen(real, "orebro", seed=seed)
+def _mended(
+    real: Path, seed: int, step: int, without: MapConfig, log: str = "orebro"
+) -> tuple[float, float]:
+    """`log` with drift `seed`: how far step `step` -> `step + 1` turns off the truth's turn
+    without the setting (`without`) and with the default; every scan before it placed alike."""
+    ds = drifted_carmen(real, log, seed=seed)
     truth = truth_poses(ds)
     assert truth is not None
     unchecked = scan_to_map(ds, without).poses
@@ -60,19 +62,9 @@ def test_a_refused_winner_turns_back_a_slip_on_a_sparse_scan(real: Path) -> None
     `turn_refused` (default) the winner is taken: the step under 0.05 rad off the truth's turn,
     without it 0.7 rad off, every scan before it placed alike."""
     assert MapConfig().turn_refused
-    ds = drifted_carmen(real, "freiburg-campus", seed=127)
-    truth = truth_poses(ds)
-    assert truth is not None
-    without = scan_to_map(ds, MapConfig(turn_refused=False)).poses
-    with_it = scan_to_map(ds).poses
-    np.testing.assert_array_equal(with_it[:1641], without[:1641])
-
-    def off(p: np.ndarray) -> float:
-        turn = p[1641, 2] - p[1640, 2] - (truth[1641, 2] - truth[1640, 2])
-        return abs(float(se2.wrap(turn)))
-
-    assert off(without) > 0.7
-    assert off(with_it) < 0.05
+    without, with_it = _mended(real, 127, 1640, MapConfig(turn_refused=False), "freiburg-campus")
+    assert without > 0.7
+    assert with_it < 0.05
 
 
 def test_the_full_circles_unclear_winner_turns_back_a_slip(real: Path) -> None:
@@ -96,16 +88,6 @@ def test_a_winner_turning_past_the_slipped_odometry_loses_to_the_refit(real: Pat
     refit is taken: the step under 0.05 rad off the truth's turn, without it over 1.5 rad off,
     every scan before it placed alike."""
     assert MapConfig().turn_past
-    ds = drifted_carmen(real, "infinite-corridor", seed=180)
-    truth = truth_poses(ds)
-    assert truth is not None
-    without = scan_to_map(ds, MapConfig(turn_past=False)).poses
-    with_it = scan_to_map(ds).poses
-    np.testing.assert_array_equal(with_it[:117], without[:117])
-
-    def off(p: np.ndarray) -> float:
-        turn = p[117, 2] - p[116, 2] - (truth[117, 2] - truth[116, 2])
-        return abs(float(se2.wrap(turn)))
-
-    assert off(without) > 1.5
-    assert off(with_it) < 0.05
+    without, with_it = _mended(real, 180, 116, MapConfig(turn_past=False), "infinite-corridor")
+    assert without > 1.5
+    assert with_it < 0.05
