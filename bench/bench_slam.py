@@ -132,14 +132,19 @@ def scan_to_map(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:
     return result.poses, result.seconds, {}
 
 
-def mapper(ds: Dataset, front_end: str = "map") -> tuple[np.ndarray, float, dict[str, Any]]:
+def mapper(
+    ds: Dataset,
+    front_end: str = "map",
+    config: Any = None,  # noqa: ANN401
+) -> tuple[np.ndarray, float, dict[str, Any]]:
     """`toolkit map`'s default: sequential matching (odometry or constant velocity), loops,
     pose graph; timed as metrics.json times it (matching + loops + optimisation).
-    `front_end="keyframe"`: the previous default (scan-to-keyframe, lag edges, loops)."""
+    `front_end="keyframe"`: the previous default (scan-to-keyframe, lag edges, loops);
+    `config`: a whole SlamConfig instead (`bench.paired_maps`' variants)."""
     from toolkit.slam.pipeline import SlamConfig
     from toolkit.slam.run import slam_trajectory
 
-    result, slam = slam_trajectory(ds, slam=SlamConfig(front_end=front_end))
+    result, slam = slam_trajectory(ds, slam=config or SlamConfig(front_end=front_end))
     m = slam.metrics(ds)
     extra = {"loops": m["loops"], "false_loops": m.get("false_loops")}
     extra |= {f"s_{k}": round(v, 2) for k, v in m["seconds"].items() if k != "total"}

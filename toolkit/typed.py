@@ -183,3 +183,12 @@ def check_fields(obj: object, what: str) -> None:
         fixed = convert(value, kind, name, what)
         if fixed is not value:
             object.__setattr__(obj, name, fixed)
+
+
+def int_ranges(text: str) -> tuple[int, ...]:
+    """The integers '0-19,2000-2019' (or '7', or '0,3,5') names, in order: seeds, rows."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += range(int(lo), int(hi or lo) + 1)
+    return tuple(out)

@@ -23,6 +23,7 @@ from toolkit.features.classify import (
     switch_probability,
     turn_groups,
     turn_reach,
+    turns,
 )
 from toolkit.features.descriptors import path_length
 from toolkit.features.evaluate import protocol, protocol_scores, teaches_two, thinned, worlds
@@ -621,8 +622,7 @@ def test_the_second_classifier_left_out_at_doorways_keeps_the_rooms_last_scans()
     gated = np.any(near_enclosed(model, a.dataset.ranges, poses, own, CHUNK) != own, axis=1)
     model.config = replace(model.config, view_ahead_near_door_free=False)
     far = np.any(near_enclosed(model, a.dataset.ranges, poses, own, CHUNK) != own, axis=1)
-    group = turn_groups(poses, model.config.turn_pool)
-    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    group, first = turns(poses, model.config.turn_pool)
     far_turn = turn_reach(a.dataset.ranges, first) > model.config.turn_pool_reach
     enclosed_next = ~far_turn[np.clip(group + 1, 0, len(first) - 1)]
     assert gated.sum() > 10 and not (gated & ~far).any() and not (gated & enclosed_next).any()

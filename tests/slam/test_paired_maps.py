@@ -9,13 +9,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from bench.paired_maps import seeds, variant
+from bench.paired_maps import variant
+from toolkit.typed import int_ranges
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_settings_and_seeds_are_read_as_written() -> None:
-    assert seeds("0-2,7") == [0, 1, 2, 7]
+    assert int_ranges("0-2,7") == (0, 1, 2, 7) and int_ranges("5") == (5,)
     config = variant(["loop.edge_check=0", "map.turn_tie=0.1", "slam.loops=false"])
     assert config.loop.edge_check == 0 and config.scan_map.turn_tie == 0.1 and not config.loops
 

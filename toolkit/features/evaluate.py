@@ -53,6 +53,7 @@ import argparse
 import dataclasses
 import json
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypedDict, Unpack
@@ -73,6 +74,7 @@ from toolkit.sim import Simulation, simulate
 from toolkit.sim.procedural import random_world
 from toolkit.sim.truth import REGION_PARTS, REGION_SCANS, training_regions
 from toolkit.sim.truth import runs as label_runs
+from toolkit.typed import int_ranges
 
 FULL = Config()
 BEAMS = Config(descriptors=False)  # the per-beam model alone (the former default)
@@ -368,6 +370,24 @@ class WorldKind(TypedDict, total=False):
     crossings: bool
 
 
+def _partial(kind: WorldKind) -> bool:
+    """Whether the worlds of `kind` score only their taught places (thinned or entered)."""
+    return kind.get("spacing", 0.0) > 0 or kind.get("entered", False)
+
+
+def _per_world(
+    configs: list[Config], seeds: tuple[int, ...], kind: WorldKind
+) -> Iterator[tuple[int, list[dict[str, dict[str, Any]]]]]:
+    """Per seed whose worlds of `kind` count (`teaches_two` where only taught places are
+    scored): the seed and `protocol_scores` of each configuration on the same runs."""
+    partial = _partial(kind)
+    for seed in seeds:
+        runs = worlds(seed, **kind)
+        if partial and not teaches_two(runs):
+            continue
+        yield seed, [protocol_scores(config, runs, taught_only=partial) for config in configs]
+
+
 def protocol(
     configs: list[tuple[str, Config]], seeds: tuple[int, ...], **kind: Unpack[WorldKind]
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -377,13 +397,10 @@ def protocol(
     `entered` they enter rooms and are taught as the Intel log; then only taught places are
     scored, and seeds teaching fewer than two places left out."""
     results: dict[str, list[dict[str, dict[str, Any]]]] = {name: [] for name, _ in configs}
-    partial = kind.get("spacing", 0.0) > 0 or kind.get("entered", False)
-    for seed in seeds:
-        runs = worlds(seed, **kind)
-        if partial and not teaches_two(runs):
-            continue
-        for name, config in configs:
-            results[name].append(protocol_scores(config, runs, taught_only=partial))
+    partial = _partial(kind)
+    for _, scores in _per_world([config for _, config in configs], seeds, kind):
+        for (name, _), score in zip(configs, scores, strict=True):
+            results[name].append(score)
     rows = []
     for name, config in configs:
         per_seed = results[name]
@@ -427,19 +444,10 @@ def paired(
     changes (variant minus default) with twice its standard error, and the worlds where the
     two score alike; and the per-world scores themselves. Paired, a change of a few scans is
     told from the worlds' spread, which two protocol tables side by side cannot do."""
-    partial = kind.get("spacing", 0.0) > 0 or kind.get("entered", False)
-    per_world: list[dict[str, Any]] = []
-    for seed in seeds:
-        runs = worlds(seed, **kind)
-        if partial and not teaches_two(runs):
-            continue
-        per_world.append(
-            {
-                "seed": seed,
-                "default": protocol_scores(FULL, runs, taught_only=partial),
-                "variant": protocol_scores(variant, runs, taught_only=partial),
-            }
-        )
+    per_world: list[dict[str, Any]] = [
+        {"seed": seed, "default": default, "variant": changed}
+        for seed, (default, changed) in _per_world([FULL, variant], seeds, kind)
+    ]
     rows = []
     for key in "abc":
         pairs = [(w["default"][key], w["variant"][key]) for w in per_world]
@@ -512,18 +520,6 @@ def markdown(table: pd.DataFrame, digits: int = 3) -> str:
     return "\n".join(lines)
 
 
-def _seeds(text: str) -> tuple[int, ...]:
-    """'100-119' or '0,3,5' or '7' or '0-19,2000-2019'."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        if "-" in part:
-            lo, hi = part.split("-")
-            seeds += range(int(lo), int(hi) + 1)
-        else:
-            seeds.append(int(part))
-    return tuple(seeds)
-
-
 def _variant(text: str) -> Config:
     """A JSON object of Config fields over the default."""
     fields = json.loads(text)
@@ -539,9 +535,9 @@ def _variant(text: str) -> Config:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument(
-        "--seeds", type=_seeds, default=HELD_OUT_SEEDS, help="e.g. 100-119 (default) or 0-9"
+        "--seeds", type=int_ranges, default=HELD_OUT_SEEDS, help="e.g. 100-119 (default) or 0-9"
     )
-    parser.add_argument("--rows", type=_seeds, help="only these ablation rows (0-based)")
+    parser.add_argument("--rows", type=int_ranges, help="only these ablation rows (0-based)")
     parser.add_argument(
         "--scenarios", action="store_true", help="also the corridor and building scenarios (seed 0)"
     )

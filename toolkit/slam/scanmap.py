@@ -832,7 +832,7 @@ class MapMatcher:
             and ((cfg.turn_tie > 0 and res[4] >= out[4] - cfg.turn_tie) or past)
             and another_turning_less(res)
         )
-        taken: tuple[np.ndarray, np.ndarray] | None = None
+        taken: tuple[np.ndarray, np.ndarray] | None
         if res[4] >= out[4] + cfg.turn_gain or tie:
             taken = (res, c)
         else:  # the searches' unclear winners, the +-search_turn one's first
