@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from distributed import Worker
 
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+PR_GET_PDEATHSIG = 2
 
 
 def die_with_parent() -> bool:
@@ -42,6 +43,15 @@ def die_with_parent() -> bool:
     if parent is not None and os.getppid() != parent.pid:
         os.kill(os.getpid(), signal.SIGKILL)
     return True
+
+
+def parent_death_signal() -> int:
+    """The signal this process gets when its parent dies (0: none, or not Linux)."""
+    if sys.platform != "linux":
+        return 0
+    value = ctypes.c_int(0)
+    ctypes.CDLL(None).prctl(PR_GET_PDEATHSIG, ctypes.byref(value), *[ctypes.c_ulong(0)] * 3)
+    return value.value
 
 
 def dask_setup(worker: Worker) -> None:
