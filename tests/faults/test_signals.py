@@ -219,6 +219,113 @@ def test_fleet_on_dask(small: dict[str, Path], tmp_path: Path, sig: int) -> None
     assert sorted(p.name for p in maps.iterdir()) == [p.name for p in _fleet_outputs(out)]
 
 
+def _workers(pid: int) -> list[int]:
+    """The Dask worker processes `pid` started (spawned by multiprocessing)."""
+    workers = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == pid and b"--multiprocessing-fork" in _cmdline(int(stat.parent.name)):
+            workers.append(int(stat.parent.name))
+    return sorted(workers)
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie nobody reaped yet is dead)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _pipes(pid: int, write: bool) -> dict[str, int]:
+    """{"pipe:[inode]": fd} of the pipe ends `pid` holds open for writing (or reading)."""
+    ends = {}
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+            info = (Path(f"/proc/{pid}/fdinfo") / fd.name).read_text()
+            flags = int(info.split("flags:")[1].split()[0], 8)
+        except (OSError, IndexError, ValueError):
+            continue
+        if target.startswith("pipe:") and (flags & os.O_ACCMODE == os.O_WRONLY) == write:
+            ends[target] = int(fd.name)
+    return ends
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the kernel's parent-death signal")
+def test_local_cluster_workers_are_killed_with_their_parent() -> None:
+    """Every worker of `client_for`'s LocalCluster (both fleet paths take it) has asked the
+    kernel for SIGKILL when the command dies."""
+    from toolkit.app.fleet import client_for
+    from toolkit.app.fleet_worker import parent_death_signal
+
+    with client_for("local:2") as client:
+        assert client is not None
+        signals = client.run(parent_death_signal)
+    assert list(signals.values()) == [signal.SIGKILL] * 2, signals
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform != "linux", reason="/proc; the kernel's parent-death signal")
+def test_no_dask_worker_outlives_a_killed_command(small: dict[str, Path], tmp_path: Path) -> None:
+    """SIGKILL to `import --each --scheduler local:2` whose scheduler had stopped answering
+    (a loaded machine; here SIGSTOP for 2 s, past the workers' heartbeat interval) left each
+    worker's heartbeat unanswered: when the command died, the workers printed "Failed to
+    communicate with scheduler during heartbeat" and a traceback onto its stderr, unless
+    Dask's guard (a thread that ends the worker when a pipe from its parent closes) came
+    first. The test keeps those pipes open itself, as load delays the guard, so the race is
+    lost every time: without the kernel's parent-death signal (`toolkit.app.fleet_worker`)
+    both workers print it and are still alive 3 s after the command died."""
+    logs = _logs(small, tmp_path)
+    out = tmp_path / "w" / "fleet"
+    args = ["import", "carmen", logs, "--each", "--out", out, "--scheduler", "local:2"]
+    proc = subprocess.Popen([sys.executable, "-m", "toolkit", *map(str, args)], env=ENV,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    held: list[int] = []
+    workers: list[int] = []
+    try:
+        start = time.monotonic()
+        while proc.poll() is None and not _writing(out.parent):
+            assert time.monotonic() - start < 120
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGSTOP)  # the scheduler stops answering
+        workers = _workers(proc.pid)
+        assert len(workers) == 2, workers  # started: the cluster waits for its workers
+        stderr = os.readlink(f"/proc/{proc.pid}/fd/2")
+        read = set().union(*(_pipes(w, write=False) for w in workers))
+        held = [os.open(f"/proc/{proc.pid}/fd/{fd}", os.O_WRONLY)
+                for pipe, fd in _pipes(proc.pid, write=True).items()
+                if pipe in read and pipe != stderr]  # fmt: skip
+        assert held  # Dask's guard pipes (and the nannies' queues): no EOF when it dies
+        time.sleep(2.0)  # each worker's heartbeat is sent and waits for its answer
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+        time.sleep(3.0)  # past the heartbeat: an orphan would have printed by now
+        left = [w for w in workers if _alive(w)]
+    finally:
+        for fd in held:
+            os.close(fd)
+        for w in workers:  # what the test started: no orphan left, whatever failed
+            if _alive(w):
+                os.kill(w, signal.SIGKILL)
+        if proc.poll() is None:
+            proc.kill()
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert left == [], err  # none outlived the command
+    assert "Traceback" not in err and " - distributed." not in err, err
+
+
 @pytest.mark.parametrize("library", ["numpy/", "pandas/_libs", "pyarrow/"])
 def test_ctrl_c_during_start_up_is_one_line(small: dict[str, Path], library: str) -> None:
     """Ctrl-C while the command is still loading its libraries (the moment `library` is

@@ -34,6 +34,7 @@ from toolkit.errors import ToolkitError
 from toolkit.progress import track
 
 CONNECT_TIMEOUT = "10s"  # to reach a scheduler given by address
+WORKER_PRELOAD = "toolkit.app.fleet_worker"  # run in every LocalCluster worker as it starts
 
 
 def parse_scheduler(scheduler: str | None, workers: int | None = None) -> tuple[str, int]:
@@ -62,7 +63,9 @@ def parse_scheduler(scheduler: str | None, workers: int | None = None) -> tuple[
 @contextmanager
 def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Client | None]:
     """None for in-process work, else a Dask Client: to a fresh LocalCluster of `workers`
-    processes with one thread each ("local", "local:N"), or to the scheduler at an address."""
+    processes with one thread each ("local", "local:N"), or to the scheduler at an address.
+    A LocalCluster's workers are killed by the kernel when this process dies, even by
+    SIGKILL (`toolkit.app.fleet_worker`): none outlives it, none prints on its stderr."""
     kind, n = parse_scheduler(scheduler, workers)
     if kind == "none":
         yield None
@@ -75,6 +78,7 @@ def client_for(scheduler: str | None, workers: int | None = None) -> Iterator[Cl
                 processes=True,
                 dashboard_address="127.0.0.1:0",  # ":0" would serve it on every interface
                 host="127.0.0.1",
+                preload=[WORKER_PRELOAD],  # each worker dies with this process
             ) as cluster,
             Client(cluster) as client,
         ):
