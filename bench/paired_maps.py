@@ -2,6 +2,7 @@
 
     python -m bench.paired_maps --logs all --seeds 0-40 --set loop.edge_check=0
     python -m bench.paired_maps --logs intel,fhw --seeds 161-190 --kiss   # a held-out set
+    python -m bench.paired_maps --logs freiburg-101 --seeds 0-40 --kiss --laser-x 0
 
 Each real CARMEN log (its corrected poses as the truth) with its odometry drifted by
 `toolkit.poses.with_drift(ds, seed)`, mapped by `toolkit map`'s default and, with `--set`,
@@ -10,6 +11,8 @@ SlamConfig, LoopConfig or MapConfig, the value as JSON). Per run: ATE, loops, fa
 whether the poses equal the default's to the bit; with `--kiss`, KISS-ICP seeded by the same
 odometry (best of voxel 0.1 / 0.3 m, `bench_slam.kiss_best`). The summary: runs equal to the
 bit, the paired ATE change (mean and 2 SE), false loops both ways, and every run that moved.
+`--laser-x X` reads every log with the laser mounted at x = X m (both runs; 0: the frame the
+corrected poses are in, where PARAM says -0.04 m: docs/journal/maps.md, session 32).
 How each default of the mapper was judged (docs/journal/maps.md); the csv keeps every run.
 """
 
@@ -81,12 +84,18 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=JSON")
     parser.add_argument("--kiss", action="store_true", help="KISS-ICP beside (slower)")
     parser.add_argument("--out", type=Path, default=Path("out/paired_maps.csv"))
+    parser.add_argument(
+        "--laser-x",
+        type=float,
+        default=None,
+        help="the laser's mounting x (m) for every log, both runs (0: the corrected poses' frame)",
+    )
     args = parser.parse_args()
     changed = variant(args.set) if args.set else None
     wanted = None if args.logs == "all" else set(args.logs.split(","))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    for name, log in real_logs():
+    for name, log in real_logs(args.laser_x):
         if wanted is not None and name not in wanted:
             continue
         for seed in args.seeds:
