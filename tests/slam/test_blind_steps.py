@@ -21,7 +21,7 @@ from toolkit.slam.pipeline import (
     sequential_edges,
 )
 from toolkit.slam.run import slam_trajectory
-from toolkit.slam.scanmap import scan_to_map
+from toolkit.slam.scanmap import SEARCH_MIN, MapConfig, returns, scan_to_map
 
 
 def test_only_edges_across_an_unverified_sparse_step_are_loosened() -> None:
@@ -124,3 +124,32 @@ def test_a_slip_on_a_blind_scan_is_mended_and_nothing_else_moves(real: Path) -> 
     assert off(before) > 15 and off(mended) < 1
     moved = np.flatnonzero(np.any(mended != before, axis=1))
     assert moved.tolist() == [1014]
+
+
+def test_a_small_slip_in_a_blind_stretch_stays_local_and_the_loops_keep_it(real: Path) -> None:
+    """freiburg-campus drift seed 13, scans 928-930 (8-12 returns, fit failed): the front end
+    keeps the odometry's steps there, 2-4 degrees more turning than the truth's, so scan 930
+    stands 8 degrees turned against scan 927; the first fitted scan after them (931, 34
+    returns) turns it back, so the chain is right (931 against 927 within 1 degree and 0.15 m).
+    The default mapper's loops keep the turned scans as they are (within 0.2 degree of the
+    front end's): the slip is a local defect that the ATE hardly sees (session 32, fc32)."""
+    ds = drifted_carmen(real, "freiburg-campus", seed=13)
+    truth = truth_poses(ds)
+    odometry = odometry_poses(ds)
+    assert truth is not None and odometry is not None
+    result, run = slam_trajectory(ds)
+    final = result.poses
+    assert np.all(returns(ds.ranges[928:931], MapConfig().max_range) < SEARCH_MIN)
+
+    def against(poses: np.ndarray, k: int) -> np.ndarray:
+        """Scan k relative to scan 927, off the truth's (x, y, heading)."""
+        return se2.between(se2.between(truth[927], truth[k]), se2.between(poses[927], poses[k]))
+
+    assert abs(np.degrees(against(final, 930)[2])) > 5.0  # the blind scans turned
+    chain = against(final, 931)
+    assert abs(np.degrees(chain[2])) < 1.0 and float(np.hypot(chain[0], chain[1])) < 0.15
+    # the blind steps are the odometry's (928 -> 930) in the estimate before loops and after
+    odo_turn = se2.between(odometry[928], odometry[930])[2]
+    for poses in (run.before, final):
+        turn = se2.between(poses[928], poses[930])[2]
+        assert abs(np.degrees(turn - odo_turn)) < 0.2
