@@ -226,7 +226,8 @@ def found_shares(
     found: dict[str, dict[Any, float]] = {"stays": {}, "turns": {}, "rooms": {}}
     for name, m in models.items():
         label = classify(m, run.dataset.ranges, poses).label
-        found["stays"][name] = float(np.mean(label[room & short] == "room"))
+        stays = room & short  # none in some runs: NaN without numpy's empty-mean warning
+        found["stays"][name] = float(np.mean(label[stays] == "room")) if stays.any() else np.nan
         found["turns"][name] = float(np.mean(label[corridor & turning] == "corridor"))
         found["rooms"][name] = float(np.mean(label[room] == "room"))
     return found
