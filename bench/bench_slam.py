@@ -41,7 +41,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -51,6 +51,9 @@ from toolkit import se2
 from toolkit.dataset import Dataset
 from toolkit.metrics import evaluate, relation_error, shared_error, truth_relations
 from toolkit.poses import build, odometry_poses, truth_poses, with_drift
+
+if TYPE_CHECKING:
+    from toolkit.slam.pipeline import SlamConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("TOOLKIT_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
@@ -139,7 +142,7 @@ def scan_to_map(ds: Dataset) -> tuple[np.ndarray, float, dict[str, Any]]:
 def mapper(
     ds: Dataset,
     front_end: str = "map",
-    config: Any = None,  # noqa: ANN401
+    config: SlamConfig | None = None,
 ) -> tuple[np.ndarray, float, dict[str, Any]]:
     """`toolkit map`'s default: sequential matching (odometry or constant velocity), loops,
     pose graph; timed as metrics.json times it (matching + loops + optimisation).

@@ -37,6 +37,12 @@ def wrap(theta: np.ndarray | float) -> np.ndarray:
     return np.where(w == -np.pi, np.pi, w)
 
 
+def rotation(theta: float) -> np.ndarray:
+    """The 2 x 2 matrix turning a vector by `theta` (rad)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
 def _stacked(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """`np.stack([x, y, t], axis=-1)` of three arrays of one shape (the same values and
     dtype): a quarter of its cost, in the thousands of one-pose calls of a map run."""

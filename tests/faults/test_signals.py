@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import psutil
 import pytest
 
 from tests.faults.conftest import digest, hidden
@@ -221,29 +222,21 @@ def test_fleet_on_dask(small: dict[str, Path], tmp_path: Path, sig: int) -> None
 
 def _workers(pid: int) -> list[int]:
     """The Dask worker processes `pid` started (spawned by multiprocessing)."""
-    workers = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
+
+    def worker(child: psutil.Process) -> bool:
         try:
-            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        if ppid == pid and b"--multiprocessing-fork" in _cmdline(int(stat.parent.name)):
-            workers.append(int(stat.parent.name))
-    return sorted(workers)
+            return "--multiprocessing-fork" in child.cmdline()
+        except psutil.Error:  # gone meanwhile
+            return False
 
-
-def _cmdline(pid: int) -> bytes:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return b""
+    return sorted(c.pid for c in psutil.Process(pid).children() if worker(c))
 
 
 def _alive(pid: int) -> bool:
     """Running (a zombie nobody reaped yet is dead)."""
     try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
         return False
 
 

@@ -16,6 +16,7 @@ import pytest
 import toolkit
 from tests.conftest import Cli
 from tests.slam.conftest import drifted_carmen
+from toolkit import se2
 from toolkit.metrics import evaluate, relation_error, truth_relations
 from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.sim import simulate
@@ -252,7 +253,7 @@ def _turned_revisit_agreement(ds: toolkit.Dataset, laser_x: float) -> float:
     assert truth is not None
     n = len(truth)
     apart = np.hypot(*(truth[:, None, :2] - truth[None, :, :2]).transpose(2, 0, 1))
-    turned = np.abs(np.angle(np.exp(1j * (truth[:, None, 2] - truth[None, :, 2]))))
+    turned = np.abs(se2.wrap(truth[:, None, 2] - truth[None, :, 2]))
     later = np.arange(n)[None, :] > np.arange(n)[:, None]
     i, j = np.nonzero((apart < 2.0) & (turned > 0.5) & later)
     pick = np.arange(0, len(i), max(1, len(i) // 200))
@@ -261,9 +262,8 @@ def _turned_revisit_agreement(ds: toolkit.Dataset, laser_x: float) -> float:
     def placed(k: int) -> np.ndarray:
         r = ds.ranges[k].astype(np.float64)
         ok = np.isfinite(r) & (r < 20.0)
-        x, y = laser_x + r[ok] * np.cos(beams[ok]), r[ok] * np.sin(beams[ok])
-        c, s = np.cos(truth[k, 2]), np.sin(truth[k, 2])
-        return np.column_stack([truth[k, 0] + c * x - s * y, truth[k, 1] + s * x + c * y])
+        local = np.column_stack([laser_x + r[ok] * np.cos(beams[ok]), r[ok] * np.sin(beams[ok])])
+        return truth[k, :2] + local @ se2.rotation(truth[k, 2]).T
 
     shares = []
     for a, b in zip(i[pick], j[pick], strict=True):

@@ -24,6 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from toolkit.align.scan import PairMatches, pair_refs, scan_points
 from toolkit.dataset import LaserGeometry
+from toolkit.se2 import rotation
 
 ICP_STEP = 256  # pairs between two progress calls (ICP runs one pair at a time)
 
@@ -119,7 +120,7 @@ def register_point_to_point(
             T0 = init
         else:
             x, y, th = _pose(init)
-            T0[:2, :2] = _rot(th)
+            T0[:2, :2] = rotation(th)
             T0[:2, 3] = (x, y)
     result = reg.registration_icp(
         src,
@@ -179,7 +180,7 @@ def register_point_to_line(
         return _matrix(pose), fit, rmse
     tree = cKDTree(dst)
     for _ in range(iterations):
-        p = src @ _rot(pose[2]).T + pose[:2]
+        p = src @ rotation(pose[2]).T + pose[:2]
         dist, idx = tree.query(p, distance_upper_bound=max_distance)
         ok = np.isfinite(dist)
         if ok.sum() < 3:
@@ -197,14 +198,9 @@ def register_point_to_line(
     return _matrix(pose), fit, rmse
 
 
-def _rot(theta: float) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s], [s, c]])
-
-
 def _matrix(pose: np.ndarray) -> np.ndarray:
     T = np.eye(3)
-    T[:2, :2] = _rot(pose[2])
+    T[:2, :2] = rotation(pose[2])
     T[:2, 2] = pose[:2]
     return T
 

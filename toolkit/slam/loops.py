@@ -42,7 +42,7 @@ import numba as nb
 import numpy as np
 
 from toolkit.dataset import LaserGeometry
-from toolkit.se2 import between, compose, mount_pose, wrap
+from toolkit.se2 import between, compose, mount_pose, rotation, wrap
 from toolkit.slam.grid import (
     _VOXEL_TABLE,
     CoarseLevel,
@@ -729,8 +729,7 @@ class LoopCloser:
                     rel = between(poses[n], poses[a])
                     k, pose_k, won_k = n, compose(rel, pose), compose(rel, found.pose)
                     if axis is not None:
-                        c, sn = np.cos(rel[2]), np.sin(rel[2])
-                        axis_k = np.array([[c, -sn], [sn, c]]) @ axis
+                        axis_k = rotation(rel[2]) @ axis
             if not why and axis_k is not None and agree < cfg.anchor_agree:
                 why.append(
                     f"anchor: scan {k} fits its local map with {agree:.2f} of its returns"
@@ -739,8 +738,7 @@ class LoopCloser:
         if not why and cfg.anchor_match:
             slip = self.anchor_shift(k, query, won_k, poses, cfg)
             if slip is not None and slip[1] >= cfg.anchor_inliers:
-                c, sn = np.cos(won_k[2]), np.sin(won_k[2])
-                shift = np.array([[c, -sn], [sn, c]]) @ slip[0][:2]  # k's frame
+                shift = rotation(won_k[2]) @ slip[0][:2]  # k's frame
                 if axis_k is not None:
                     shift -= (shift @ axis_k) * axis_k
                 moved = float(np.hypot(*shift))
