@@ -1198,12 +1198,6 @@ class CarmenOptions(FormatOptions):
         "groundtruth: store the laser lines' robot poses as ground truth (the Radish "
         "'corrected' logs)",
     )
-    equal_poses: Literal["robot", "laser"] = option(
-        "robot",
-        "with poses=groundtruth, lines whose laser and robot poses are all equal while the laser "
-        "is mounted off centre (a corrector's): robot takes them as the robot's; laser as the "
-        "laser's, the ground truth the robot's behind them",
-    )
     range_max: float | Literal["none"] | None = option(
         None,
         "the no-return code in m (values at or above it -> NaN), or none",
@@ -1222,6 +1216,12 @@ class CarmenOptions(FormatOptions):
         None,
         "the primary laser: flaser, robotlaser1, laser, rlaser or robotlaser2",
         shown="the first of those present",
+    )
+    equal_poses: Literal["robot", "laser"] = option(
+        "robot",
+        "with poses=groundtruth, lines whose laser and robot poses are all equal while the laser "
+        "is mounted off centre (a corrector's): robot takes them as the robot's; laser as the "
+        "laser's, the ground truth the robot's behind them",
     )
 
 
