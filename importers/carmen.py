@@ -29,7 +29,10 @@ Reading, and the decisions a log leaves open (each is stated in meta.json and th
   one line; the Radish logs have an ODOM line stamped 0 after each FLASER); otherwise the
   robot (odometry) pose of each laser line at scan times. Ground truth: TRUEPOS lines. `-O poses=groundtruth` stores the laser lines' robot
   poses as ground truth instead (the Radish "corrected" logs: SLAM-corrected poses used as
-  approximate truth). Laser lines' robot poses that are neither odometry nor ground truth are
+  approximate truth); with `-O equal_poses=laser`, where every line's laser and robot poses are
+  equal although the laser is mounted off centre (a corrector wrote its scan pose into both),
+  they are taken as the laser's poses and the truth as the robot's behind them (laser pose ∘
+  mounting⁻¹; off by default: docs/journal/maps.md, session 33). Laser lines' robot poses that are neither odometry nor ground truth are
   kept as the pose stream `scan_pose`.
 - Mounting: x from PARAM robot_frontlaser_offset (robot_rearlaser_offset for the rear laser),
   y and yaw (and x when there is no PARAM) from the median difference between the laser pose
@@ -613,6 +616,27 @@ def _row_blocks(a: np.ndarray, rows: int = 4096) -> Iterator[np.ndarray]:
         yield a[lo : lo + rows]
 
 
+def _laser_poses_carried(main: _Built) -> np.ndarray | None:
+    """The robot's poses behind the laser lines' laser poses (laser pose ∘ mounting⁻¹) when
+    every line's laser and robot poses are equal although the laser is mounted off the
+    robot's centre: a corrector (GMapping's log writer: host pippo, NEFF lines) wrote one pose
+    into both fields, and with the mounting the two fields cannot both be right. Radish's
+    belgioioso, freiburg-101 and freiburg-campus (PARAM x -0.04 m): their scans, placed by
+    those poses, agree best with the laser at the pose itself (turned revisits: peak at
+    +0.002 / 0.000 / -0.007 m), so the pose is the laser's (docs/journal/maps.md, sessions
+    32 and 33; `-O equal_poses=laser`, off by default). None otherwise (the robot poses
+    stand)."""
+    laser, robot = main.stream.laser_pose, main.stream.robot_pose
+    mount = se2.mount_pose(main.laser)
+    if main.stream.name in REAR or not mount[:2].any():  # a rear laser's yaw pi is assumed
+        return None
+    if not len(laser) or not np.array_equal(laser, robot, equal_nan=True):
+        return None
+    robot = se2.compose(laser, np.broadcast_to(se2.inverse(mount), laser.shape))
+    robot[:, 2] = laser[:, 2] - mount[2]  # the heading as the log has it (not wrapped)
+    return robot
+
+
 def _pose_frame(t: np.ndarray, pose: np.ndarray) -> pd.DataFrame:
     ok = np.isfinite(pose).all(axis=1)
     return pose_frame(t[ok], pose[ok])
@@ -980,9 +1004,21 @@ class _Reader:
             decisions["groundtruth"] = f"robot pose of the {main.stream.name} lines (-O poses)"
             report.note(f"ground truth = the robot poses of the {main.stream.name} lines "
                         "(-O poses=groundtruth; for corrected logs, approximate)")  # fmt: skip
+            carried = _laser_poses_carried(main) if self.options.equal_poses == "laser" else None
+            if carried is not None:
+                groundtruth = _pose_frame(main.t, carried)
+                decisions["groundtruth"] = (f"laser pose of the {main.stream.name} lines, carried "
+                                            "to the robot by the mounting (-O poses)")  # fmt: skip
+                report.note(f"the {main.stream.name} lines' laser and robot poses are equal while "
+                            "the laser is mounted off the robot's centre: the poses are taken as "
+                            "the laser's (a corrector's scan poses), the ground truth as the "
+                            "robot's behind them")  # fmt: skip
             if truepos is not None:
                 poses["truepos"] = truepos
             if odometry is scan_poses:
+                if carried is not None:
+                    odometry = groundtruth
+                    decisions["odometry"] += ", carried to the robot by the mounting"
                 report.note("odometry is the same pose stream as the ground truth")
         elif truepos is not None:
             decisions["groundtruth"] = "TRUEPOS lines"
@@ -1180,6 +1216,12 @@ class CarmenOptions(FormatOptions):
         None,
         "the primary laser: flaser, robotlaser1, laser, rlaser or robotlaser2",
         shown="the first of those present",
+    )
+    equal_poses: Literal["robot", "laser"] = option(
+        "robot",
+        "with poses=groundtruth, lines whose laser and robot poses are all equal while the laser "
+        "is mounted off centre (a corrector's): robot takes them as the robot's; laser as the "
+        "laser's, the ground truth the robot's behind them",
     )
 
 

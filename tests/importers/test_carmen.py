@@ -345,6 +345,55 @@ def test_every_message_of_a_known_log(tmp_path: Path) -> None:
     assert other.n_beams == 90 and set(other.lasers) == {"flaser", "rlaser"}
 
 
+def _corrected_log(path: Path, laser_at: float) -> np.ndarray:
+    """A corrected-style log: PARAM robot_frontlaser_offset -0.04, FLASER lines whose laser
+    pose is the robot pose moved `laser_at` m along the heading (0: both fields equal, as a
+    corrector writes them) and whose robot field is the pose itself; returns the poses."""
+    k = np.arange(8.0)
+    pose = np.column_stack([0.3 * k, 0.1 * k, 0.4 * k]).round(9)  # as printed
+    lines = ["PARAM robot_frontlaser_offset -0.04 nohost 0"]
+    for i, (x, y, th) in enumerate(pose):
+        laser = [x + laser_at * np.cos(th), y + laser_at * np.sin(th), th]
+        ranges = " ".join(["2.5"] * 181)
+        lines.append(f"FLASER 181 {ranges} {' '.join(f'{v:.9f}' for v in laser)} "
+                     f"{x:.9f} {y:.9f} {th:.9f} {i:.1f} pippo {i:.1f}")  # fmt: skip
+    path.write_text("\n".join(lines) + "\n")
+    return pose
+
+
+def test_equal_poses_of_an_off_centre_laser_are_the_lasers(tmp_path: Path) -> None:
+    """-O poses=groundtruth -O equal_poses=laser: where every line's laser and robot poses are
+    equal while PARAM mounts the laser off centre (a corrector's log: belgioioso, freiburg-101,
+    freiburg-campus), the poses are the laser's and the truth the robot's 0.04 m ahead of them
+    (laser pose ∘ mounting⁻¹), the heading as written; a log whose laser pose is the robot pose
+    moved by the mounting, `-O laser_x=0`, equal_poses=robot (the default) or the default
+    reading keep the robot field as it is."""
+    laser = CarmenOptions(poses="groundtruth", equal_poses="laser")
+    pose = _corrected_log(tmp_path / "c.log", 0.0)
+    ds = Carmen().read([tmp_path / "c.log"], laser)
+    assert ds.laser.x == -0.04 and ds.groundtruth is not None
+    ahead = pose[:, :2] + 0.04 * np.column_stack([np.cos(pose[:, 2]), np.sin(pose[:, 2])])
+    np.testing.assert_allclose(ds.groundtruth[["x", "y"]], ahead, atol=1e-9)
+    np.testing.assert_array_equal(ds.groundtruth["theta"], pose[:, 2])
+    assert ds.meta["carmen"]["groundtruth"].startswith("laser pose of the FLASER lines, carried")
+    assert ds.odometry is not None  # no ODOM: the lines are the odometry too, carried alike
+    np.testing.assert_array_equal(ds.odometry.to_numpy(), ds.groundtruth.to_numpy())
+    assert any("the poses are taken as the laser's" in n for n in ds.report.notes)
+    for options in (
+        CarmenOptions(poses="groundtruth", equal_poses="laser", laser_x=0.0),
+        CarmenOptions(poses="groundtruth"),
+        CarmenOptions(),
+    ):
+        kept = Carmen().read([tmp_path / "c.log"], options)
+        stream = kept.groundtruth if kept.groundtruth is not None else kept.odometry
+        assert stream is not None
+        np.testing.assert_array_equal(stream[["x", "y", "theta"]].to_numpy(), pose)
+    _corrected_log(tmp_path / "raw.log", -0.04)  # a raw log: the laser pose behind the robot
+    raw = Carmen().read([tmp_path / "raw.log"], laser)
+    assert raw.groundtruth is not None
+    np.testing.assert_array_equal(raw.groundtruth[["x", "y", "theta"]].to_numpy(), pose)
+
+
 # ---------------------------------------------------------------- damaged copies
 # of a simulated log written by the CARMEN writer (its every line is known)
 
