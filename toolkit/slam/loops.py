@@ -57,6 +57,9 @@ from toolkit.slam.grid import (
     inside,
     voxel_subsample,
 )
+from toolkit.slam.grid import (
+    _search as _volume,
+)
 
 
 @dataclass(frozen=True)
@@ -173,6 +176,20 @@ class LoopConfig:
     # by default since session 19: infinite-corridor seeds 5-14 x 2 draws mean ATE 1.21 ->
     # 0.38 m (worst 5.23 -> 0.51), no false loop on development seeds 0-14; False: off
     recognition: bool = True
+    # > 0: a loop edge's covariance from its own match instead of `SlamConfig.loop_sigma`
+    # (Olson 2009; Karto / slam_toolbox's `ComputePositionalCovariance` /
+    # `ComputeAngularCovariance`): the query scored on the fine grid around the winner
+    # (`response_covariance`: +-`response_window` m by `fine`, and headings +-`response_turn`
+    # rad by `response_turn_step` at the winner's position), the response-weighted second
+    # moments of the poses scoring within `response_drop` of the best, over the best score
+    # (Karto's), times this squared, plus `response_floor` (m, rad) squared; a corridor loop
+    # still spreads `corridor_along` along its axis. 0: off (every loop `loop_sigma`)
+    response_scale: float = 0.0
+    response_window: float = 0.2
+    response_turn: float = 0.05
+    response_turn_step: float = 0.005
+    response_drop: float = 0.1
+    response_floor: tuple[float, float] = (0.02, 0.002)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -195,15 +212,25 @@ class Loop:
     along: float = 0.0  # ... and its spread along that axis (m)
     recognised: bool = False  # proposed by appearance (`toolkit.slam.recognition`)
     anchored: int = -1  # `reanchor`: the scan a the match was made on (`a` a neighbour of it)
+    # `LoopConfig.response_scale`: the edge's covariance from the match (b's frame, GTSAM's
+    # tangent order, scaled and floored), instead of the mapper's fixed `loop_sigma`
+    spread: np.ndarray | None = None
 
     def covariance(self, sigma: tuple[float, float], along: float = 0.0) -> np.ndarray:
         """The loop edge's covariance (GTSAM's tangent order, in `b`'s frame): `sigma`
         (m, rad) in every direction, or for a corridor loop `along` m along its axis (the
-        argument, when > 0, instead of the loop's own)."""
-        cov = np.diag([sigma[0] ** 2, sigma[0] ** 2, sigma[1] ** 2])
+        argument, when > 0, instead of the loop's own); with `spread` (the match's own,
+        `LoopConfig.response_scale`) that instead of `sigma`, the corridor's spread added
+        along its axis."""
         u = self.free_axis()
+        spread = along if along > 0 else self.along
+        if self.spread is not None:
+            own = self.spread.copy()
+            if u is not None:  # the match's spread along the axis, at least `spread`
+                own[:2, :2] += max(spread**2 - float(u @ own[:2, :2] @ u), 0.0) * np.outer(u, u)
+            return own
+        cov = np.diag([sigma[0] ** 2, sigma[0] ** 2, sigma[1] ** 2])
         if u is not None:
-            spread = along if along > 0 else self.along
             cov[:2, :2] += (max(spread, sigma[0]) ** 2 - sigma[0] ** 2) * np.outer(u, u)
         return cov
 
@@ -754,6 +781,10 @@ class LoopCloser:
         loop = Loop(k, b, pose_k, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
         if k != a:
             loop.anchored = a
+        if ok and cfg.response_scale > 0:
+            loop.spread = edge_spread(
+                response_covariance(fine, query, found.pose, cfg), found.pose, cfg
+            )
         if axis_k is not None:
             loop.axis, loop.along = axis_k, cfg.corridor_along
         return loop
@@ -924,6 +955,53 @@ class LoopCloser:
             if loop is not None:
                 out.append(loop)
         return out
+
+
+def response_covariance(
+    fine: LikelihoodGrid, query: np.ndarray, pose: np.ndarray, config: LoopConfig
+) -> np.ndarray:
+    """The spread of the correlative search's responses around its winner `pose` (query `b`
+    in a's frame; Karto's `ComputePositionalCovariance` / `ComputeAngularCovariance`): the
+    query scored on the fine grid `fine` at the winner's heading over +-`response_window`
+    m (the grid's step) and at the winner's position over +-`response_turn` rad (by
+    `response_turn_step`); of the poses scoring within `response_drop` of the best, the
+    response-weighted second moments of their offsets from the winner, over the best score
+    (a weak match spreads more). 3 x 3 (x, y in a's frame, heading; no heading-position
+    terms), unscaled and unfloored."""
+    cfg = config
+    pts = np.ascontiguousarray(query, dtype=np.float64)
+    centre = np.ascontiguousarray(pose, dtype=np.float64)
+    step = fine.resolution
+    half = max(round(cfg.response_window / step), 1)
+    plane = _volume(fine.likelihood_t, fine.origin, step, pts, centre, np.zeros(1), half)[0]
+    n_turn = max(round(cfg.response_turn / cfg.response_turn_step), 1)
+    turns = np.arange(-n_turn, n_turn + 1) * cfg.response_turn_step
+    line = _volume(fine.likelihood_t, fine.origin, step, pts, centre, turns, 0)[:, 0, 0]
+    best = max(float(plane.max()), float(line.max()), 1e-9)
+    off = (np.arange(2 * half + 1) - half) * step
+    dx, dy = np.meshgrid(off, off, indexing="ij")  # plane is (x, y)
+    w = np.where(plane >= best - cfg.response_drop, plane, 0.0)
+    norm = max(float(w.sum()), 1e-12)
+    cov = np.zeros((3, 3))
+    cov[0, 0] = float((w * dx * dx).sum()) / norm
+    cov[1, 1] = float((w * dy * dy).sum()) / norm
+    cov[0, 1] = cov[1, 0] = float((w * dx * dy).sum()) / norm
+    wt = np.where(line >= best - cfg.response_drop, line, 0.0)
+    cov[2, 2] = float((wt * turns * turns).sum()) / max(float(wt.sum()), 1e-12)
+    return cov / best
+
+
+def edge_spread(response: np.ndarray, pose: np.ndarray, config: LoopConfig) -> np.ndarray:
+    """A loop edge's covariance from its match's `response_covariance` (a's frame) at `pose`:
+    times `response_scale` squared, its position part turned into b's frame (the edge's,
+    GTSAM's tangent order), plus `response_floor` (m, rad) squared in every direction."""
+    cfg = config
+    r = rotation(float(pose[2]))
+    cov = response * cfg.response_scale**2
+    cov[:2, :2] = r.T @ cov[:2, :2] @ r
+    cov[:2, :2] += cfg.response_floor[0] ** 2 * np.eye(2)
+    cov[2, 2] += cfg.response_floor[1] ** 2
+    return cov
 
 
 def corridor_axis(
