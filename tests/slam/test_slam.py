@@ -316,3 +316,43 @@ def test_real_freiburg_101_mapper_is_nearer_the_robot_behind_the_lasers_poses(re
     ate = {name: evaluate(poses, t)["ate"]["rmse"] for name, t in (("robot", truth),
                                                                   ("lines", lines))}  # fmt: skip
     assert ate["robot"] < ate["lines"] - 0.008, ate
+
+
+def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path) -> None:
+    """freiburg-campus read with `-O equal_poses=laser`, drift seed 28 (the mapper at 47 m
+    against 0.37 m in the default reading): the failure is the front end's, not the back
+    end's. The step into scan 1340 (146 returns, a fit with 0.14 of them near the map: the
+    correlative search) turns 1.19 rad and slips 2.1 m off the truth while the drifted
+    odometry's step is within 0.06 rad of it; neither mender (`blind_mend`, `excursion_mend`)
+    takes it back, and the estimate the loops start from is 49.8 m off (2.8 m in the default
+    reading, whose step 1339 keeps the odometry's). Seed 32: the same step, 50.3 against 3.3 m
+    (docs/journal/maps.md, session 33, camp33). The search's winner there is clear on 4 of 29
+    returns; `MapConfig.far_clear` (off by default) refuses a clear winner under `lost` that
+    far from the prediction, and the step keeps the truth's heading."""
+    from importers.carmen import Carmen, CarmenOptions
+    from toolkit.slam.pipeline import SlamConfig, mend_blind, mend_excursions
+    from toolkit.slam.scanmap import MapConfig, scan_to_map
+
+    path = real / "carmen_radish_corrected" / "freiburg-campus-corrected.log.gz"
+    options = CarmenOptions(poses="groundtruth", equal_poses="laser")
+    ds = with_drift(Carmen().read([path], options), seed=28)
+    truth, wheels = truth_poses(ds), odometry_poses(ds)
+    assert truth is not None and wheels is not None
+    cfg = SlamConfig()
+    front = scan_to_map(ds, cfg.scan_map)
+    assert front.matches is not None
+    fit = front.matches.agreement
+    before = mend_blind(ds.ranges, fit, front.poses, wheels, cfg)
+    before = mend_excursions(ds.ranges, ds.laser, fit, before, wheels, cfg)
+    true_step = se2.between(truth[1339], truth[1340])
+    step = se2.between(before[1339], before[1340])
+    odo = se2.between(wheels[1339], wheels[1340])
+    assert abs(float(se2.wrap(step[2] - true_step[2]))) > 1.0
+    assert float(np.hypot(*(step[:2] - true_step[:2]))) > 1.5
+    assert abs(float(se2.wrap(odo[2] - true_step[2]))) < 0.1
+    assert fit[1339] < 0.2
+    assert evaluate(before, truth)["ate"]["rmse"] > 40.0
+    far = scan_to_map(ds, MapConfig(far_clear=0.5)).poses
+    step = se2.between(far[1339], far[1340])
+    assert abs(float(se2.wrap(step[2] - true_step[2]))) < 0.1
+    assert evaluate(far, truth)["ate"]["rmse"] < 5.0
