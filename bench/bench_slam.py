@@ -38,7 +38,7 @@ import itertools
 import json
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Container, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -53,6 +53,7 @@ from toolkit.metrics import evaluate, relation_error, shared_error, truth_relati
 from toolkit.poses import build, odometry_poses, truth_poses, with_drift
 
 if TYPE_CHECKING:
+    from importers.carmen import CarmenOptions
     from toolkit.slam.pipeline import SlamConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,20 +65,24 @@ CARMEN = REAL / "carmen_radish_corrected"
 TUNED_SEEDS = (0, 1, 2)
 
 
-def real_logs(laser_x: float | None = None) -> Iterator[tuple[str, Dataset]]:
-    """The CARMEN corrected logs, their corrected poses as ground truth. `laser_x`: the
-    laser's mounting x (m) instead of the importer's (PARAM robot_frontlaser_offset, -0.04 on
-    belgioioso, freiburg-101 and freiburg-campus); 0 puts the robot at the laser, the frame
-    the corrected poses are in: placed by them, those three logs' scans agree best with the
-    laser at x = 0 (docs/journal/maps.md, session 32, fr101)."""
+def real_logs(
+    options: CarmenOptions | None = None, names: Container[str] | None = None
+) -> Iterator[tuple[str, Dataset]]:
+    """The CARMEN corrected logs, their corrected poses as ground truth (`poses=groundtruth`,
+    or `options`: e.g. with `laser_x=0` the laser at the robot's centre, with
+    `equal_poses=laser` the truth the robot's behind the laser's poses; docs/journal/maps.md,
+    sessions 32 and 33). `names`: only these logs, the rest not read (default: those of
+    BENCH_SLAM_LOGS, else all)."""
     from importers.carmen import Carmen, CarmenOptions
 
-    wanted = [w for w in os.environ.get("BENCH_SLAM_LOGS", "").split(",") if w]
+    read_as = options or CarmenOptions(poses="groundtruth")
+    if names is None:
+        names = [w for w in os.environ.get("BENCH_SLAM_LOGS", "").split(",") if w] or None
     for path in sorted(CARMEN.glob("*-corrected.log*")):
         name = path.name.split("-corrected")[0]
-        if wanted and name not in wanted:
+        if names is not None and name not in names:
             continue
-        yield name, Carmen().read([path], CarmenOptions(poses="groundtruth", laser_x=laser_x))
+        yield name, Carmen().read([path], read_as)
 
 
 def sim_logs(seed: int = 0) -> Iterator[tuple[str, Dataset]]:

@@ -2,7 +2,7 @@
 
     python -m bench.paired_maps --logs all --seeds 0-40 --set loop.edge_check=0
     python -m bench.paired_maps --logs intel,fhw --seeds 161-190 --kiss   # a held-out set
-    python -m bench.paired_maps --logs freiburg-101 --seeds 0-40 --kiss --laser-x 0
+    python -m bench.paired_maps --logs freiburg-101 --seeds 0-40 --kiss -O laser_x=0
 
 Each real CARMEN log (its corrected poses as the truth) with its odometry drifted by
 `toolkit.poses.with_drift(ds, seed)`, mapped by `toolkit map`'s default and, with `--set`,
@@ -11,8 +11,9 @@ SlamConfig, LoopConfig or MapConfig, the value as JSON). Per run: ATE, loops, fa
 whether the poses equal the default's to the bit; with `--kiss`, KISS-ICP seeded by the same
 odometry (best of voxel 0.1 / 0.3 m, `bench_slam.kiss_best`). The summary: runs equal to the
 bit, the paired ATE change (mean and 2 SE), false loops both ways, and every run that moved.
-`--laser-x X` reads every log with the laser mounted at x = X m (both runs; 0: the frame the
-corrected poses are in, where PARAM says -0.04 m: docs/journal/maps.md, session 32).
+`-O KEY=VALUE` reads every log with that CARMEN import option (both runs): `-O laser_x=0` the
+laser at the robot's centre, `-O equal_poses=laser` the truth the robot's behind the corrected
+poses, which are the laser's (docs/journal/maps.md, sessions 32 and 33).
 How each default of the mapper was judged (docs/journal/maps.md); the csv keeps every run.
 """
 
@@ -29,6 +30,8 @@ import numpy as np
 import pandas as pd
 
 from bench.bench_slam import kiss_best, mapper, real_logs
+from importers.carmen import CarmenOptions
+from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses, with_drift
 from toolkit.slam.pipeline import SlamConfig
@@ -85,19 +88,25 @@ def main() -> None:
     parser.add_argument("--kiss", action="store_true", help="KISS-ICP beside (slower)")
     parser.add_argument("--out", type=Path, default=Path("out/paired_maps.csv"))
     parser.add_argument(
-        "--laser-x",
-        type=float,
-        default=None,
-        help="the laser's mounting x (m) for every log, both runs (0: the corrected poses' frame)",
+        "-O",
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a CARMEN import option for every log, both runs (e.g. laser_x=0, equal_poses=laser)",
     )
     args = parser.parse_args()
     changed = variant(args.set) if args.set else None
     wanted = None if args.logs == "all" else set(args.logs.split(","))
+    try:  # a bad option: one line, before any work
+        read_as = CarmenOptions.parse(
+            {"poses": "groundtruth", **dict(o.partition("=")[::2] for o in args.option)}
+        )
+    except ToolkitError as error:
+        raise SystemExit(f"-O: {error}") from None
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    for name, log in real_logs(args.laser_x):
-        if wanted is not None and name not in wanted:
-            continue
+    for name, log in real_logs(read_as, wanted):
         for seed in args.seeds:
             ds = with_drift(log, seed)
             row: dict[str, Any] = {"log": name, "seed": seed}

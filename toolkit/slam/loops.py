@@ -57,9 +57,6 @@ from toolkit.slam.grid import (
     inside,
     voxel_subsample,
 )
-from toolkit.slam.grid import (
-    _search as _volume,
-)
 
 
 @dataclass(frozen=True)
@@ -962,32 +959,26 @@ def response_covariance(
 ) -> np.ndarray:
     """The spread of the correlative search's responses around its winner `pose` (query `b`
     in a's frame; Karto's `ComputePositionalCovariance` / `ComputeAngularCovariance`): the
-    query scored on the fine grid `fine` at the winner's heading over +-`response_window`
-    m (the grid's step) and at the winner's position over +-`response_turn` rad (by
-    `response_turn_step`); of the poses scoring within `response_drop` of the best, the
-    response-weighted second moments of their offsets from the winner, over the best score
+    query scored on the fine grid `fine` (`coarse_scores`) at the winner's heading over
+    +-`response_window` m (the grid's step) and at the winner's position over +-`response_turn`
+    rad (by `response_turn_step`); of the poses scoring within `response_drop` of the best,
+    the response-weighted second moments of their offsets from the winner, over the best score
     (a weak match spreads more). 3 x 3 (x, y in a's frame, heading; no heading-position
     terms), unscaled and unfloored."""
     cfg = config
-    pts = np.ascontiguousarray(query, dtype=np.float64)
     centre = np.ascontiguousarray(pose, dtype=np.float64)
-    step = fine.resolution
-    half = max(round(cfg.response_window / step), 1)
-    plane = _volume(fine.likelihood_t, fine.origin, step, pts, centre, np.zeros(1), half)[0]
-    n_turn = max(round(cfg.response_turn / cfg.response_turn_step), 1)
-    turns = np.arange(-n_turn, n_turn + 1) * cfg.response_turn_step
-    line = _volume(fine.likelihood_t, fine.origin, step, pts, centre, turns, 0)[:, 0, 0]
+    plane, offsets, _ = coarse_scores(fine, query, centre, cfg.response_window, 0.0, 1.0)
+    line, _, turns = coarse_scores(
+        fine, query, centre, 0.0, cfg.response_turn, cfg.response_turn_step
+    )
+    plane, line = plane[0], line[:, 0, 0]  # (x, y) at the winner's heading; per heading
     best = max(float(plane.max()), float(line.max()), 1e-9)
-    off = (np.arange(2 * half + 1) - half) * step
-    dx, dy = np.meshgrid(off, off, indexing="ij")  # plane is (x, y)
-    w = np.where(plane >= best - cfg.response_drop, plane, 0.0)
-    norm = max(float(w.sum()), 1e-12)
-    cov = np.zeros((3, 3))
-    cov[0, 0] = float((w * dx * dx).sum()) / norm
-    cov[1, 1] = float((w * dy * dy).sum()) / norm
-    cov[0, 1] = cov[1, 0] = float((w * dx * dy).sum()) / norm
+    xy = np.stack([g.ravel() for g in np.meshgrid(offsets, offsets, indexing="ij")])
+    w = np.where(plane >= best - cfg.response_drop, plane, 0.0).ravel()
     wt = np.where(line >= best - cfg.response_drop, line, 0.0)
-    cov[2, 2] = float((wt * turns * turns).sum()) / max(float(wt.sum()), 1e-12)
+    cov = np.zeros((3, 3))
+    cov[:2, :2] = (xy * w) @ xy.T / max(float(w.sum()), 1e-12)
+    cov[2, 2] = float(wt @ turns**2) / max(float(wt.sum()), 1e-12)
     return cov / best
 
 
