@@ -3,6 +3,7 @@
     python -m bench.paired_maps --logs all --seeds 0-40 --set loop.edge_check=0
     python -m bench.paired_maps --logs intel,fhw --seeds 161-190 --kiss   # a held-out set
     python -m bench.paired_maps --logs freiburg-101 --seeds 0-40 --kiss -O laser_x=0
+    python -m bench.paired_maps --sim --seeds 0-7 --set map.far_clear=0.5   # the simulator
 
 Each real CARMEN log (its corrected poses as the truth) with its odometry drifted by
 `toolkit.poses.with_drift(ds, seed)`, mapped by `toolkit map`'s default and, with `--set`,
@@ -13,7 +14,9 @@ odometry (best of voxel 0.1 / 0.3 m, `bench_slam.kiss_best`). The summary: runs 
 bit, the paired ATE change (mean and 2 SE), false loops both ways, and every run that moved.
 `-O KEY=VALUE` reads every log with that CARMEN import option (both runs): `-O laser_x=0` the
 laser at the robot's centre, `-O equal_poses=laser` the truth the robot's behind the corrected
-poses, which are the laser's (docs/journal/maps.md, sessions 32 and 33).
+poses, which are the laser's (docs/journal/maps.md, sessions 32 and 33). `--sim`: the
+simulator's corridor and building instead (world = seed), with drifted odometry and as LMS-200
+captures without odometry (`bench_slam.sim_logs`).
 How each default of the mapper was judged (docs/journal/maps.md); the csv keeps every run.
 """
 
@@ -22,6 +25,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+from collections.abc import Iterator
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
@@ -29,8 +33,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import kiss_best, mapper, real_logs
+from bench.bench_slam import kiss_best, mapper, real_logs, sim_logs
 from importers.carmen import CarmenOptions
+from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses, with_drift
@@ -63,7 +68,7 @@ def variant(settings: list[str]) -> SlamConfig:
 
 def truth(ds: Any) -> np.ndarray:  # noqa: ANN401
     poses = truth_poses(ds)
-    assert poses is not None, "the real logs' corrected poses are their truth"
+    assert poses is not None, "the real logs (corrected poses) and the simulator have a truth"
     return poses
 
 
@@ -86,6 +91,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int_ranges, default="0-2", help="drift seeds, e.g. 0-40")
     parser.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=JSON")
     parser.add_argument("--kiss", action="store_true", help="KISS-ICP beside (slower)")
+    parser.add_argument(
+        "--sim", action="store_true", help="the simulator's corridor and building (world = seed)"
+    )
     parser.add_argument("--out", type=Path, default=Path("out/paired_maps.csv"))
     parser.add_argument(
         "-O",
@@ -106,23 +114,42 @@ def main() -> None:
         raise SystemExit(f"-O: {error}") from None
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    for name, log in real_logs(read_as, wanted):
-        for seed in args.seeds:
-            ds = with_drift(log, seed)
-            row: dict[str, Any] = {"log": name, "seed": seed}
-            row |= {f"default_{k}": v for k, v in mapped(ds, SlamConfig()).items()}
-            if changed is not None:
-                row |= {f"variant_{k}": v for k, v in mapped(ds, changed).items()}
-                row["equal"] = row["variant_sha"] == row["default_sha"]
-            if args.kiss:
-                poses, seconds, extra = kiss_best(ds)
-                row["kiss_ate"] = float(evaluate(poses, truth(ds))["ate"]["rmse"])
-                row["kiss_s"], row["kiss_voxel"] = seconds, extra["voxel"]
-            rows.append(row)
-            shown = {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}
-            print({k: v for k, v in shown.items() if not k.endswith("sha")}, flush=True)
-            pd.DataFrame(rows).to_csv(args.out, index=False)
+    runs = simulated(args.seeds, wanted) if args.sim else drifted(read_as, args.seeds, wanted)
+    for name, seed, ds in runs:
+        row: dict[str, Any] = {"log": name, "seed": seed}
+        row |= {f"default_{k}": v for k, v in mapped(ds, SlamConfig()).items()}
+        if changed is not None:
+            row |= {f"variant_{k}": v for k, v in mapped(ds, changed).items()}
+            row["equal"] = row["variant_sha"] == row["default_sha"]
+        if args.kiss:
+            poses, seconds, extra = kiss_best(ds)
+            row["kiss_ate"] = float(evaluate(poses, truth(ds))["ate"]["rmse"])
+            row["kiss_s"], row["kiss_voxel"] = seconds, extra["voxel"]
+        rows.append(row)
+        shown = {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}
+        print({k: v for k, v in shown.items() if not k.endswith("sha")}, flush=True)
+        pd.DataFrame(rows).to_csv(args.out, index=False)
     summary(pd.DataFrame(rows))
+
+
+def drifted(
+    read_as: CarmenOptions, seeds: tuple[int, ...], wanted: set[str] | None
+) -> Iterator[tuple[str, int, Dataset]]:
+    """Each real log's odometry drifted by each seed."""
+    for name, log in real_logs(read_as, wanted):
+        for seed in seeds:
+            yield name, seed, with_drift(log, seed)
+
+
+def simulated(
+    seeds: tuple[int, ...], wanted: set[str] | None
+) -> Iterator[tuple[str, int, Dataset]]:
+    """The simulator's worlds, one per seed: its corridor and building (`wanted`: by scenario
+    or by log name, e.g. corridor or building-lms200)."""
+    for seed in seeds:
+        for name, ds in sim_logs(seed):
+            if wanted is None or name in wanted or name.split("-")[0] in wanted:
+                yield name, seed, ds
 
 
 def summary(frame: pd.DataFrame) -> None:

@@ -43,3 +43,18 @@ def test_an_unknown_setting_is_one_line() -> None:
     )  # fmt: skip
     assert done.returncode == 1 and done.stderr.strip().endswith("(slam., loop. or map. NAME)")
     assert "Traceback" not in done.stderr
+
+
+def test_the_simulator_is_paired_by_world(tmp_path: Path) -> None:
+    out = tmp_path / "sim.csv"
+    subprocess.run(
+        [sys.executable, "-m", "bench.paired_maps", "--sim", "--logs", "building-lms200",
+         "--seeds", "0", "--set", "slam.loops=false", "--out", str(out)],
+        cwd=ROOT, capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    frame = pd.read_csv(out)
+    # one world, one log asked for: the building without odometry closes its loops by default
+    assert list(frame["log"]) == ["building-lms200"] and frame["seed"].tolist() == [0]
+    row = frame.iloc[0]
+    assert row["default_loops"] >= 5 and row["variant_loops"] == 0
+    assert row["default_ate"] < row["variant_ate"] and row["default_false"] == 0
