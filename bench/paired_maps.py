@@ -3,7 +3,7 @@
     python -m bench.paired_maps --logs all --seeds 0-40 --set loop.edge_check=0
     python -m bench.paired_maps --logs intel,fhw --seeds 161-190 --kiss   # a held-out set
     python -m bench.paired_maps --logs freiburg-101 --seeds 0-40 --kiss -O laser_x=0
-    python -m bench.paired_maps --sim --seeds 0-7 --set map.far_clear=0.5   # the simulator
+    python -m bench.paired_maps --sim --seeds 0-7 --set map.far_clear=0   # the simulator
 
 Each real CARMEN log (its corrected poses as the truth) with its odometry drifted by
 `toolkit.poses.with_drift(ds, seed)`, mapped by `toolkit map`'s default and, with `--set`,

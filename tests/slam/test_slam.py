@@ -327,8 +327,9 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     takes it back, and the estimate the loops start from is 49.8 m off (2.8 m in the default
     reading, whose step 1339 keeps the odometry's). Seed 32: the same step, 50.3 against 3.3 m
     (docs/journal/maps.md, session 33, camp33). The search's winner there is clear on 4 of 29
-    returns; `MapConfig.far_clear` (off by default) refuses a clear winner under `lost` that
-    far from the prediction, and the step keeps the truth's heading."""
+    returns; `MapConfig.far_clear` (0.5 rad by default since session 34; set to 0 here for
+    the failing arm) refuses a clear winner under `lost` that far from the prediction, and the
+    step keeps the truth's heading."""
     from importers.carmen import Carmen, CarmenOptions
     from toolkit.slam.pipeline import SlamConfig, mend_blind, mend_excursions
     from toolkit.slam.scanmap import MapConfig, scan_to_map
@@ -338,7 +339,7 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     ds = with_drift(Carmen().read([path], options), seed=28)
     truth, wheels = truth_poses(ds), odometry_poses(ds)
     assert truth is not None and wheels is not None
-    cfg = SlamConfig()
+    cfg = SlamConfig(scan_map=MapConfig(far_clear=0.0))  # the failing arm: far_clear off
     front = scan_to_map(ds, cfg.scan_map)
     assert front.matches is not None
     fit = front.matches.agreement
@@ -352,7 +353,8 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     assert abs(float(se2.wrap(odo[2] - true_step[2]))) < 0.1
     assert fit[1339] < 0.2
     assert evaluate(before, truth)["ate"]["rmse"] > 40.0
-    far = scan_to_map(ds, MapConfig(far_clear=0.5)).poses
+    far = scan_to_map(ds, MapConfig()).poses  # the default: far_clear 0.5
+    assert MapConfig().far_clear == 0.5
     step = se2.between(far[1339], far[1340])
     assert abs(float(se2.wrap(step[2] - true_step[2]))) < 0.1
     assert evaluate(far, truth)["ate"]["rmse"] < 5.0
