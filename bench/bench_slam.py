@@ -69,9 +69,12 @@ def real_logs(
     options: CarmenOptions | None = None, names: Container[str] | None = None
 ) -> Iterator[tuple[str, Dataset]]:
     """The CARMEN corrected logs, their corrected poses as ground truth (`poses=groundtruth`,
-    or `options`: e.g. with `laser_x=0` the laser at the robot's centre, with
-    `equal_poses=laser` the truth the robot's behind the laser's poses; docs/journal/maps.md,
-    sessions 32 and 33). `names`: only these logs, the rest not read (default: those of
+    or `options`). Where a log's lines hold one pose for the laser and the robot while the
+    laser is mounted off centre (belgioioso, freiburg-101, freiburg-campus: a corrector's scan
+    poses) the truth is the robot's behind the laser's poses (`equal_poses=laser`, the
+    importer's default since session 34; `equal_poses=robot` the lines' poses as the robot's,
+    the reading before it; `laser_x=0` the laser at the robot's centre; docs/journal/maps.md,
+    sessions 32 to 34). `names`: only these logs, the rest not read (default: those of
     BENCH_SLAM_LOGS, else all)."""
     from importers.carmen import Carmen, CarmenOptions
 

@@ -3,7 +3,7 @@
     python -m bench.paired_maps --logs all --seeds 0-40 --set loop.edge_check=0
     python -m bench.paired_maps --logs intel,fhw --seeds 161-190 --kiss   # a held-out set
     python -m bench.paired_maps --logs freiburg-101 --seeds 0-40 --kiss -O laser_x=0
-    python -m bench.paired_maps --sim --seeds 0-7 --set map.far_clear=0.5   # the simulator
+    python -m bench.paired_maps --sim --seeds 0-7 --set map.far_clear=0   # the simulator
 
 Each real CARMEN log (its corrected poses as the truth) with its odometry drifted by
 `toolkit.poses.with_drift(ds, seed)`, mapped by `toolkit map`'s default and, with `--set`,
@@ -13,8 +13,10 @@ whether the poses equal the default's to the bit; with `--kiss`, KISS-ICP seeded
 odometry (best of voxel 0.1 / 0.3 m, `bench_slam.kiss_best`). The summary: runs equal to the
 bit, the paired ATE change (mean and 2 SE), false loops both ways, and every run that moved.
 `-O KEY=VALUE` reads every log with that CARMEN import option (both runs): `-O laser_x=0` the
-laser at the robot's centre, `-O equal_poses=laser` the truth the robot's behind the corrected
-poses, which are the laser's (docs/journal/maps.md, sessions 32 and 33). `--sim`: the
+laser at the robot's centre, `-O equal_poses=robot` the corrected poses of belgioioso,
+freiburg-101 and freiburg-campus as the robot's (the reading before session 34; by default
+they are the laser's and the truth the robot's behind them: docs/journal/maps.md, sessions 32
+to 34). `--sim`: the
 simulator's corridor and building instead (world = seed), with drifted odometry and as LMS-200
 captures without odometry (`bench_slam.sim_logs`).
 How each default of the mapper was judged (docs/journal/maps.md); the csv keeps every run.
@@ -101,7 +103,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="a CARMEN import option for every log, both runs (e.g. laser_x=0, equal_poses=laser)",
+        help="a CARMEN import option for every log, both runs (e.g. laser_x=0, equal_poses=robot)",
     )
     args = parser.parse_args()
     changed = variant(args.set) if args.set else None

@@ -29,10 +29,11 @@ Reading, and the decisions a log leaves open (each is stated in meta.json and th
   one line; the Radish logs have an ODOM line stamped 0 after each FLASER); otherwise the
   robot (odometry) pose of each laser line at scan times. Ground truth: TRUEPOS lines. `-O poses=groundtruth` stores the laser lines' robot
   poses as ground truth instead (the Radish "corrected" logs: SLAM-corrected poses used as
-  approximate truth); with `-O equal_poses=laser`, where every line's laser and robot poses are
-  equal although the laser is mounted off centre (a corrector wrote its scan pose into both),
-  they are taken as the laser's poses and the truth as the robot's behind them (laser pose ∘
-  mounting⁻¹; off by default: docs/journal/maps.md, session 33). Laser lines' robot poses that are neither odometry nor ground truth are
+  approximate truth); where every line's laser and robot poses are equal although the laser
+  is mounted off centre (a corrector wrote its scan pose into both), they are taken as the
+  laser's poses and the truth as the robot's behind them (laser pose ∘ mounting⁻¹; the
+  default since session 34, `-O equal_poses=robot` the old reading: docs/journal/maps.md,
+  sessions 33 and 34). A raw log (poses differing, or the laser at the centre) is untouched. Laser lines' robot poses that are neither odometry nor ground truth are
   kept as the pose stream `scan_pose`.
 - Mounting: x from PARAM robot_frontlaser_offset (robot_rearlaser_offset for the rear laser),
   y and yaw (and x when there is no PARAM) from the median difference between the laser pose
@@ -624,8 +625,8 @@ def _laser_poses_carried(main: _Built) -> np.ndarray | None:
     belgioioso, freiburg-101 and freiburg-campus (PARAM x -0.04 m): their scans, placed by
     those poses, agree best with the laser at the pose itself (turned revisits: peak at
     +0.002 / 0.000 / -0.007 m), so the pose is the laser's (docs/journal/maps.md, sessions
-    32 and 33; `-O equal_poses=laser`, off by default). None otherwise (the robot poses
-    stand)."""
+    32 to 34; `-O equal_poses=laser`, the default since session 34). None otherwise (the
+    robot poses stand)."""
     laser, robot = main.stream.laser_pose, main.stream.robot_pose
     mount = se2.mount_pose(main.laser)
     if main.stream.name in REAR or not mount[:2].any():  # a rear laser's yaw pi is assumed
@@ -1218,10 +1219,10 @@ class CarmenOptions(FormatOptions):
         shown="the first of those present",
     )
     equal_poses: Literal["robot", "laser"] = option(
-        "robot",
+        "laser",
         "with poses=groundtruth, lines whose laser and robot poses are all equal while the laser "
-        "is mounted off centre (a corrector's): robot takes them as the robot's; laser as the "
-        "laser's, the ground truth the robot's behind them",
+        "is mounted off centre (a corrector's): laser takes them as the laser's, the ground "
+        "truth the robot's behind them; robot as the robot's (the reading before session 34)",
     )
 
 

@@ -362,13 +362,15 @@ def _corrected_log(path: Path, laser_at: float) -> np.ndarray:
 
 
 def test_equal_poses_of_an_off_centre_laser_are_the_lasers(tmp_path: Path) -> None:
-    """-O poses=groundtruth -O equal_poses=laser: where every line's laser and robot poses are
-    equal while PARAM mounts the laser off centre (a corrector's log: belgioioso, freiburg-101,
-    freiburg-campus), the poses are the laser's and the truth the robot's 0.04 m ahead of them
-    (laser pose ∘ mounting⁻¹), the heading as written; a log whose laser pose is the robot pose
-    moved by the mounting, `-O laser_x=0`, equal_poses=robot (the default) or the default
-    reading keep the robot field as it is."""
-    laser = CarmenOptions(poses="groundtruth", equal_poses="laser")
+    """-O poses=groundtruth (equal_poses=laser, the default since session 34): where every
+    line's laser and robot poses are equal while PARAM mounts the laser off centre (a
+    corrector's log: belgioioso, freiburg-101, freiburg-campus), the poses are the laser's and
+    the truth the robot's 0.04 m ahead of them (laser pose ∘ mounting⁻¹), the heading as
+    written; a log whose laser pose is the robot pose moved by the mounting (a raw log),
+    `-O laser_x=0`, `-O equal_poses=robot` (the reading before session 34) or poses=odometry
+    keep the robot field as it is."""
+    laser = CarmenOptions(poses="groundtruth")
+    assert laser == CarmenOptions(poses="groundtruth", equal_poses="laser")
     pose = _corrected_log(tmp_path / "c.log", 0.0)
     ds = Carmen().read([tmp_path / "c.log"], laser)
     assert ds.laser.x == -0.04 and ds.groundtruth is not None
@@ -380,8 +382,8 @@ def test_equal_poses_of_an_off_centre_laser_are_the_lasers(tmp_path: Path) -> No
     np.testing.assert_array_equal(ds.odometry.to_numpy(), ds.groundtruth.to_numpy())
     assert any("the poses are taken as the laser's" in n for n in ds.report.notes)
     for options in (
-        CarmenOptions(poses="groundtruth", equal_poses="laser", laser_x=0.0),
-        CarmenOptions(poses="groundtruth"),
+        CarmenOptions(poses="groundtruth", laser_x=0.0),
+        CarmenOptions(poses="groundtruth", equal_poses="robot"),
         CarmenOptions(),
     ):
         kept = Carmen().read([tmp_path / "c.log"], options)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pytest
@@ -21,13 +22,18 @@ def building() -> toolkit.Dataset:
     return simulate("building", seed=0).dataset
 
 
-def drifted_carmen(real: Path, name: str, seed: int) -> toolkit.Dataset:
+def drifted_carmen(
+    real: Path, name: str, seed: int, equal_poses: Literal["robot", "laser"] = "laser"
+) -> toolkit.Dataset:
     """A real CARMEN corrected log (its corrected poses as the truth), odometry drifted with
-    `with_drift(seed)` as the bench drifts it."""
+    `with_drift(seed)` as the bench drifts it. `equal_poses`: the importer's option (belgioioso,
+    freiburg-101 and freiburg-campus: "laser", the default since session 34, reads their poses
+    as the laser's and the truth as the robot's behind them; "robot" the reading before it)."""
     from importers.carmen import Carmen, CarmenOptions
 
     path = real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"
-    return with_drift(Carmen().read([path], CarmenOptions(poses="groundtruth")), seed=seed)
+    options = CarmenOptions(poses="groundtruth", equal_poses=equal_poses)
+    return with_drift(Carmen().read([path], options), seed=seed)
 
 
 def reference_grids(

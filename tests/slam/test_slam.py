@@ -279,8 +279,9 @@ def test_real_corrected_poses_of_an_off_centre_laser_are_the_lasers(real: Path, 
     both). Placed by those poses the scans agree best with the laser at the pose itself
     (turned revisits, the share of returns within 3 cm: 0.239 / 0.292 / 0.086 there, 0.172 /
     0.225 / 0.075 with PARAM's lever arm; best x +0.002 / 0.000 / -0.007 m; docs/journal/maps.md,
-    sessions 32 and 33). `-O equal_poses=laser` takes them as the laser's and the truth as the
-    robot's behind them: carried through the mounting, that truth is the lines' poses."""
+    sessions 32 and 33). `-O equal_poses=laser` (the default since session 34) takes them as
+    the laser's and the truth as the robot's behind them: carried through the mounting, that
+    truth is the lines' poses."""
     from importers.carmen import Carmen, CarmenOptions
 
     path = real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"
@@ -301,7 +302,7 @@ def test_real_corrected_poses_of_an_off_centre_laser_are_the_lasers(real: Path, 
 def test_real_freiburg_101_mapper_is_nearer_the_robot_behind_the_lasers_poses(real: Path) -> None:
     """freiburg-101 read with `-O equal_poses=laser`, drift seed 0: the mapper's robot poses
     are nearer the truth carried to the robot behind the lines' (laser) poses than the lines'
-    poses taken as the robot's (the default reading's truth): 0.059 against 0.073 m. Over
+    poses taken as the robot's (the truth before session 34): 0.059 against 0.073 m. Over
     drift seeds 0-40 the mapper's ATE is 0.0176 m lower read so (docs/journal/maps.md,
     session 33): the lever arm was the reading's, not the mapper's."""
     from importers.carmen import Carmen, CarmenOptions
@@ -319,16 +320,18 @@ def test_real_freiburg_101_mapper_is_nearer_the_robot_behind_the_lasers_poses(re
 
 
 def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path) -> None:
-    """freiburg-campus read with `-O equal_poses=laser`, drift seed 28 (the mapper at 47 m
-    against 0.37 m in the default reading): the failure is the front end's, not the back
-    end's. The step into scan 1340 (146 returns, a fit with 0.14 of them near the map: the
-    correlative search) turns 1.19 rad and slips 2.1 m off the truth while the drifted
+    """freiburg-campus read with `-O equal_poses=laser` (the default since session 34), drift
+    seed 28 (the mapper at 47 m with far_clear off, against 0.37 m in PARAM's reading,
+    `equal_poses=robot`): the failure is the front end's, not the back end's. The step into
+    scan 1340 (146 returns, a fit with 0.14 of them near the map: the correlative search)
+    turns 1.19 rad and slips 2.1 m off the truth while the drifted
     odometry's step is within 0.06 rad of it; neither mender (`blind_mend`, `excursion_mend`)
-    takes it back, and the estimate the loops start from is 49.8 m off (2.8 m in the default
+    takes it back, and the estimate the loops start from is 49.8 m off (2.8 m in PARAM's
     reading, whose step 1339 keeps the odometry's). Seed 32: the same step, 50.3 against 3.3 m
     (docs/journal/maps.md, session 33, camp33). The search's winner there is clear on 4 of 29
-    returns; `MapConfig.far_clear` (off by default) refuses a clear winner under `lost` that
-    far from the prediction, and the step keeps the truth's heading."""
+    returns; `MapConfig.far_clear` (0.5 rad by default since session 34; set to 0 here for
+    the failing arm) refuses a clear winner under `lost` that far from the prediction, and the
+    step keeps the truth's heading."""
     from importers.carmen import Carmen, CarmenOptions
     from toolkit.slam.pipeline import SlamConfig, mend_blind, mend_excursions
     from toolkit.slam.scanmap import MapConfig, scan_to_map
@@ -338,7 +341,7 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     ds = with_drift(Carmen().read([path], options), seed=28)
     truth, wheels = truth_poses(ds), odometry_poses(ds)
     assert truth is not None and wheels is not None
-    cfg = SlamConfig()
+    cfg = SlamConfig(scan_map=MapConfig(far_clear=0.0))  # the failing arm: far_clear off
     front = scan_to_map(ds, cfg.scan_map)
     assert front.matches is not None
     fit = front.matches.agreement
@@ -352,7 +355,8 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     assert abs(float(se2.wrap(odo[2] - true_step[2]))) < 0.1
     assert fit[1339] < 0.2
     assert evaluate(before, truth)["ate"]["rmse"] > 40.0
-    far = scan_to_map(ds, MapConfig(far_clear=0.5)).poses
+    far = scan_to_map(ds, MapConfig()).poses  # the default: far_clear 0.5
+    assert MapConfig().far_clear == 0.5
     step = se2.between(far[1339], far[1340])
     assert abs(float(se2.wrap(step[2] - true_step[2]))) < 0.1
     assert evaluate(far, truth)["ate"]["rmse"] < 5.0

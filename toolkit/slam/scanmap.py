@@ -160,13 +160,14 @@ class MapConfig:
     # returns, a junction's 90 degree alias; the refit 0.01 rad off the truth fitting 0.77,
     # 0.16 fewer). Session 31 (fail31): ATE 9.86 -> 0.48 m; see docs/journal/maps.md for where
     # else it acts
-    far_clear: float = 0.0  # > 0 (rad): a clear winner of the +-`search_turn` search that
+    far_clear: float = 0.5  # > 0 (rad): a clear winner of the +-`search_turn` search that
     # fits fewer than `lost` of the returns and turns more than this from the prediction is
-    # not taken (0: off). freiburg-campus read with `-O equal_poses=laser`, drift seeds 28 and
-    # 32, scan 1340: a clear winner fitting 0.14 / 0.10 (4 of 29 returns) 1.19 rad off the
-    # truth over a prediction 0.01 rad off; the mapper 47 m off (docs/journal/maps.md, session
-    # 33, camp33). 0.5 left all 410 paired development runs (ten logs x drift seeds 0-40, the
-    # default reading) equal to the bit; not the default until measured held out
+    # not taken (0: off, until session 34). freiburg-campus read with `-O equal_poses=laser`,
+    # drift seeds 28 and 32, scan 1340: a clear winner fitting 0.14 / 0.10 (4 of 29 returns)
+    # 1.19 rad off the truth over a prediction 0.01 rad off; the mapper 47 m off, 0.42 / 0.38
+    # m with it (docs/journal/maps.md, session 33, camp33). 0.5 left all 410 paired
+    # development runs of PARAM's reading (ten logs x drift seeds 0-40) equal to the bit; the
+    # carried reading's paired run: docs/journal/maps.md, session 34 (carry34)
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
     # most this share of its own (the loop closer's test)
     edge_grow: float = 2.0  # a search whose winner lies on its window's edge (within 0.1 m)
