@@ -777,9 +777,14 @@ class MapMatcher:
                     circled = (out3, cov3)
             if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
                 tied = tied and not self._unturned(fit, predicted, info, out, cov)
-            if logged and by_odometry and cfg.poor_refit > 0 and out[4] < cfg.min_inliers:
-                if self._poor_refit(fit, predicted, info, out, cov):
-                    tied = False
+            if (
+                logged
+                and by_odometry
+                and cfg.poor_refit > 0
+                and out[4] < cfg.min_inliers
+                and self._poor_refit(fit, predicted, info, out, cov)
+            ):
+                tied = False
         if logged and by_odometry and cfg.turn_check > 0 and len(pts) >= SEARCH_MIN:
             self._turn_check(fit, predicted, info, out, cov, tied, refused, circled)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
