@@ -7,10 +7,12 @@ up to 2.1) turn it; set to the truth's, the same graph places it."""
 
 from __future__ import annotations
 
+import gzip
 from pathlib import Path
 
 import numpy as np
 
+import toolkit
 from tests.slam.conftest import drifted_carmen
 from toolkit import se2
 from toolkit.metrics import align_se2, evaluate
@@ -80,3 +82,76 @@ def test_real_infinite_corridor_seed_181_excess_is_the_hinge_loops_heading(real:
     graph, values = pg.factor_graph(run.keys, run.before[run.keys], fixed + loops, config.robust)
     mended = hang(run.keys, run.before, pg.optimise(graph, values, run.keys))
     assert evaluate(mended, truth)["ate"]["rmse"] < 0.45
+
+
+def _cross_pass_agreement(ds: toolkit.Dataset, turns: np.ndarray) -> np.ndarray:
+    """Scans placed by the corrected poses with the peninsula turned about the hinge (scan
+    1395's position) by each of `turns` (rad): over the pairs of scans from different passes
+    (a outside the peninsula, b inside, more than 100 scans apart, within 10 m), the mean
+    share of b's returns within 3 cm of a's."""
+    from scipy.spatial import cKDTree
+
+    truth = truth_poses(ds)
+    assert truth is not None
+    idx = np.arange(len(truth))
+    pen = (idx >= PENINSULA[0]) & (idx < PENINSULA[1])
+    apart = np.hypot(*(truth[:, None, :2] - truth[None, :, :2]).transpose(2, 0, 1))
+    far = np.abs(idx[:, None] - idx[None, :]) > 100
+    a_s, b_s = np.nonzero((~pen)[:, None] & pen[None, :] & far & (apart < 10.0))
+    assert 60 < len(a_s) < 150  # 94: the passes overlap only near the junction
+    beams = ds.laser.angles
+    pivot = truth[1395, :2]
+
+    def local(k: int) -> np.ndarray:
+        r = ds.ranges[k].astype(np.float64)
+        ok = np.isfinite(r) & (r < 20.0)
+        return np.column_stack([r[ok] * np.cos(beams[ok]), r[ok] * np.sin(beams[ok])])
+
+    def placed(k: int, turn: float) -> np.ndarray:
+        pose = truth[k].copy()
+        if pen[k]:
+            pose[:2] = pivot + se2.rotation(turn) @ (pose[:2] - pivot)
+            pose[2] += turn
+        return pose[:2] + local(k) @ se2.rotation(pose[2]).T
+
+    shares = np.zeros((len(a_s), len(turns)))
+    for p, (a, b) in enumerate(zip(a_s, b_s, strict=True)):
+        tree = cKDTree(placed(int(a), 0.0))
+        for j, turn in enumerate(turns):
+            near, _ = tree.query(placed(int(b), float(turn)), distance_upper_bound=0.3)
+            shares[p, j] = np.mean(near < 0.03)
+    result: np.ndarray = shares.mean(axis=0)
+    return result
+
+
+def test_real_infinite_corridor_truths_hinge_agrees_with_its_scans(real: Path) -> None:
+    """The mapper's peninsula turns against the truth by a part common to every drift seed
+    and direction (mean +0.53 degrees over seeds 0-190; back32). Is that the truth's? The scans
+    say no: placed by the corrected poses, the two passes' overlapping scans at the junction
+    agree best with the peninsula turned -0.1 degrees (peak -0.135; the truth's turn that would
+    hold the common part is about -0.5), and worse at -0.5 than as corrected (share 0.0155
+    against 0.0230). The log has no PARAM line (laser x 0) and every line's laser and robot
+    poses are equal; turned revisits agree best with the laser at the pose (docs/journal/maps.md,
+    session 34, ic34)."""
+    from importers.carmen import Carmen, CarmenOptions
+
+    path = real / "carmen_radish_corrected" / "infinite-corridor-corrected.log.gz"
+    ds = Carmen().read([path], CarmenOptions(poses="groundtruth"))
+    assert ds.laser.x == 0.0
+    with gzip.open(path, "rt") as lines:
+        flaser = [line.split() for line in lines if line.startswith("FLASER")]
+    n_beams = int(flaser[0][1])
+    assert len(flaser) == 1941
+    assert all(f[n_beams + 2 : n_beams + 5] == f[n_beams + 5 : n_beams + 8] for f in flaser)
+    turns_deg = np.round(np.arange(-1.0, 1.0001, 0.1), 1)
+    shares = _cross_pass_agreement(ds, np.deg2rad(turns_deg))
+    best = float(turns_deg[int(np.argmax(shares))])
+    assert -0.3 <= best <= 0.3, (best, shares)
+    at = dict(zip(turns_deg.tolist(), shares.tolist(), strict=True))
+    assert at[0.0] > 1.3 * at[-0.5], at
+    assert at[0.0] > 1.3 * at[0.5], at
+
+    from tests.slam.test_slam import _turned_revisit_agreement
+
+    at_pose = _turned_revisit_agreement(ds, 0.0)
+    assert at_pose > 1.1 * max(_turned_revisit_agreement(ds, x) for x in (-0.04, 0.04))

@@ -168,6 +168,16 @@ class MapConfig:
     # m with it (docs/journal/maps.md, session 33, camp33). 0.5 left all 410 paired
     # development runs of PARAM's reading (ten logs x drift seeds 0-40) equal to the bit; the
     # carried reading's paired run: docs/journal/maps.md, session 34 (carry34)
+    poor_refit: float = 0.0  # > 0: a step whose logged odometry turns at most `turn_check`
+    # (`_turn_check` leaves it alone) and whose fit still holds under `min_inliers` of the
+    # returns after the +-`search_turn` search is fitted again from the previous heading with
+    # the heading free (`_from_last_heading`), and that fit taken if it fits this much more of
+    # the returns, at least `lost` of them, and lies more than `slip_sigmas` of the prior's
+    # heading spreads from the fit held (0: off). A wheel slip under `turn_check` that
+    # turns the scan out of the right basin, which the search misses (infinite-corridor drift
+    # seed 151, scan 149: the odometry turns +0.27 rad, the truth -0.23; the fit held 0.44 rad
+    # off at 0.33, the search's unclear winner 0.88 off at 0.30, the refit right at 0.68;
+    # docs/journal/maps.md, session 34, ic34). Not the default: see there
     search_ambiguity: float = 0.85  # ... the best coarse score 0.6 m or 0.15 rad from it at
     # most this share of its own (the loop closer's test)
     edge_grow: float = 2.0  # a search whose winner lies on its window's edge (within 0.1 m)
@@ -769,6 +779,14 @@ class MapMatcher:
                     circled = (out3, cov3)
             if by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
                 tied = tied and not self._unturned(fit, predicted, info, out, cov)
+            if (
+                logged
+                and by_odometry
+                and cfg.poor_refit > 0
+                and out[4] < cfg.min_inliers
+                and self._poor_refit(fit, predicted, info, out, cov)
+            ):
+                tied = False
         if logged and by_odometry and cfg.turn_check > 0 and len(pts) >= SEARCH_MIN:
             self._turn_check(fit, predicted, info, out, cov, tied, refused, circled)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
@@ -793,6 +811,34 @@ class MapMatcher:
         (a corridor's reverse heading), or an alias 90 degrees off (infinite-corridor, scan 82)."""
         res, c = self._from_last_heading(fit, predicted, info)
         if res[4] >= self.config.unturned and res[4] > out[4]:
+            out[:] = res
+            cov[:, :] = c
+            return True
+        return False
+
+    def _poor_refit(
+        self,
+        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
+        predicted: np.ndarray,
+        info: np.ndarray,
+        out: np.ndarray,
+        cov: np.ndarray,
+    ) -> bool:
+        """`poor_refit`: a fit still under `min_inliers` after the search, on a step whose
+        odometry turns at most `turn_check`, fitted again from the previous heading with the
+        heading free; `out` and `cov` take it if it fits `poor_refit` more of the returns, at
+        least `lost` of them (a refit under `lost` verifies nothing: freiburg-campus scan 331,
+        an outdoor alias 0.17 rad off fitting 0.27 over the right fit's 0.09) and lies more
+        than `slip_sigmas` of the prior's heading spreads from the fit held (another solution,
+        not the same one refitted: freiburg-campus seed 40, scan 1056, 0.007 rad apart). A slip
+        under `turn_check` leaves `_turn_check` silent, and the search can miss the right basin
+        a few tenths of a radian away."""
+        cfg = self.config
+        if abs(_wrap(predicted[2] - self._last[2])) > cfg.turn_check:
+            return False
+        res, c = self._from_last_heading(fit, predicted, info)
+        apart = abs(_wrap(res[2] - out[2])) * math.sqrt(info[2]) > cfg.slip_sigmas
+        if res[4] >= out[4] + cfg.poor_refit and res[4] >= cfg.lost and apart:
             out[:] = res
             cov[:, :] = c
             return True
