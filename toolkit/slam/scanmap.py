@@ -161,8 +161,11 @@ class MapConfig:
     # 0.16 fewer). Session 31 (fail31): ATE 9.86 -> 0.48 m; see docs/journal/maps.md for where
     # else it acts
     far_clear: float = 0.5  # > 0 (rad): a clear winner of the +-`search_turn` search that
-    # fits fewer than `lost` of the returns and turns more than this from the prediction is
-    # not taken (0: off, until session 34). freiburg-campus read with `-O equal_poses=laser`,
+    # fits fewer than `lost` of the returns and turns more than this both from the prediction
+    # and from the last pose's heading is not taken (0: off, until session 34; near the last
+    # heading it undoes a heading slip of the odometry: freiburg-campus drift seed 65, scan
+    # 931, the odometry 0.96 rad off, the winner right at 0.21: 2.32 m with the test on the
+    # prediction alone against 0.32). freiburg-campus read with `-O equal_poses=laser`,
     # drift seeds 28 and 32, scan 1340: a clear winner fitting 0.14 / 0.10 (4 of 29 returns)
     # 1.19 rad off the truth over a prediction 0.01 rad off; the mapper 47 m off, 0.42 / 0.38
     # m with it (docs/journal/maps.md, session 33, camp33). 0.5 left all 410 paired
@@ -751,10 +754,11 @@ class MapMatcher:
             out2, cov2, clear = self._search_fit(
                 fit, pts, predicted, info, base, window, cfg.search_turn, by_odometry
             )
-            far = (
+            far = (  # a turn neither the odometry nor a slip of it (the last heading) explains
                 cfg.far_clear > 0
                 and out2[4] < cfg.lost
                 and abs(_wrap(out2[2] - predicted[2])) > cfg.far_clear
+                and abs(_wrap(out2[2] - self._last[2])) > cfg.far_clear
             )
             if out2[4] > out[4] + FITS_MORE and ((clear and not far) or out2[4] >= cfg.lost):
                 # a winner that is not clear and fits fewer than `lost` of the returns
