@@ -813,12 +813,28 @@ class MapMatcher:
         of the whole step's turn (orebro drift seed 37, scan 30: 93 degrees) puts the right
         heading beyond search_turn, and the full-circle search's winner is not clear there
         (a corridor's reverse heading), or an alias 90 degrees off (infinite-corridor, scan 82)."""
+        unturned = self.config.unturned
+        return self._take_from_last_heading(
+            fit, predicted, info, out, cov, lambda res: res[4] >= unturned and res[4] > out[4]
+        )
+
+    def _take_from_last_heading(
+        self,
+        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
+        predicted: np.ndarray,
+        info: np.ndarray,
+        out: np.ndarray,
+        cov: np.ndarray,
+        good: Callable[[np.ndarray], bool],
+    ) -> bool:
+        """The fit from the previous heading (`_from_last_heading`) into `out` and `cov` if
+        `good` says so of it."""
         res, c = self._from_last_heading(fit, predicted, info)
-        if res[4] >= self.config.unturned and res[4] > out[4]:
-            out[:] = res
-            cov[:, :] = c
-            return True
-        return False
+        if not good(res):
+            return False
+        out[:] = res
+        cov[:, :] = c
+        return True
 
     def _poor_refit(
         self,
@@ -840,13 +856,12 @@ class MapMatcher:
         cfg = self.config
         if abs(_wrap(predicted[2] - self._last[2])) > cfg.turn_check:
             return False
-        res, c = self._from_last_heading(fit, predicted, info)
-        apart = abs(_wrap(res[2] - out[2])) * math.sqrt(info[2]) > cfg.slip_sigmas
-        if res[4] >= out[4] + cfg.poor_refit and res[4] >= cfg.lost and apart:
-            out[:] = res
-            cov[:, :] = c
-            return True
-        return False
+
+        def good(res: np.ndarray) -> bool:
+            apart = abs(_wrap(res[2] - out[2])) * math.sqrt(info[2]) > cfg.slip_sigmas
+            return bool(res[4] >= out[4] + cfg.poor_refit and res[4] >= cfg.lost and apart)
+
+        return self._take_from_last_heading(fit, predicted, info, out, cov, good)
 
     def _turn_check(
         self,
