@@ -88,19 +88,28 @@ def real_logs(
         yield name, Carmen().read([path], read_as)
 
 
-def sim_logs(seed: int = 0) -> Iterator[tuple[str, Dataset]]:
+def sim_logs(seed: int = 0, names: Container[str] | None = None) -> Iterator[tuple[str, Dataset]]:
     """The simulator's corridor and building: dense logs (4-8 cm between scans, unlike the
     corrected CARMEN logs' ~1 m), with drifted odometry (`-odometry`) and without odometry
-    (`-lms200`, an LMS-200 capture's case)."""
+    (`-lms200`, an LMS-200 capture's case). `names`: only these, by scenario or log name (e.g.
+    corridor, building-lms200), the rest not simulated (default: BENCH_SLAM_LOGS, else all)."""
     from toolkit.sim import simulate
 
-    wanted = [w for w in os.environ.get("BENCH_SLAM_LOGS", "").split(",") if w]
+    if names is None:
+        names = [w for w in os.environ.get("BENCH_SLAM_LOGS", "").split(",") if w] or None
     for scenario in ("corridor", "building"):
-        if wanted and scenario not in wanted:
+        wanted = [
+            log
+            for log in (f"{scenario}-odometry", f"{scenario}-lms200")
+            if names is None or scenario in names or log in names
+        ]
+        if not wanted:
             continue
         sim = simulate(scenario, seed=seed)
-        yield f"{scenario}-odometry", with_drift(sim.dataset, seed)
-        yield f"{scenario}-lms200", replace(sim.dataset, odometry=None)
+        if wanted[0].endswith("-odometry"):
+            yield wanted[0], with_drift(sim.dataset, seed)
+        if wanted[-1].endswith("-lms200"):
+            yield wanted[-1], replace(sim.dataset, odometry=None)
 
 
 # ---------------------------------------------------------------- methods

@@ -147,11 +147,10 @@ def simulated(
     seeds: tuple[int, ...], wanted: set[str] | None
 ) -> Iterator[tuple[str, int, Dataset]]:
     """The simulator's worlds, one per seed: its corridor and building (`wanted`: by scenario
-    or by log name, e.g. corridor or building-lms200)."""
+    or by log name, e.g. corridor or building-lms200; the rest not simulated)."""
     for seed in seeds:
-        for name, ds in sim_logs(seed):
-            if wanted is None or name in wanted or name.split("-")[0] in wanted:
-                yield name, seed, ds
+        for name, ds in sim_logs(seed, wanted):
+            yield name, seed, ds
 
 
 def summary(frame: pd.DataFrame) -> None:
