@@ -171,6 +171,16 @@ class MapConfig:
     # m with it (docs/journal/maps.md, session 33, camp33). 0.5 left all 410 paired
     # development runs of PARAM's reading (ten logs x drift seeds 0-40) equal to the bit; the
     # carried reading's paired run: docs/journal/maps.md, session 34 (carry34)
+    turn_search: bool = True  # `turn_check`'s refit from the previous heading is a local
+    # fit, which stops in the nearest basin: also search +-`search_turn` around the prediction
+    # turned back to the previous heading, and take that search's fit instead of the refit
+    # when it fits `FITS_MORE` more of the returns (orebro drift seed 372, scan 75: the
+    # odometry turns 1.54 rad, the truth 0.36; the search around the slipped prediction cannot
+    # reach the truth, the refit stops 0.36 rad off fitting 0.51, the search's fit 0.002 off
+    # fitting 0.72; ATE 0.503 -> 0.118 m). The default since session 35 (False: off): of 910
+    # paired development runs (ten logs x drift seeds 0-40, orebro 41-360, fhw 41-160,
+    # infinite-corridor and freiburg-campus 41-70) it moves 5, freiburg-101 36 0.083 -> 0.053
+    # m, the others by 0.4-2.5 mm (docs/journal/maps.md, session 35)
     poor_refit: float = 0.0  # > 0: a step whose logged odometry turns at most `turn_check`
     # (`_turn_check` leaves it alone) and whose fit still holds under `min_inliers` of the
     # returns after the +-`search_turn` search is fitted again from the previous heading with
@@ -794,7 +804,7 @@ class MapMatcher:
             ):
                 tied = False
         if logged and by_odometry and cfg.turn_check > 0 and len(pts) >= SEARCH_MIN:
-            self._turn_check(fit, predicted, info, out, cov, tied, refused, circled)
+            self._turn_check(fit, predicted, info, out, cov, tied, refused, circled, pts)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(pts, predicted, info, out, cov)
         self.stats = out
@@ -875,6 +885,7 @@ class MapMatcher:
         tied: bool = False,
         refused: tuple[np.ndarray, np.ndarray] | None = None,
         circled: tuple[np.ndarray, np.ndarray] | None = None,
+        pts: np.ndarray | None = None,
     ) -> None:
         """A step whose odometry turns more than `turn_check` fitted again from the previous
         heading with the heading free; `out` and `cov` take it if it fits `turn_gain` more of
@@ -902,6 +913,14 @@ class MapMatcher:
             return abs(_wrap(pose[2] - out[2])) > cfg.turn_check and turned(pose) < turned(out)
 
         res, c = self._from_last_heading(fit, predicted, info)
+        if cfg.turn_search and pts is not None:
+            start = predicted.copy()
+            start[2] = self._last[2]
+            found, found_c, _ = self._search_fit(
+                fit, pts, start, info, self._last, cfg.search_window, cfg.search_turn, True
+            )
+            if found[4] >= res[4] + FITS_MORE:
+                res, c = found, found_c
         past = (
             cfg.turn_past
             and res[4] >= cfg.lost
