@@ -899,7 +899,10 @@ class MapMatcher:
         taken if it fits `FITS_MORE` more, lies more than `turn_check` from the fit held and
         turns the step less: on a sparse scan every fit is poor and the turn is the witness.
         Else (`turn_circle`) the full circle's unclear winner (`circled`) on the same terms: a
-        slip beyond `search_turn` that only the full circle's search reaches."""
+        slip beyond `search_turn` that only the full circle's search reaches. With
+        `turn_search` and `pts`, the refit is first replaced by the fit of a search around the
+        prediction turned back to the previous heading if that fits `FITS_MORE` more: the
+        refit is local and stops in the nearest basin, the truth's may lie beyond it."""
         cfg = self.config
 
         def turned(pose: np.ndarray) -> float:
@@ -914,10 +917,15 @@ class MapMatcher:
 
         res, c = self._from_last_heading(fit, predicted, info)
         if cfg.turn_search and pts is not None:
-            start = predicted.copy()
-            start[2] = self._last[2]
             found, found_c, _ = self._search_fit(
-                fit, pts, start, info, self._last, cfg.search_window, cfg.search_turn, True
+                fit,
+                pts,
+                self._unturned_prediction(predicted),
+                info,
+                self._last,
+                cfg.search_window,
+                cfg.search_turn,
+                True,
             )
             if found[4] >= res[4] + FITS_MORE:
                 res, c = found, found_c
@@ -960,9 +968,13 @@ class MapMatcher:
     ) -> tuple[np.ndarray, np.ndarray]:
         """The fit from the prediction turned back to the previous scan's heading, the
         heading free (`_unturned`, `_turn_check`): the odometry's step turn taken out."""
+        return _heading_free_fit(fit, self._unturned_prediction(predicted), info)
+
+    def _unturned_prediction(self, predicted: np.ndarray) -> np.ndarray:
+        """`predicted` turned back to the previous scan's heading."""
         start = predicted.copy()
         start[2] = self._last[2]
-        return _heading_free_fit(fit, start, info)
+        return start
 
     def _slip_free(
         self,
