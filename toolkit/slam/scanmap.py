@@ -610,6 +610,20 @@ def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _compose(inv, b)
 
 
+@dataclass
+class _Step:
+    """One scan's match under way: its returns, the fit from a start (`fit(start, prior
+    information, stats row, covariance)`), the odometry's prediction and prior information,
+    and the fit held (`out`: the stats row, `cov`), which the step's rules overwrite in place."""
+
+    pts: np.ndarray
+    fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None]
+    predicted: np.ndarray
+    info: np.ndarray
+    out: np.ndarray
+    cov: np.ndarray
+
+
 class MapMatcher:
     """Scan-to-map matching one scan at a time: `push(ranges, odometry, t)` returns the robot
     pose. Keeps the window's keyframes (their segments) and the grid."""
@@ -746,11 +760,12 @@ class MapMatcher:
             )
 
         fit(predicted, info, out, cov)
+        step = _Step(pts, fit, predicted, info, out, cov)
         tied = False  # the fit held is a search's winner that was not clear
         refused: tuple[np.ndarray, np.ndarray] | None = None  # an unclear winner not taken
         circled: tuple[np.ndarray, np.ndarray] | None = None  # ... of the full circle's search
         if by_odometry and cfg.slip_sigmas > 0 and out[4] >= cfg.min_inliers:
-            self._slip_free(fit, predicted, info, out, cov)
+            self._slip_free(step)
         if out[4] < cfg.min_inliers and len(pts) >= SEARCH_MIN:
             # after scans too sparse to verify, a slip may lie back at the first of them (its
             # fit failed): the step is taken from its pose (its position is right, its heading
@@ -774,7 +789,7 @@ class MapMatcher:
                 # a winner that is not clear and fits fewer than `lost` of the returns
                 # verifies nothing (freiburg-campus seed 9, scan 931: a 46 degree alias
                 # fitting 15% over a right prediction fitting 3%)
-                out, cov = out2, cov2
+                out[:], cov[:, :] = out2, cov2
                 tied = not clear
             elif not clear:
                 refused = (out2, cov2)
@@ -787,75 +802,51 @@ class MapMatcher:
                     fit, pts, predicted, info, base, window, math.pi, by_odometry
                 )
                 if clear and out3[4] > out[4] + FITS_MORE:
-                    out, cov = out3, cov3
+                    out[:], cov[:, :] = out3, cov3
                     tied = False
                 elif not clear:
                     circled = (out3, cov3)
             if tied and by_odometry and cfg.unturned > 0 and out[4] < cfg.lost:
                 # only after an unclear winner (since session 30; run after any lost fit, as
                 # before, it acts on 1 of 410 development runs, +6 mm: journal, session 34)
-                tied = not self._unturned(fit, predicted, info, out, cov)
+                tied = not self._unturned(step)
             if (
                 logged
                 and by_odometry
                 and cfg.poor_refit > 0
                 and out[4] < cfg.min_inliers
-                and self._poor_refit(fit, predicted, info, out, cov)
+                and self._poor_refit(step)
             ):
                 tied = False
         if logged and by_odometry and cfg.turn_check > 0 and len(pts) >= SEARCH_MIN:
-            self._turn_check(fit, predicted, info, out, cov, tied, refused, circled, pts)
+            self._turn_check(step, tied, refused, circled)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
-            self._narrow(pts, predicted, info, out, cov)
+            self._narrow(step)
         self.stats = out
         self.covariance = cov
         return out[:3].copy()
 
-    def _unturned(
-        self,
-        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
-        predicted: np.ndarray,
-        info: np.ndarray,
-        out: np.ndarray,
-        cov: np.ndarray,
-    ) -> bool:
+    def _unturned(self, step: _Step) -> bool:
         """A fit still lost after the searches, fitted again from the prediction with the
         odometry's step turn taken out (the previous heading, the heading free, the translation
         held by the prior); `out` and `cov` take it if `unturned` of its returns fit. A slip
         of the whole step's turn (orebro drift seed 37, scan 30: 93 degrees) puts the right
         heading beyond search_turn, and the full-circle search's winner is not clear there
         (a corridor's reverse heading), or an alias 90 degrees off (infinite-corridor, scan 82)."""
-        unturned = self.config.unturned
-        return self._take_from_last_heading(
-            fit, predicted, info, out, cov, lambda res: res[4] >= unturned and res[4] > out[4]
-        )
+        unturned, held = self.config.unturned, step.out[4]
+        return self._take_from_last_heading(step, lambda res: res[4] >= unturned and res[4] > held)
 
-    def _take_from_last_heading(
-        self,
-        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
-        predicted: np.ndarray,
-        info: np.ndarray,
-        out: np.ndarray,
-        cov: np.ndarray,
-        good: Callable[[np.ndarray], bool],
-    ) -> bool:
+    def _take_from_last_heading(self, step: _Step, good: Callable[[np.ndarray], bool]) -> bool:
         """The fit from the previous heading (`_from_last_heading`) into `out` and `cov` if
         `good` says so of it."""
-        res, c = self._from_last_heading(fit, predicted, info)
+        res, c = self._from_last_heading(step)
         if not good(res):
             return False
-        out[:] = res
-        cov[:, :] = c
+        step.out[:] = res
+        step.cov[:, :] = c
         return True
 
-    def _poor_refit(
-        self,
-        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
-        predicted: np.ndarray,
-        info: np.ndarray,
-        out: np.ndarray,
-        cov: np.ndarray,
-    ) -> bool:
+    def _poor_refit(self, step: _Step) -> bool:
         """`poor_refit`: a fit still under `min_inliers` after the search, on a step whose
         odometry turns at most `turn_check`, fitted again from the previous heading with the
         heading free; `out` and `cov` take it if it fits `poor_refit` more of the returns, at
@@ -865,27 +856,22 @@ class MapMatcher:
         not the same one refitted: freiburg-campus seed 40, scan 1056, 0.007 rad apart). A slip
         under `turn_check` leaves `_turn_check` silent, and the search can miss the right basin
         a few tenths of a radian away."""
-        cfg = self.config
-        if abs(_wrap(predicted[2] - self._last[2])) > cfg.turn_check:
+        cfg, out = self.config, step.out
+        if abs(_wrap(step.predicted[2] - self._last[2])) > cfg.turn_check:
             return False
 
         def good(res: np.ndarray) -> bool:
-            apart = abs(_wrap(res[2] - out[2])) * math.sqrt(info[2]) > cfg.slip_sigmas
+            apart = abs(_wrap(res[2] - out[2])) * math.sqrt(step.info[2]) > cfg.slip_sigmas
             return bool(res[4] >= out[4] + cfg.poor_refit and res[4] >= cfg.lost and apart)
 
-        return self._take_from_last_heading(fit, predicted, info, out, cov, good)
+        return self._take_from_last_heading(step, good)
 
     def _turn_check(
         self,
-        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
-        predicted: np.ndarray,
-        info: np.ndarray,
-        out: np.ndarray,
-        cov: np.ndarray,
+        step: _Step,
         tied: bool = False,
         refused: tuple[np.ndarray, np.ndarray] | None = None,
         circled: tuple[np.ndarray, np.ndarray] | None = None,
-        pts: np.ndarray | None = None,
     ) -> None:
         """A step whose odometry turns more than `turn_check` fitted again from the previous
         heading with the heading free; `out` and `cov` take it if it fits `turn_gain` more of
@@ -900,10 +886,10 @@ class MapMatcher:
         turns the step less: on a sparse scan every fit is poor and the turn is the witness.
         Else (`turn_circle`) the full circle's unclear winner (`circled`) on the same terms: a
         slip beyond `search_turn` that only the full circle's search reaches. With
-        `turn_search` and `pts`, the refit is first replaced by the fit of a search around the
+        `turn_search`, the refit is first replaced by the fit of a search around the
         prediction turned back to the previous heading if that fits `FITS_MORE` more: the
         refit is local and stops in the nearest basin, the truth's may lie beyond it."""
-        cfg = self.config
+        cfg, predicted, out = self.config, step.predicted, step.out
 
         def turned(pose: np.ndarray) -> float:
             return abs(_wrap(pose[2] - self._last[2]))
@@ -915,13 +901,13 @@ class MapMatcher:
             """Another solution than the fit held, and one that turns the step less."""
             return abs(_wrap(pose[2] - out[2])) > cfg.turn_check and turned(pose) < turned(out)
 
-        res, c = self._from_last_heading(fit, predicted, info)
-        if cfg.turn_search and pts is not None:
+        res, c = self._from_last_heading(step)
+        if cfg.turn_search:
             found, found_c, _ = self._search_fit(
-                fit,
-                pts,
+                step.fit,
+                step.pts,
                 self._unturned_prediction(predicted),
-                info,
+                step.info,
                 self._last,
                 cfg.search_window,
                 cfg.search_turn,
@@ -958,17 +944,12 @@ class MapMatcher:
         if taken is None:
             return
         out[:] = taken[0]
-        cov[:, :] = taken[1]
+        step.cov[:, :] = taken[1]
 
-    def _from_last_heading(
-        self,
-        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
-        predicted: np.ndarray,
-        info: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def _from_last_heading(self, step: _Step) -> tuple[np.ndarray, np.ndarray]:
         """The fit from the prediction turned back to the previous scan's heading, the
         heading free (`_unturned`, `_turn_check`): the odometry's step turn taken out."""
-        return _heading_free_fit(fit, self._unturned_prediction(predicted), info)
+        return _heading_free_fit(step.fit, self._unturned_prediction(step.predicted), step.info)
 
     def _unturned_prediction(self, predicted: np.ndarray) -> np.ndarray:
         """`predicted` turned back to the previous scan's heading."""
@@ -976,14 +957,7 @@ class MapMatcher:
         start[2] = self._last[2]
         return start
 
-    def _slip_free(
-        self,
-        fit: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None],
-        predicted: np.ndarray,
-        info: np.ndarray,
-        out: np.ndarray,
-        cov: np.ndarray,
-    ) -> None:
+    def _slip_free(self, step: _Step) -> None:
         """A fit that turned more than `slip_sigmas` prior spreads away from the odometry's
         heading is fitted again from there with the heading free; `out` and `cov` take that
         fit if it fits `slip_gain` more of the returns. The Gaussian prior holds a slip half
@@ -992,24 +966,16 @@ class MapMatcher:
         degrees). Only a clear gain is taken: most turned fits move the heading free by a
         few tenths of a degree for no gain, and taking those made the mapper worse (a free
         refit on every turned fit, docs/maps.md)."""
-        cfg = self.config
-        turned = out[2] - predicted[2]
-        turned = _wrap(turned)
-        if abs(turned) * math.sqrt(info[2]) <= cfg.slip_sigmas:
+        cfg, out = self.config, step.out
+        turned = _wrap(out[2] - step.predicted[2])
+        if abs(turned) * math.sqrt(step.info[2]) <= cfg.slip_sigmas:
             return
-        free, cov_free = _heading_free_fit(fit, out[:3].copy(), info)
+        free, cov_free = _heading_free_fit(step.fit, out[:3].copy(), step.info)
         if free[4] >= out[4] + cfg.slip_gain:
             out[:] = free
-            cov[:, :] = cov_free
+            step.cov[:, :] = cov_free
 
-    def _narrow(
-        self,
-        pts: np.ndarray,
-        predicted: np.ndarray,
-        info: np.ndarray,
-        out: np.ndarray,
-        cov: np.ndarray,
-    ) -> None:
+    def _narrow(self, step: _Step) -> None:
         """A low-overlap fit that strays from the odometry's prediction (Mahalanobis distance^2
         under the prior above `narrow_stray`) is fitted again with the gate at `narrow_gate`,
         from itself, the prediction and the prediction turned by -1 and +1 of the prior's
@@ -1023,6 +989,7 @@ class MapMatcher:
         other logs' right fits by centimetres and flipped their loops (docs/journal/maps.md,
         session 17); the stray and apart tests leave those fits alone (session 18)."""
         cfg = self.config
+        pts, predicted, info, out, cov = step.pts, step.predicted, step.info, step.out, step.cov
         assert self._grid is not None
         origin, dist = self._grid
         inv = 1.0 / cfg.resolution
