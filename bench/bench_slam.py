@@ -98,18 +98,17 @@ def sim_logs(seed: int = 0, names: Container[str] | None = None) -> Iterator[tup
     if names is None:
         names = [w for w in os.environ.get("BENCH_SLAM_LOGS", "").split(",") if w] or None
     for scenario in ("corridor", "building"):
-        wanted = [
-            log
-            for log in (f"{scenario}-odometry", f"{scenario}-lms200")
-            if names is None or scenario in names or log in names
-        ]
-        if not wanted:
+        odometry, lms200 = f"{scenario}-odometry", f"{scenario}-lms200"
+        kept = {
+            log for log in (odometry, lms200) if names is None or scenario in names or log in names
+        }
+        if not kept:
             continue
         sim = simulate(scenario, seed=seed)
-        if wanted[0].endswith("-odometry"):
-            yield wanted[0], with_drift(sim.dataset, seed)
-        if wanted[-1].endswith("-lms200"):
-            yield wanted[-1], replace(sim.dataset, odometry=None)
+        if odometry in kept:
+            yield odometry, with_drift(sim.dataset, seed)
+        if lms200 in kept:
+            yield lms200, replace(sim.dataset, odometry=None)
 
 
 # ---------------------------------------------------------------- methods
