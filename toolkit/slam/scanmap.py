@@ -181,6 +181,18 @@ class MapConfig:
     # paired development runs (ten logs x drift seeds 0-40, orebro 41-360, fhw 41-160,
     # infinite-corridor and freiburg-campus 41-70) it moves 5, freiburg-101 36 0.083 -> 0.053
     # m, the others by 0.4-2.5 mm (docs/journal/maps.md, session 35)
+    turn_unfit: float = 0.05  # > 0: on a step `turn_check` examines (the odometry turns more
+    # than it), a fit held that fewer than this share of the returns support has nothing to
+    # hold the odometry's turn against its witnesses: the best of them (the refit, the search
+    # around the unturned prediction, the searches' unclear winners) that fits more of the
+    # returns at all and turns the step less is taken (0: off). A sparse outdoor scan fits
+    # every pose poorly, so `turn_gain` and `FITS_MORE` (2.5 of 25 returns) refuse the right
+    # one (freiburg-campus drift seed 69, scan 1333, 25 returns: the odometry turns -0.577
+    # rad, the truth -0.218; the fit held 0 of the returns, three searches' unclear winner
+    # 0.026 rad off the truth's turn fitting 2: ATE 3.023 -> 0.317 m). The default since
+    # session 36 (camp36): of 490 paired development runs (ten logs x drift seeds 0-40,
+    # freiburg-campus 41-120) it moves that one, the rest equal to the bit, no false loop
+    # either way (docs/journal/maps.md, session 36)
     poor_refit: float = 0.0  # > 0: a step whose logged odometry turns at most `turn_check`
     # (`_turn_check` leaves it alone) and whose fit still holds under `min_inliers` of the
     # returns after the +-`search_turn` search is fitted again from the previous heading with
@@ -902,6 +914,7 @@ class MapMatcher:
             return abs(_wrap(pose[2] - out[2])) > cfg.turn_check and turned(pose) < turned(out)
 
         res, c = self._from_last_heading(step)
+        witnesses = [(res, c)]
         if cfg.turn_search:
             found, found_c, _ = self._search_fit(
                 step.fit,
@@ -913,6 +926,7 @@ class MapMatcher:
                 cfg.search_turn,
                 True,
             )
+            witnesses.append((found, found_c))
             if found[4] >= res[4] + FITS_MORE:
                 res, c = found, found_c
         past = (
@@ -941,6 +955,11 @@ class MapMatcher:
                 ),
                 None,
             )
+        if taken is None and out[4] < cfg.turn_unfit:
+            # the fit held is unsupported: any witness that fits more and turns the step less
+            witnesses += [w for w in (refused, circled) if w is not None]
+            supported = [w for w in witnesses if w[0][4] > out[4] and turned(w[0]) < turned(out)]
+            taken = max(supported, key=lambda w: float(w[0][4]), default=None)
         if taken is None:
             return
         out[:] = taken[0]
