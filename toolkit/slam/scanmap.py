@@ -171,6 +171,12 @@ class MapConfig:
     # m with it (docs/journal/maps.md, session 33, camp33). 0.5 left all 410 paired
     # development runs of PARAM's reading (ten logs x drift seeds 0-40) equal to the bit; the
     # carried reading's paired run: docs/journal/maps.md, session 34 (carry34)
+    slide_refits: bool = True  # a search's refits from the odometry's slips (`search_gate`)
+    # are held to the volume searched as the search's own fit is (+-window + 0.2 m, +-turn +
+    # 0.1 rad); a refit with the heading free may slide on to an alias beyond it (seattle drift
+    # seed 441, scan 97: 1.36 rad off the prediction, 1.75 off the truth, the map 22 m off).
+    # Paired on the ten logs x drift seeds 0-40 it moved no run (docs/journal/maps.md,
+    # session 36)
     turn_search: bool = True  # `turn_check`'s refit from the previous heading is a local
     # fit, which stops in the nearest basin: also search +-`search_turn` around the prediction
     # turned back to the previous heading, and take that search's fit instead of the refit
@@ -565,6 +571,15 @@ def _scan_points(
             out[i, 1] = my + r * sin[k]
             i += 1
     return out
+
+
+def _outside(off: np.ndarray, window: float, turn: float) -> bool:
+    """Whether a search's fit, `off` from the prediction (world axes), slid out of the volume
+    searched (+-`window` m, +-`turn` rad) by more than `_SLIDE`."""
+    heading = math.atan2(math.sin(off[2]), math.cos(off[2]))
+    return bool(
+        abs(heading) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]
+    )
 
 
 def _wrap(angle: float) -> float:
@@ -1106,10 +1121,7 @@ class MapMatcher:
         clear = found.ambiguity <= cfg.search_ambiguity
         off = out2[:3] - predicted  # the search's offsets are in the world's axes
         off[2] = math.atan2(math.sin(off[2]), math.cos(off[2]))
-        outside = (
-            abs(off[2]) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]
-        )
-        if outside:
+        if _outside(off, window, turn):
             out2[4] = -1.0
             return out2, cov2, clear
         if by_odometry and cfg.search_gate > 0:
@@ -1134,6 +1146,8 @@ class MapMatcher:
                     fit(_compose(base, step), info * _HEADING_FREE, out3, cov3)
                     if out3[4] > out2[4]:
                         out2, cov2 = out3, cov3
+                if cfg.slide_refits and _outside(out2[:3] - predicted, window, turn):
+                    out2[4] = -1.0  # the slips' refit slid out of the volume searched too
         return out2, cov2, clear
 
     def _learn(
