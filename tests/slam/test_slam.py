@@ -392,7 +392,9 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     (docs/journal/maps.md, session 33, camp33). The search's winner there is clear on 4 of 29
     returns; `MapConfig.far_clear` (0.5 rad by default since session 34; set to 0 here for
     the failing arm) refuses a clear winner under `lost` that far from the prediction, and the
-    step keeps the truth's heading."""
+    step keeps the truth's heading. `slide_refits` (the default since session 36) mends it on
+    its own too: the search's fit there is a slip refit that slid out of the volume searched;
+    the failing arm turns both off."""
     from importers.carmen import Carmen, CarmenOptions
     from toolkit.slam.pipeline import SlamConfig, mend_blind, mend_excursions
     from toolkit.slam.scanmap import MapConfig, scan_to_map
@@ -402,7 +404,7 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     ds = with_drift(Carmen().read([path], options), seed=28)
     truth, wheels = truth_poses(ds), odometry_poses(ds)
     assert truth is not None and wheels is not None
-    cfg = SlamConfig(scan_map=MapConfig(far_clear=0.0))  # the failing arm: far_clear off
+    cfg = SlamConfig(scan_map=MapConfig(far_clear=0.0, slide_refits=False))  # the failing arm
     front = scan_to_map(ds, cfg.scan_map)
     assert front.matches is not None
     fit = front.matches.agreement
@@ -421,6 +423,10 @@ def test_real_freiburg_campus_carried_seed_28_fails_in_the_front_end(real: Path)
     step = se2.between(far[1339], far[1340])
     assert abs(float(se2.wrap(step[2] - true_step[2]))) < 0.1
     assert evaluate(far, truth)["ate"]["rmse"] < 5.0
+    held = scan_to_map(ds, MapConfig(far_clear=0.0)).poses  # slide_refits alone
+    step = se2.between(held[1339], held[1340])
+    assert abs(float(se2.wrap(step[2] - true_step[2]))) < 0.1
+    assert evaluate(held, truth)["ate"]["rmse"] < 5.0
 
 
 def test_real_far_clear_keeps_a_winner_that_undoes_the_odometrys_heading_slip(
