@@ -14,23 +14,34 @@ from toolkit.poses import truth_poses
 from toolkit.slam.scanmap import MapConfig, scan_to_map
 
 
-def _mended(
-    real: Path, seed: int, step: int, without: MapConfig, log: str = "orebro"
-) -> tuple[float, float]:
-    """`log` with drift `seed`: how far step `step` -> `step + 1` turns off the truth's turn
-    without the setting (`without`) and with the default; every scan before it placed alike."""
+def _runs(
+    real: Path, seed: int, step: int, configs: tuple[MapConfig, ...], log: str
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """`log` with drift `seed`: the truth, and the front end's poses under each of `configs`
+    and then under the default, every scan before `step + 1` placed alike in all of them."""
     ds = drifted_carmen(real, log, seed=seed)
     truth = truth_poses(ds)
     assert truth is not None
-    unchecked = scan_to_map(ds, without).poses
-    checked = scan_to_map(ds).poses
-    np.testing.assert_array_equal(checked[: step + 1], unchecked[: step + 1])
+    runs = [scan_to_map(ds, config).poses for config in (*configs, MapConfig())]
+    for poses in runs[:-1]:
+        np.testing.assert_array_equal(runs[-1][: step + 1], poses[: step + 1])
+    return truth, runs
 
-    def off(p: np.ndarray) -> float:
-        turn = p[step + 1, 2] - p[step, 2] - (truth[step + 1, 2] - truth[step, 2])
-        return abs(float(se2.wrap(turn)))
 
-    return off(unchecked), off(checked)
+def _off(truth: np.ndarray, poses: np.ndarray, step: int) -> float:
+    """How far (rad) step `step` -> `step + 1` of `poses` turns off the truth's turn."""
+    turn = poses[step + 1, 2] - poses[step, 2] - (truth[step + 1, 2] - truth[step, 2])
+    return abs(float(se2.wrap(turn)))
+
+
+def _mended(
+    real: Path, seed: int, step: int, *without: MapConfig, log: str = "orebro"
+) -> tuple[float, ...]:
+    """`log` with drift `seed`: how far step `step` -> `step + 1` turns off the truth's turn
+    under each of the settings `without` and then with the default; every scan before it
+    placed alike."""
+    truth, runs = _runs(real, seed, step, without, log)
+    return tuple(_off(truth, poses, step) for poses in runs)
 
 
 def test_a_slip_fitted_on_an_alias_is_turned_back(real: Path) -> None:
@@ -69,10 +80,10 @@ def test_a_refused_winner_turns_back_a_slip_on_a_sparse_scan(real: Path) -> None
     failing arm turns both off, and `turn_unfit` alone mends it too."""
     assert MapConfig().turn_refused
     neither = MapConfig(turn_refused=False, turn_unfit=0.0)
-    without, with_it = _mended(real, 59, 1640, neither, "freiburg-campus")
+    unfit = MapConfig(turn_refused=False)
+    without, unfit_alone, with_it = _mended(real, 59, 1640, neither, unfit, log="freiburg-campus")
     assert without > 0.7
     assert with_it < 0.05
-    unfit_alone, _ = _mended(real, 59, 1640, MapConfig(turn_refused=False), "freiburg-campus")
     assert unfit_alone < 0.05
 
 
@@ -87,10 +98,10 @@ def test_the_full_circles_unclear_winner_turns_back_a_slip(real: Path) -> None:
     without `turn_circle` leaves it off as well, and with it alone the step is under 0.05 rad
     off."""
     assert MapConfig().turn_circle
-    without, circle = _mended(real, 64, 220, MapConfig(turn_circle=False, turn_search=False))
+    neither = MapConfig(turn_circle=False, turn_search=False)
+    without, searched, circle = _mended(real, 64, 220, neither, MapConfig(turn_circle=False))
     assert without > 1.2
     assert circle < 0.05
-    searched, _ = _mended(real, 64, 220, MapConfig(turn_circle=False))
     assert searched < 0.05
 
 
@@ -102,7 +113,7 @@ def test_a_winner_turning_past_the_slipped_odometry_loses_to_the_refit(real: Pat
     refit is taken: the step under 0.05 rad off the truth's turn, without it over 1.5 rad off,
     every scan before it placed alike."""
     assert MapConfig().turn_past
-    without, with_it = _mended(real, 180, 116, MapConfig(turn_past=False), "infinite-corridor")
+    without, with_it = _mended(real, 180, 116, MapConfig(turn_past=False), log="infinite-corridor")
     assert without > 1.5
     assert with_it < 0.05
 
@@ -174,19 +185,9 @@ def test_an_unsupported_fit_gives_way_to_a_witness_turning_less(real: Path) -> N
     from toolkit.metrics import evaluate
 
     assert MapConfig().turn_unfit == 0.05
-    ds = drifted_carmen(real, "freiburg-campus", seed=69)
-    truth = truth_poses(ds)
-    assert truth is not None
     step = 1332
-    kept = scan_to_map(ds, MapConfig(turn_unfit=0.0)).poses
-    mended = scan_to_map(ds).poses
-    np.testing.assert_array_equal(kept[: step + 1], mended[: step + 1])
-
-    def off(p: np.ndarray) -> float:
-        turn = p[step + 1, 2] - p[step, 2] - (truth[step + 1, 2] - truth[step, 2])
-        return abs(float(se2.wrap(turn)))
-
-    assert off(kept) > 0.3
-    assert off(mended) < 0.05
+    truth, (kept, mended) = _runs(real, 69, step, (MapConfig(turn_unfit=0.0),), "freiburg-campus")
+    assert _off(truth, kept, step) > 0.3
+    assert _off(truth, mended, step) < 0.05
     assert evaluate(kept, truth)["ate"]["rmse"] > 10.0
     assert evaluate(mended, truth)["ate"]["rmse"] < 5.0

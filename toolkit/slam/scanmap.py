@@ -576,9 +576,8 @@ def _scan_points(
 def _outside(off: np.ndarray, window: float, turn: float) -> bool:
     """Whether a search's fit, `off` from the prediction (world axes), slid out of the volume
     searched (+-`window` m, +-`turn` rad) by more than `_SLIDE`."""
-    heading = math.atan2(math.sin(off[2]), math.cos(off[2]))
     return bool(
-        abs(heading) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]
+        abs(_wrap(off[2])) > turn + _SLIDE[1] or max(abs(off[0]), abs(off[1])) > window + _SLIDE[0]
     )
 
 
@@ -1120,7 +1119,7 @@ class MapMatcher:
         self.searches += 1
         clear = found.ambiguity <= cfg.search_ambiguity
         off = out2[:3] - predicted  # the search's offsets are in the world's axes
-        off[2] = math.atan2(math.sin(off[2]), math.cos(off[2]))
+        off[2] = _wrap(off[2])
         if _outside(off, window, turn):
             out2[4] = -1.0
             return out2, cov2, clear
