@@ -167,6 +167,15 @@ class LoopConfig:
     # (freiburg-campus seed 72's 241 -> 1252, 0.54 m off the truth, its true pose 0.8 m beyond
     # the window; docs/journal/maps.md, session 30); 0: off
     edge_check: float = 0.2
+    # > 0 (m): a full loop is refused when its query's scans (scan b's within `query_path`),
+    # placed by the trajectory, lie more than this from where the odometry puts them from scan
+    # b (`LoopCloser.odometry`; none given: not tested): a front-end slip inside the query
+    # makes it a double image, which a corridor-like place matches metres off along (freiburg-
+    # campus seed 1's 251 / 252 -> 1258: the front end 0.38 m off the odometry between 1258
+    # and 1259, the odometry 0.02 m off the truth; the loops 0.57 / 0.70 m off the truth;
+    # docs/journal/maps.md, session 37). A corridor loop is not tested (its along position is
+    # the trajectory's anyway). 0: off (the default)
+    query_odometry: float = 0.0
     # loop candidates by appearance too (`toolkit.slam.recognition`: a Scan Context of each
     # keyframe's local map), not only by nearness on the trajectory: a round of its own after
     # the first (`toolkit.slam.pipeline`), for revisits the drift put beyond every window. On
@@ -325,6 +334,14 @@ def candidates(
         if found is not None:
             out.append(found)
             next_at = ka[q] + config.every
+    return out
+
+
+def query_scans(b: int, along: np.ndarray, config: LoopConfig) -> np.ndarray:
+    """The scans of scan `b`'s query (within `query_path` m of path of it, at most 8 or so of
+    them, evenly kept): what `LoopCloser.pair_points` matches for b."""
+    near_b = np.nonzero(np.abs(along - along[b]) <= config.query_path)[0]
+    out: np.ndarray = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
     return out
 
 
@@ -517,6 +534,8 @@ class LoopCloser:
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
         self._anchor_fits: dict[int, tuple[float, float, float]] = {}
+        # the wheels' poses (S x 3), for `LoopConfig.query_odometry`; None: that test is off
+        self.odometry: np.ndarray | None = None
 
     def local_points(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -583,8 +602,7 @@ class LoopCloser:
         returns, voxelled and capped, b's frame), the keyframes of `a`'s local map and their
         returns (a's frame); None when the query has too few points."""
         cfg = config or self.config
-        near_b = np.nonzero(np.abs(along - along[b]) <= cfg.query_path)[0]
-        near_b = near_b[:: max(1, len(near_b) // 8)]  # a few scans are enough
+        near_b = query_scans(b, along, cfg)
         query = _capped(voxel_subsample(self.local_points(b, near_b, poses), cfg.query_voxel), cfg)
         if query is None:
             return None
@@ -768,6 +786,10 @@ class LoopCloser:
                 moved = float(np.hypot(*shift))
                 if moved > cfg.anchor_slip:
                     why.append(f"anchor: scan {k} alone fits the query {moved:.2f} m off")
+        if not why and cfg.query_odometry > 0 and axis is None and self.odometry is not None:
+            off, s = self.query_slip(b, poses, along, cfg)
+            if off > cfg.query_odometry:
+                why.append(f"query: scan {s} placed {off:.2f} m off the odometry from scan {b}")
         if not why and cfg.edge_check > 0:
             moved = self.edge_move(radius, cfg, prediction, points, found.pose, axis)
             if moved > cfg.anchor_slip:
@@ -785,6 +807,19 @@ class LoopCloser:
         if axis_k is not None:
             loop.axis, loop.along = axis_k, cfg.corridor_along
         return loop
+
+    def query_slip(
+        self, b: int, poses: np.ndarray, along: np.ndarray, config: LoopConfig
+    ) -> tuple[float, int]:
+        """How far (m) the query's scans (`query_scans`) lie, placed by `poses` from scan `b`,
+        from where the odometry (`odometry`) puts them from b: the largest, and its scan."""
+        assert self.odometry is not None
+        near_b = query_scans(b, along, config)
+        odo, placed = self.odometry, poses
+        off = between(between(odo[b], odo[near_b]), between(placed[b], placed[near_b]))
+        dist = np.hypot(off[:, 0], off[:, 1])
+        worst = int(np.argmax(dist))
+        return float(dist[worst]), int(near_b[worst])
 
     def steady_neighbour(
         self, a: int, along: np.ndarray, keys: np.ndarray, poses: np.ndarray, config: LoopConfig
@@ -1065,4 +1100,5 @@ __all__ = [
     "corridor_axis",
     "is_false_loop",
     "loop_truth_error",
+    "query_scans",
 ]
