@@ -167,14 +167,17 @@ class LoopConfig:
     # (freiburg-campus seed 72's 241 -> 1252, 0.54 m off the truth, its true pose 0.8 m beyond
     # the window; docs/journal/maps.md, session 30); 0: off
     edge_check: float = 0.2
-    # > 0 (m): a full loop is refused when its query's scans (scan b's within `query_path`),
-    # placed by the trajectory, lie more than this from where the odometry puts them from scan
-    # b (`LoopCloser.odometry`; none given: not tested): a front-end slip inside the query
-    # makes it a double image, which a corridor-like place matches metres off along (freiburg-
-    # campus seed 1's 251 / 252 -> 1258: the front end 0.38 m off the odometry between 1258
-    # and 1259, the odometry 0.02 m off the truth; the loops 0.57 / 0.70 m off the truth;
-    # docs/journal/maps.md, session 37). A corridor loop is not tested (its along position is
-    # the trajectory's anyway). 0: off (the default)
+    # > 0 (m): a full loop is refused when one of its query's scans (scan b's within
+    # `query_path`) lies, placed by the trajectory, more than this nearer to or farther from
+    # scan b than the odometry has it (`LoopCloser.odometry`; none given: not tested): a
+    # front-end slip along the path inside the query makes it a double image, which a
+    # corridor-like place matches off along (freiburg-campus seed 1's 251 / 252 -> 1258: scan
+    # 1259 0.40 m nearer 1258 than the odometry, which is 0.02 m off the truth there; the loops
+    # 0.57 / 0.70 m off the truth). Distances, not positions: a wheel slip turns the odometry
+    # (seed 45: 0.67 rad between 1260 and 1261, its scan 0.65 m off sideways) but changes its
+    # distance by half the slip at most (0.16 m there). A corridor loop is not tested (its
+    # along position is the trajectory's anyway). 0: off (the default; docs/journal/maps.md,
+    # session 37)
     query_odometry: float = 0.0
     # loop candidates by appearance too (`toolkit.slam.recognition`: a Scan Context of each
     # keyframe's local map), not only by nearness on the trajectory: a round of its own after
@@ -789,7 +792,9 @@ class LoopCloser:
         if not why and cfg.query_odometry > 0 and axis is None and self.odometry is not None:
             off, s = self.query_slip(b, poses, along, cfg)
             if off > cfg.query_odometry:
-                why.append(f"query: scan {s} placed {off:.2f} m off the odometry from scan {b}")
+                why.append(
+                    f"query: scan {s} placed {off:.2f} m off the odometry's distance from {b}"
+                )
         if not why and cfg.edge_check > 0:
             moved = self.edge_move(radius, cfg, prediction, points, found.pose, axis)
             if moved > cfg.anchor_slip:
@@ -811,13 +816,14 @@ class LoopCloser:
     def query_slip(
         self, b: int, poses: np.ndarray, along: np.ndarray, config: LoopConfig
     ) -> tuple[float, int]:
-        """How far (m) the query's scans (`query_scans`) lie, placed by `poses` from scan `b`,
-        from where the odometry (`odometry`) puts them from b: the largest, and its scan."""
+        """How much nearer to or farther from scan `b` (m) the query's scans (`query_scans`)
+        lie placed by `poses` than the odometry (`odometry`) has them: the most, and its scan."""
         assert self.odometry is not None
         near_b = query_scans(b, along, config)
         odo, placed = self.odometry, poses
-        off = between(between(odo[b], odo[near_b]), between(placed[b], placed[near_b]))
-        dist = np.hypot(off[:, 0], off[:, 1])
+        far_odo = np.hypot(*(odo[near_b, :2] - odo[b, :2]).T)
+        far_placed = np.hypot(*(placed[near_b, :2] - placed[b, :2]).T)
+        dist = np.abs(far_placed - far_odo)
         worst = int(np.argmax(dist))
         return float(dist[worst]), int(near_b[worst])
 
