@@ -178,7 +178,7 @@ class LoopConfig:
     # distance by half the slip at most (0.16 m there). A corridor loop is not tested (its
     # along position is the trajectory's anyway). On by default since session 37: it acts on
     # seed 1 alone of freiburg-campus seeds 0-120, the nine other logs x seeds 0-40 and the
-    # simulator's worlds 0-7 (false loops 2 -> 0, ATE 0.396 -> 0.352 m; every other run equal
+    # simulator's worlds 0-171 (false loops 2 -> 0, ATE 0.396 -> 0.352 m; every other run equal
     # to the bit; docs/journal/maps.md); the bench's odometry is the truth's with drift, so
     # where the truth is wrong it is too. 0: off
     query_odometry: float = 0.35
