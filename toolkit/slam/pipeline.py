@@ -574,6 +574,7 @@ def close_loops(
         before = hang(keys, before, pg.optimise(graph, values, keys))
         timings["optimisation"] += time.perf_counter() - t0
     closer = LoopCloser(ds.ranges, ds.laser, config.loop)
+    closer.odometry = odometry  # `LoopConfig.query_odometry`
     found: dict[tuple[int, int], Loop] = {}
     along = path_length(before)
     start = before[keys]  # where the next optimisation starts (`warm_start`: the last optimum)
