@@ -131,13 +131,12 @@ class SlamConfig:
     # > 0 (rad): a sequential edge across a step whose poor fit (under `scan_map.lost`) a
     # search's unclear winner, fitting more of the returns, turns by more than this (the front
     # end's `doubt`: it kept the fit held, the rival may be right) is loosened as a blind
-    # step's is (`blind_turn`), so that the loops choose between them (0: off). The default
-    # since session 37 (the lead, docs/journal/maps.md): freiburg-campus drift seed 385 (a
-    # 0.107 rad slip under `turn_check`, the search's right winner refused at +0.087) 0.629 ->
-    # 0.302 m; campus seeds 0-120 -0.0027 +- 0.0082 m, <= 0.3 m 33 -> 37, <= 0.5 m 120 -> 121,
-    # false loops 5 -> 4 (every campus run moves, by up to +-0.1 m); the nine other logs x
-    # seeds 0-40: 367 / 369 equal to the bit (orebro 22, 33 a few mm better)
-    doubted: float = 0.05
+    # step's is (`blind_turn`), so that the loops choose between them (0: off). An expert
+    # setting, off (session 37, the lead; docs/journal/maps.md): 0.05 mends freiburg-campus
+    # drift seed 385 (a 0.107 rad slip under `turn_check`, the search's right winner refused)
+    # 0.629 -> 0.302 m, but moves every campus run by up to +-0.1 m: development seeds 0-120
+    # -0.0027 +- 0.0082 m, held out (471-480) +0.019 m; the nine other logs equal but 2 of 369
+    doubted: float = 0.0
     # > 0 (rad): a blind stretch (scans too sparse to search whose fit failed, between two
     # fitted scans) whose turn between its fitted ends differs from the odometry's by more
     # than this is re-derived from the two ends: the difference put on the one odometry step
