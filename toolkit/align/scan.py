@@ -93,6 +93,7 @@ class PairMatches:
     used: np.ndarray  # P: correspondences that carried weight
     degenerate: np.ndarray  # P: 0 none, 1 one translation direction from odometry, 2 all
     agreement: np.ndarray  # P: share of the current scan's returns that fit the estimate
+    doubt: np.ndarray  # P: heading (rad) from the estimate to a rival fit that fits more, or 0
 
     def __len__(self) -> int:
         return len(self.pose)
@@ -115,6 +116,7 @@ class PairMatches:
             np.zeros(n),
             np.zeros(n, np.int32),
             np.zeros(n, np.int8),
+            np.zeros(n),
             np.zeros(n),
         )
 

@@ -136,16 +136,17 @@ def slam_trajectory(
     if slam.front_end == "map" and result.matches is not None:
         step_cov = result.matches.covariance  # scan-to-map: world frame, per scan step
     odometry = wheels if slam.odometry_along > 0 else None
-    step_fit = None
+    step_fit = step_doubt = None
     if slam.front_end == "map" and slam.blind_turn > 0 and result.matches is not None:
         step_fit = result.matches.agreement  # the inlier share of each scan's fit
+        step_doubt = result.matches.doubt
     if slam.front_end == "map" and wheels is not None and result.matches is not None:
         before = mend_blind(ds.ranges, result.matches.agreement, before, wheels, slam)
         before = mend_excursions(
             ds.ranges, ds.laser, result.matches.agreement, before, wheels, slam
         )
     poses, keys, edges, loops, timings, before = close_loops(
-        ds, before, slam, step_cov, odometry, step_fit
+        ds, before, slam, step_cov, odometry, step_fit, step_doubt
     )
     out = replace(result, stream=PoseStream(result.stream.t, poses))
     run = SlamRun(before, keys, edges, loops, {"matching": matching, **timings}, slam)

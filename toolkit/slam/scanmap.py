@@ -581,6 +581,18 @@ def _outside(off: np.ndarray, window: float, turn: float) -> bool:
     )
 
 
+def _doubt(
+    out: np.ndarray, rivals: tuple[tuple[np.ndarray, np.ndarray] | None, ...], lost: float
+) -> float:
+    """How far (rad) the heading of a poor fit held (under `lost`) lies from the searches'
+    unclear winners not taken that fit more of the returns: the step's heading is in doubt
+    between them (0: no such rival)."""
+    if out[4] >= lost:
+        return 0.0
+    apart = [abs(_wrap(r[0][2] - out[2])) for r in rivals if r is not None and r[0][4] > out[4]]
+    return max(apart, default=0.0)
+
+
 def _wrap(angle: float) -> float:
     """An angle wrapped to [-pi, pi], in scalar arithmetic (the per-scan path)."""
     return math.atan2(math.sin(angle), math.cos(angle))
@@ -675,6 +687,7 @@ class MapMatcher:
         self.searches = 0
         self._searched = 0
         self.narrowed = 0  # low-overlap fits replaced by their narrow refit (`_narrow`)
+        self.doubt = 0.0  # the last step's heading to a rival that fits more (`_doubt`)
         self.drift = 0.0  # the odometry's learned heading drift (rad per m)
         self._drift_sums = (0.0, 0.0)  # the fits' heading minus the odometry's, its path
         self.scale = 1.0  # the odometry's learned scale (the fits' path per odometry's)
@@ -848,6 +861,7 @@ class MapMatcher:
             self._turn_check(step, tied, refused, circled)
         if logged and by_odometry and out[4] < cfg.narrow_below and cfg.narrow_stray > 0:
             self._narrow(step)
+        self.doubt = _doubt(out, (refused, circled), cfg.lost)
         self.stats = out
         self.covariance = cov
         return out[:3].copy()
@@ -1325,6 +1339,7 @@ def scan_to_map(
             matches.covariance[k - 1] = matcher.covariance
             matches.sigma[k - 1], matches.used[k - 1] = st[3], int(st[5])
             matches.degenerate[k - 1], matches.agreement[k - 1] = int(st[6]), st[4]
+            matches.doubt[k - 1] = matcher.doubt
             if progress is not None and (k % every == 0 or k == n - 1):
                 progress(k % every or every)
     seconds = time.perf_counter() - t0
