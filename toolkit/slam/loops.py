@@ -529,10 +529,16 @@ class LoopCloser:
     refuse_at_coarse: bool = True
 
     def __init__(
-        self, ranges: np.ndarray, laser: LaserGeometry, config: LoopConfig | None = None
+        self,
+        ranges: np.ndarray,
+        laser: LaserGeometry,
+        config: LoopConfig | None = None,
+        odometry: np.ndarray | None = None,
     ) -> None:
         self.config = config or LoopConfig()
         self.ranges = ranges
+        # the wheels' poses (S x 3), for `LoopConfig.query_odometry`; None: that test is off
+        self.odometry = odometry
         mount = mount_pose(laser)
         self._mount = mount
         self._cos = np.cos(laser.angles + mount[2])
@@ -540,8 +546,6 @@ class LoopCloser:
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
         self._anchor_fits: dict[int, tuple[float, float, float]] = {}
-        # the wheels' poses (S x 3), for `LoopConfig.query_odometry`; None: that test is off
-        self.odometry: np.ndarray | None = None
 
     def local_points(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan

@@ -587,8 +587,7 @@ def close_loops(
         graph, values = pg.factor_graph(keys, before[keys], edges, config.robust)
         before = hang(keys, before, pg.optimise(graph, values, keys))
         timings["optimisation"] += time.perf_counter() - t0
-    closer = LoopCloser(ds.ranges, ds.laser, config.loop)
-    closer.odometry = odometry  # `LoopConfig.query_odometry`
+    closer = LoopCloser(ds.ranges, ds.laser, config.loop, odometry)  # `query_odometry`
     found: dict[tuple[int, int], Loop] = {}
     along = path_length(before)
     start = before[keys]  # where the next optimisation starts (`warm_start`: the last optimum)
