@@ -432,8 +432,8 @@ def test_real_freiburg_campus_full_loop_on_a_slipped_query_is_refused(real: Path
     double image; matched by appearance against 251's and 252's local maps it wins 0.57 / 0.70
     m off the truth (ambiguity 0.83, under 0.85), and the loops agree with the slipped chain and
     with each other, so the consistency test keeps them (with `query_odometry` off). With it
-    (0.35 m, the default) both are refused (scan 1259 placed 0.39 m nearer 1258 than the odometry has it): no false loop, ATE
-    0.396 -> 0.352 m."""
+    (0.35 m, the default) both are refused (scan 1259 placed 0.39 m nearer 1258 than the
+    odometry has it): no false loop, ATE 0.396 -> 0.352 m."""
     from dataclasses import replace as changed
 
     from toolkit.poses import odometry_poses

@@ -827,9 +827,8 @@ class LoopCloser:
         lie placed by `poses` than the odometry (`odometry`) has them: the most, and its scan."""
         assert self.odometry is not None
         near_b = query_scans(b, along, config)
-        odo, placed = self.odometry, poses
-        far_odo = np.hypot(*(odo[near_b, :2] - odo[b, :2]).T)
-        far_placed = np.hypot(*(placed[near_b, :2] - placed[b, :2]).T)
+        far_odo = np.hypot(*(self.odometry[near_b, :2] - self.odometry[b, :2]).T)
+        far_placed = np.hypot(*(poses[near_b, :2] - poses[b, :2]).T)
         dist = np.abs(far_placed - far_odo)
         worst = int(np.argmax(dist))
         return float(dist[worst]), int(near_b[worst])
