@@ -235,9 +235,9 @@ def test_real_infinite_corridor_front_end_turns_where_the_return_pass_crosses_th
 
     # the walls' direction by the truth: the same on both sides of the open area
     def walls(lo: int, hi: int) -> float:
-        # scans along the corridor (heading within 14 degrees of it)
-        east = [k for k in range(lo, hi) if abs(np.cos(truth[k, 2])) > 0.97]
-        return float(np.nanmean([_wall_direction(full, k, float(truth[k, 2])) for k in east]))
+        # scans along the corridor, either way (heading within 14 degrees of its axis)
+        along = [k for k in range(lo, hi) if abs(np.cos(truth[k, 2])) > 0.97]
+        return float(np.nanmean([_wall_direction(full, k, float(truth[k, 2])) for k in along]))
 
     before, after = walls(1765, 1793), walls(1800, 1841)
     assert -4.5 < before < -3.5 and -4.5 < after < -3.5
