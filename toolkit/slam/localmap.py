@@ -23,7 +23,10 @@ without odometry only:
   along a featureless stretch, and once at "not moved" it stays there (corridor seed 53 parked over
   scans 90-270 of its pass: plain median 0.002 m a scan against the truth's 0.080, and the
   log lost 11.7 m before doors came into view); the scans whose fit observes forward motion
-  give their motion whatever the prediction was;
+  give their motion whatever the prediction was. A pass whose second half has no scan that
+  observes the forward motion goes on until one does (`START_STRONG`, up to `START_MAX`
+  scans: corridor world 192 was bare for its first 28 m, its pass random-walked to rest and
+  the log mapped 21 m off);
 - the velocity's forward part is filtered only as far as the fit observes it (solution
   remapping, after Zhang, Kaess & Singh 2016, "On degeneracy of optimization-based state
   estimation problems", with the degeneracy measured by the fit's own response): each scan is
@@ -61,6 +64,9 @@ STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
 START_SCANS = 300  # scans of the first pass that gives the start velocity
 START_SEEN = 1.0  # the first pass's summed squared forward response below which its forward
 # speed is the plain median (no scan observed forward motion: nothing to weigh by)
+START_MAX = 1500  # scans: the first pass goes on, `START_SCANS` at a time, up to this many ...
+START_STRONG = 0.5  # ... until its second half holds `START_SEEN` of squared forward response
+# from scans that observe at least this share of it (0: the first `START_SCANS` only)
 REST_CHANGE = 0.1  # m: a beam whose range moved this much since the first scan (or whose
 # return came or went) has seen motion ...
 REST_SHARE = 0.02  # ... and a scan with more such beams than this share is not at rest
@@ -89,21 +95,33 @@ def start_velocity(
     motion over the second half of a first, unfiltered pass over `scans` scans from scan
     `begin`, its forward part weighted by the square of each scan's forward response (the
     share of a probe offset the fit takes out: 0 where the walls hold nothing along the axis
-    and the matched motion is the prediction's); None when there are fewer than 8 scans."""
-    m = min(scans, ds.n_scans - begin)
+    and the matched motion is the prediction's); None when there are fewer than 8 scans.
+    A pass whose second half never observes the forward motion (a corridor bare for its
+    first `scans` scans: its steps have random-walked to any speed, often to rest) goes on,
+    `scans` more at a time, up to `START_MAX`, until it does."""
+    total = ds.n_scans - begin
+    m = min(scans, total)
     if m < 8:
         return None
+    longest = max(m, min(START_MAX, total)) if START_STRONG > 0 else m
     first = MotionMatcher(
         ds.laser, config, gain=1.0, probe=PROBE_SHIFT, probe_every=1, probe_filters=False
     )
-    poses = np.empty((m, 3))
-    seen = np.zeros(m)  # scan i's forward response (measured from the pass's third scan)
-    for i in range(m):
-        poses[i] = first.push_predicted(ds.ranges[begin + i], float(ds.t[begin + i]))
-        seen[i] = first.response if i >= 2 else 0.0
-    steps = se2.between(poses[:-1], poses[1:])[m // 2 :]
+    poses = np.empty((longest, 3))
+    seen = np.zeros(longest)  # scan i's forward response (measured from the pass's third scan)
+    done = 0
+    while True:
+        for i in range(done, m):
+            poses[i] = first.push_predicted(ds.ranges[begin + i], float(ds.t[begin + i]))
+            seen[i] = first.response if i >= 2 else 0.0
+        done = m
+        half = seen[m // 2 + 1 : m]
+        if m >= longest or (half[half >= START_STRONG] ** 2).sum() >= START_SEEN:
+            break
+        m = min(m + scans, longest)
+    steps = se2.between(poses[: m - 1], poses[1:m])[m // 2 :]
     velocity = np.asarray(np.median(steps, axis=0))
-    weights = seen[1:][m // 2 :] ** 2  # a partly observed scan's motion is partly the prediction
+    weights = seen[1:m][m // 2 :] ** 2  # a partly observed scan's motion is partly the prediction
     if PROBE_SHIFT > 0 and weights.sum() >= START_SEEN:
         velocity[0] = weighted_median(steps[:, 0], weights)
     return velocity
