@@ -49,6 +49,18 @@ def _mapped_ate(fmt: str, seed: int, tmp_path: Path, scenario: str = "corridor")
     return float(evaluate(result.poses, truth)["ate"]["rmse"])
 
 
+def _without_odometry(
+    seed: int, scenario: str = "corridor"
+) -> tuple[toolkit.Dataset, np.ndarray, float]:
+    """World `seed`'s log without odometry, its truth and the robot's speed (m a scan, the
+    median over the first 300 scans)."""
+    ds = replace(simulate(scenario, seed=seed).dataset, odometry=None)
+    truth = truth_poses(ds)
+    assert truth is not None
+    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    return ds, truth, speed
+
+
 def test_lms200_capture_of_the_corridor_maps_within_half_a_metre(tmp_path: Path) -> None:
     assert _mapped_ate("lms200", 16, tmp_path) <= 0.5
 
@@ -75,10 +87,7 @@ def test_the_velocity_keeps_its_speed_where_the_fit_does_not_observe_the_axis() 
     # corridor seed 9 (development): over its first corridor stretch the fit keeps a forward
     # offset of its seed (response about 0), and without the probe the filtered velocity fell
     # to 0.51 of the robot's speed by scan 72 (0.74 on average over scans 10-150)
-    ds = replace(simulate("corridor", seed=9).dataset, odometry=None)
-    truth = truth_poses(ds)
-    assert truth is not None
-    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    ds, _, speed = _without_odometry(9)
     matcher = MotionMatcher(ds.laser, step=start_velocity(ds))
     response, velocity = [], []
     for k in range(300):
@@ -92,11 +101,8 @@ def test_the_velocity_keeps_its_speed_where_the_fit_does_not_observe_the_axis() 
 @pytest.mark.parametrize("scenario", ["corridor", "building"])
 def test_start_velocity_is_the_robots_speed(scenario: str) -> None:
     # both start at full speed along a corridor: standstill matches about as well
-    ds = simulate(scenario, seed=17).dataset
-    truth = truth_poses(ds)
-    assert truth is not None
-    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
-    step = start_velocity(replace(ds, odometry=None))
+    ds, _, speed = _without_odometry(17, scenario)
+    step = start_velocity(ds)
     assert step is not None
     assert abs(step[0] - speed) < 0.1 * speed and abs(step[1]) < 0.1 * speed
 
@@ -104,10 +110,7 @@ def test_start_velocity_is_the_robots_speed(scenario: str) -> None:
 def test_the_start_velocity_is_taken_where_the_fit_observes_forward_motion() -> None:
     # corridor seed 53 (spent held-out): the unfiltered first pass parked at "not moved" over
     # scans 90-270, so the plain median of its second half was 0.002 m a scan (truth 0.080)
-    ds = replace(simulate("corridor", seed=53).dataset, odometry=None)
-    truth = truth_poses(ds)
-    assert truth is not None
-    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    ds, _, speed = _without_odometry(53)
     step = start_velocity(ds)
     assert step is not None
     assert abs(step[0] - speed) < 0.05 * speed
@@ -120,10 +123,7 @@ def test_a_corridor_bare_for_its_first_pass_is_started_where_the_pass_sees_forwa
     # forward motion (responses under 0.4), the pass random-walked to rest, its weighted
     # median was -0.003 m a scan (truth 0.080) and the log mapped 21.1 m off; the pass now
     # goes on until forward motion is observed (scans 350-550 here)
-    ds = replace(simulate("corridor", seed=192).dataset, odometry=None)
-    truth = truth_poses(ds)
-    assert truth is not None
-    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    ds, truth, speed = _without_odometry(192)
     step = start_velocity(ds)
     assert step is not None
     assert abs(step[0] - speed) < 0.05 * speed
@@ -138,10 +138,7 @@ def test_the_forward_velocity_holds_where_the_fit_observes_it_in_part() -> None:
     # corridor seed 48 (spent held-out), from the start velocity: with the forward gain
     # proportional to the response (not its square) the velocity sagged to 0.87 of the speed
     # over the partly observed stretches (response 0.05-0.2) and 1.93 m were lost in 700 scans
-    ds = replace(simulate("corridor", seed=48).dataset, odometry=None)
-    truth = truth_poses(ds)
-    assert truth is not None
-    speed = float(np.median(np.hypot(*np.diff(truth[:300, :2], axis=0).T)))
+    ds, truth, speed = _without_odometry(48)
     matcher = MotionMatcher(ds.laser, step=start_velocity(ds))
     poses, velocity = [], []
     for k in range(700):
