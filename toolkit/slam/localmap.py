@@ -109,19 +109,17 @@ def start_velocity(
     )
     poses = np.empty((longest, 3))
     seen = np.zeros(longest)  # scan i's forward response (measured from the pass's third scan)
-    done = 0
-    while True:
-        for i in range(done, m):
-            poses[i] = first.push_predicted(ds.ranges[begin + i], float(ds.t[begin + i]))
-            seen[i] = first.response if i >= 2 else 0.0
-        done = m
-        half = seen[m // 2 + 1 : m]
-        if m >= longest or (half[half >= START_STRONG] ** 2).sum() >= START_SEEN:
-            break
-        m = min(m + scans, longest)
+    for i in range(longest):
+        poses[i] = first.push_predicted(ds.ranges[begin + i], float(ds.t[begin + i]))
+        seen[i] = first.response if i >= 2 else 0.0
+        if i + 1 == m:  # the pass's end: its second half's squared responses (responses
+            # are 0..1; a partly observed scan's motion is partly the prediction)
+            weights = seen[m // 2 + 1 : m] ** 2
+            if m == longest or weights[weights >= START_STRONG**2].sum() >= START_SEEN:
+                break
+            m = min(m + scans, longest)
     steps = se2.between(poses[: m - 1], poses[1:m])[m // 2 :]
     velocity = np.asarray(np.median(steps, axis=0))
-    weights = seen[1:m][m // 2 :] ** 2  # a partly observed scan's motion is partly the prediction
     if PROBE_SHIFT > 0 and weights.sum() >= START_SEEN:
         velocity[0] = weighted_median(steps[:, 0], weights)
     return velocity
