@@ -63,6 +63,7 @@ class MotionMatcher(sc.StreamMatcher):
         self.heading = heading
         self._probed = 0  # scans since the last probe
         self._pending: list[float] = []  # forward motions waiting for the next probe
+        self._waits = probe_filters and probe > 0 and self.probe_every > 1  # ... if they wait
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
         self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame)
         self._dt = 0.0
@@ -105,7 +106,7 @@ class MotionMatcher(sc.StreamMatcher):
             if t is not None and self._t is not None:
                 self._dt = t - self._t
             moved = se2.between(self._last[None], pose[None])[0]
-            if self._known and self.probe_filters and self.probe_shift > 0 and self.probe_every > 1:
+            if self._known and self._waits:
                 self._follow_probed(moved, probed)
             elif self._known:
                 gain = np.full(3, self.gain)
