@@ -6,9 +6,10 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out
 
 # The seed-pinned real-log tests reproduce diagnosed cases to the bit, and the mapper's last
-# bits follow the BLAS kernels OpenBLAS picks for the CPU (numba's 3 x 3 solves go through its
-# LAPACK). They were written where OpenBLAS picked its SkylakeX (AVX-512) kernels; an AMD Zen 5
-# gets its Haswell ones and 16 of them fail. Where the CPU has AVX-512 the tests ask for
+# bits follow the BLAS kernels OpenBLAS runs (numba's 3 x 3 solves go through its LAPACK). They
+# were written where OpenBLAS ran its SkylakeX (AVX-512) kernels; session 40's machine (an AMD
+# Zen 5) sets OPENBLAS_CORETYPE=Haswell in its environment and 16 of them failed. Where the CPU
+# has AVX-512 the tests ask for
 # SkylakeX's (docs/robustness.md, "Bits and machines").
 BLAS_PIN := $(shell grep -qw avx512bw /proc/cpuinfo 2>/dev/null && grep -qw avx512vl /proc/cpuinfo && echo OPENBLAS_CORETYPE=SkylakeX)
 

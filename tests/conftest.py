@@ -27,6 +27,25 @@ def pytest_configure(config: pytest.Config) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def pytest_report_header() -> str:
+    """Which kernels OpenBLAS runs (the mapper's last bits follow them, and the seed-pinned
+    real-log tests were written under SkylakeX's: `make test` asks for those where the CPU has
+    AVX-512; docs/robustness.md, "Bits and machines")."""
+    from threadpoolctl import threadpool_info
+
+    kernels = sorted(
+        {
+            str(i.get("architecture"))
+            for i in threadpool_info()
+            if "openblas" in i.get("internal_api", "")
+        }
+    )
+    pinned = os.environ.get(
+        "OPENBLAS_CORETYPE", "not set (make test sets it where the CPU has AVX-512)"
+    )
+    return f"OpenBLAS kernels: {', '.join(kernels) or 'none loaded'}; OPENBLAS_CORETYPE {pinned}"
+
+
 @pytest.fixture(scope="session")
 def real() -> Path:
     """The folder of real logs; tests that need it (marked `real` by the hook below) are
