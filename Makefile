@@ -9,8 +9,7 @@ OUT    ?= out
 # bits follow the BLAS kernels OpenBLAS runs (numba's 3 x 3 solves go through its LAPACK). They
 # were written where OpenBLAS ran its SkylakeX (AVX-512) kernels; session 40's machine (an AMD
 # Zen 5) sets OPENBLAS_CORETYPE=Haswell in its environment and 16 of them failed. Where the CPU
-# has AVX-512 the tests ask for
-# SkylakeX's (docs/robustness.md, "Bits and machines").
+# has AVX-512 the tests ask for SkylakeX's (docs/robustness.md, "Bits and machines").
 BLAS_PIN := $(shell grep -qw avx512bw /proc/cpuinfo 2>/dev/null && grep -qw avx512vl /proc/cpuinfo && echo OPENBLAS_CORETYPE=SkylakeX)
 
 .PHONY: install warmup demo test test-fast bench lint format clean constraints

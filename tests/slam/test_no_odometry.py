@@ -140,7 +140,7 @@ def test_a_corridor_that_turns_bare_between_two_probes_keeps_the_speed_it_had() 
     # 1708 (0.97) was kept for fits 1709-1710 that no longer observed the forward motion
     # (0.054 and 0.057 m a scan against the truth's 0.039), the velocity ran 14% fast over
     # scans 1714-2100 and the log mapped 0.666 m off. Those forward motions now wait for the
-    # next probe (0.32) and are taken in with the lesser response
+    # next probe and are taken in at its response (0.32)
     ds, truth, _ = _without_odometry(305, "building")
     poses = sequential(ds).poses
     walked, truth_walked = (

@@ -20,11 +20,10 @@ if TYPE_CHECKING:  # the heading map builds on scan-to-map, which builds on this
 VELOCITY_GAIN = 0.3  # share of a scan's matched motion taken into the velocity (1: the last)
 PROBE_SHIFT = 0.05  # m: the prediction moved this far forward and back to see whether the fit
 # observes forward motion (0: no probe; the forward velocity filtered like the rest)
-PROBE_EVERY = 3  # scans: the probe's response measured on every third scan, and the forward
-# motions of the scans before it wait for it (kept from the probe before, a response went
-# stale where a corridor turned bare between two probes: building world 305's velocity took
-# two unobserved fits, 40% fast, at 0.97, ran 14% fast for 15 m and mapped 0.666 m off)
-_FORWARD = np.array([1.0, 0.0])
+PROBE_EVERY = 3  # scans: the probe's response measured on every third scan; the forward
+# motions of the scans before it wait for it. Kept from the probe before instead, a response
+# went stale where a corridor turned bare between two probes: building world 305's velocity
+# took two unobserved fits, 40% fast, at 0.97, ran 14% fast for 15 m and mapped 0.666 m off
 
 
 class MotionMatcher(sc.StreamMatcher):
@@ -63,9 +62,10 @@ class MotionMatcher(sc.StreamMatcher):
         self.heading = heading
         self._probed = 0  # scans since the last probe
         self._pending: list[float] = []  # forward motions waiting for the next probe
-        self._waits = probe_filters and probe > 0 and self.probe_every > 1  # ... if they wait
+        self._filters = probe_filters and probe > 0  # the response weighs the forward part
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
-        self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame)
+        self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame; the heading
+        # unless `probe_axis` is "motion")
         self._dt = 0.0
         self._t: float | None = None
 
@@ -106,23 +106,10 @@ class MotionMatcher(sc.StreamMatcher):
             if t is not None and self._t is not None:
                 self._dt = t - self._t
             moved = se2.between(self._last[None], pose[None])[0]
-            if self._known and self._waits:
+            if self._known and self._filters:
                 self._follow_probed(moved, probed)
             elif self._known:
-                gain = np.full(3, self.gain)
-                if self.probe_filters and self.config.probe_axis == "motion":
-                    u = self._axis  # the response's along the probed axis, full gain across
-                    along, rest = self.gain * self.response**2, self.gain
-                    d = moved - self._step
-                    d_along = float(d[:2] @ u)
-                    self._step = (
-                        self._step
-                        + np.r_[along * d_along * u + rest * (d[:2] - d_along * u), rest * d[2]]
-                    )
-                else:
-                    if self.probe_filters:
-                        gain[0] *= self.response**2  # 1.0 without the probe
-                    self._step = self._step + gain * (moved - self._step)
+                self._step = self._step + np.full(3, self.gain) * (moved - self._step)
             else:
                 self._step, self._known = moved, True
         self._last = pose
@@ -133,8 +120,8 @@ class MotionMatcher(sc.StreamMatcher):
         """The velocity follows the matched motion `moved`: across the probed axis and in turn
         by `gain` at once; along it at the next probe (`probed`: this scan was probed), by
         `gain` times the square of that probe's response, for this scan and the ones that
-        waited for it."""
-        u = self._axis if self.config.probe_axis == "motion" else _FORWARD
+        waited for it (none when every scan is probed)."""
+        u = self._axis
         d = moved - self._step
         d_along = float(d[:2] @ u)
         self._step = self._step + self.gain * np.r_[d[:2] - d_along * u, d[2]]
