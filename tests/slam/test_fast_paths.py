@@ -319,12 +319,18 @@ def test_branch_and_bound_finds_what_the_exhaustive_coarse_search_finds(
             _same(*found)
     assert len(bounded) == min(len(pairs), 12) + 12
     assert sum(bounded) >= len(bounded) - 3
-    # the pyramid it bounds with
-    for levels in (1, 3, 5):
+    # the pyramid it bounds with (8 levels: a wide window's, padding wider than the grid)
+    for levels in (1, 3, 5, 8):
         np.testing.assert_array_equal(
             grid_mod._pyramid(coarse.likelihood_t, levels),
             _pyramid_numpy(coarse.likelihood_t, levels),
         )
+    # the offsets near a pick, computed in a box around it only: `_within`'s booleans
+    for step, window, reach in ((0.2, 3.0, 0.3), (0.2, 12.0, 0.6), (0.1, 0.5, 0.3)):
+        half, offsets, _ = grid_mod._lattice(step, window, 0.1, 0.05)
+        for i, j in ((0, 0), (half, half), (2 * half, 1), (3, 2 * half - 2)):
+            near = grid_mod._within_near(offsets, i, j, reach, step)[0]
+            np.testing.assert_array_equal(near, grid_mod._within(offsets, i, j, reach))
 
 
 def _build_edt(

@@ -542,7 +542,12 @@ def _cells_of(
 def _pyramid(like_t: np.ndarray, levels: int) -> np.ndarray:
     """Max-pooled grids: level L, cell (x + P, y + P), P = 2^(levels - 1), holds the largest
     likelihood of the 2^L x 2^L cells from (x, y) up (0 off the grid): an upper bound of the
-    likelihood anywhere a point lands when its offset moves within a block of 2^L x 2^L."""
+    likelihood anywhere a point lands when its offset moves within a block of 2^L x 2^L.
+
+    Only the cells whose block meets the grid are computed (x + P from P - 2^L + 1 up to
+    P + W, likewise y): the rest are 0 as allocated, which is what the max of their
+    off-grid cells gives. A max is exact, so the values are the full computation's to the
+    bit; the padding of a wide window's top levels was most of the work."""
     w, h = like_t.shape
     p = 1 << (levels - 1)
     big_w, big_h = w + 2 * p, h + 2 * p
@@ -551,22 +556,14 @@ def _pyramid(like_t: np.ndarray, levels: int) -> np.ndarray:
         out[0, x + p, p : p + h] = like_t[x]
     for lv in range(1, levels):
         s = 1 << (lv - 1)
+        lo = p - (1 << lv) + 1  # >= 1: the first cell whose block meets the grid
         prev = out[lv - 1]
         cur = out[lv]
-        # the max of four cells (of the three, two or one on the grid's last s columns and
-        # rows): in any order the same value, so the inner loops run without a bounds test
-        for x in range(big_w - s):
+        # x + s < big_w and y + s < big_h over these cells (s < p): no bounds test
+        for x in range(lo, p + w):
             a, b, c = prev[x], prev[x + s], cur[x]
-            for y in range(big_h - s):
+            for y in range(lo, p + h):
                 c[y] = max(max(a[y], b[y]), max(a[y + s], b[y + s]))
-            for y in range(big_h - s, big_h):
-                c[y] = max(a[y], b[y])
-        for x in range(big_w - s, big_w):
-            a, c = prev[x], cur[x]
-            for y in range(big_h - s):
-                c[y] = max(a[y], a[y + s])
-            for y in range(big_h - s, big_h):
-                c[y] = a[y]
     return out
 
 
@@ -787,6 +784,27 @@ def _within(offsets: np.ndarray, i: int, j: int, reach: float) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def _within_near(
+    offsets: np.ndarray, i: int, j: int, reach: float, step: float
+) -> tuple[np.ndarray, int, int, int, int]:
+    """`_within(offsets, i, j, reach)` (the same booleans) with the offsets `step` apart
+    (`_lattice`'s), each computed only in the box of offsets within `reach` / `step` + 2
+    indices of (i, j), and that box (ii from i0 to i1, jj from j0 to j1, ends excluded):
+    outside it an offset is more than a whole step beyond `reach`, so no rounding of the
+    hypot makes it within, and the rest of the array is False."""
+    n = offsets.shape[0]
+    out = np.zeros((n, n), dtype=np.bool_)
+    r = int(reach / step) + 2
+    i0, i1 = max(i - r, 0), min(i + r + 1, n)
+    j0, j1 = max(j - r, 0), min(j + r + 1, n)
+    for ii in range(i0, i1):
+        dx = offsets[ii] - offsets[i]
+        for jj in range(j0, j1):
+            out[ii, jj] = math.hypot(dx, offsets[jj] - offsets[j]) <= reach
+    return out, i0, i1, j0, j1
+
+
 def _starts(
     vol: np.ndarray,
     offsets: np.ndarray,
@@ -987,18 +1005,18 @@ def _bnb_picks(
         if picks == 0:
             best = score
         picks += 1
-        near = _within(offsets, i, j, 1.5 * step)
+        near, i0, i1, j0, j1 = _within_near(offsets, i, j, 1.5 * step, step)
         for aa in range(n_a):
             if abs(thetas[aa] - thetas[a]) <= near_t:
-                for ii in range(n):
-                    for jj in range(n):
+                for ii in range(i0, i1):  # near is False outside its box
+                    for jj in range(j0, j1):
                         if near[ii, jj]:
                             free[aa, ii, jj] = False
         k += 1
     if picks == 0:
         return 0, 0.0, 0.0
     a, i, j = tops[0, 0], tops[0, 1], tops[0, 2]
-    far_xy = ~_within(offsets, i, j, away)  # `_far`'s poses: far_xy or far_t
+    far_xy = ~_within_near(offsets, i, j, away, step)[0]  # `_far`'s poses: far_xy or far_t
     far_t = np.empty(n_a, dtype=np.bool_)
     for aa in range(n_a):
         far_t[aa] = abs(thetas[aa] - thetas[a]) > away_turn
