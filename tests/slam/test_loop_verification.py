@@ -198,7 +198,9 @@ def test_real_infinite_corridor_loop_hidden_by_parallel_axes_is_inconsistent(rea
     44 -> 756, right, is kept. Scan 44's agreement with its local map (`anchor_agree`, the
     default) refuses both, so the test runs with that off, and with the candidates by appearance
     off (with them the pairs around scan 756 are other ones; docs/journal/maps.md, session 19),
-    and `corridor_slide` off (session 21), to look at the consistency test alone."""
+    and `corridor_slide` off (session 21), to look at the consistency test alone; and with
+    the coarse corridor axis (`corridor_ridge` off): the ridge's axis (the default since session
+    41) alone puts 44 -> 768 within 0.5 m of the truth."""
     from bench.bench_slam import nudged
 
     ds = nudged(drifted_carmen(real, "infinite-corridor", seed=29), 0)
@@ -210,10 +212,18 @@ def test_real_infinite_corridor_loop_hidden_by_parallel_axes_is_inconsistent(rea
         cfg = SlamConfig()
         cfg = replace(
             cfg,
-            loop=replace(cfg.loop, anchor_agree=0.0, recognition=False, corridor_slide=0.0, **loop),
+            loop=replace(
+                cfg.loop,
+                anchor_agree=0.0,
+                recognition=False,
+                corridor_slide=0.0,
+                **{"corridor_ridge": 0.0, **loop},
+            ),
         )
         return {(lp.a, lp.b): lp for lp in close_loops(ds, before, cfg)[3]}
 
+    ridge = loops(corridor_ridge=SlamConfig().loop.corridor_ridge)[(44, 768)]
+    assert ridge.accepted and not is_false_loop(ridge, truth)
     off = loops()
     assert off[(44, 768)].accepted and is_false_loop(off[(44, 768)], truth)
     on = loops(consistency_along=2.0)
@@ -229,7 +239,9 @@ def test_real_infinite_corridor_loop_matched_on_another_stretch_slides(real: Pat
     bend leaves the loop 0.57 m across from the truth. The full loops nearby (50 -> 764) put
     768 12.8 m along in the optimum; with `corridor_slide` 4 m (the default) the loop is
     withdrawn there ("slid"), and the run has no false loop; off, 42 -> 768 is accepted and
-    false (docs/journal/maps.md, session 21)."""
+    false (docs/journal/maps.md, session 21). Both with the coarse corridor axis
+    (`corridor_ridge` off): the ridge's axis (the default since session 41) alone keeps
+    42 -> 768 within 0.5 m of the truth, slide or no slide."""
     from bench.bench_slam import nudged
 
     ds = nudged(drifted_carmen(real, "infinite-corridor", seed=33), 1)
@@ -239,12 +251,14 @@ def test_real_infinite_corridor_loop_matched_on_another_stretch_slides(real: Pat
     assert front.matches is not None
     step_cov = front.matches.covariance
 
-    def loops(slide: float) -> dict[tuple[int, int], Loop]:
+    def loops(slide: float, ridge: float = 0.0) -> dict[tuple[int, int], Loop]:
         cfg = SlamConfig()
-        cfg = replace(cfg, loop=replace(cfg.loop, corridor_slide=slide))
+        cfg = replace(cfg, loop=replace(cfg.loop, corridor_slide=slide, corridor_ridge=ridge))
         out = close_loops(ds, front.poses, cfg, step_cov)[3]
         return {(lp.a, lp.b): lp for lp in out}
 
+    ridge = loops(0.0, SlamConfig().loop.corridor_ridge)[(42, 768)]
+    assert ridge.accepted and not is_false_loop(ridge, truth)
     off = loops(0.0)
     assert off[(42, 768)].accepted and is_false_loop(off[(42, 768)], truth)
     on = loops(SlamConfig().loop.corridor_slide)
@@ -291,7 +305,9 @@ def test_real_freiburg_campus_corridor_loop_won_on_its_window_edge_is_refused(re
     window. The window's best pose lies on its edge, the corridor's ridge cut there (it bends
     into 241's local map) tilts the corridor axis some 65 deg, and the corridor loop is 0.52 m
     across it off the truth. Searched again centred on that winner, the query moves 0.49 m
-    across the axis: refused (`edge_check`). The truth's poses, the run's prediction."""
+    across the axis: refused (`edge_check`). The truth's poses, the run's prediction. The
+    coarse corridor axis (`corridor_ridge` off) for the refusal's premise: the ridge's axis
+    takes 0.04 m off (0.49 m), and the edge test still refuses it."""
     from toolkit.se2 import between
     from toolkit.slam.loops import LoopConfig, path_length
     from toolkit.slam.pipeline import keyframes_of
@@ -308,8 +324,9 @@ def test_real_freiburg_campus_corridor_loop_won_on_its_window_edge_is_refused(re
         return loop
 
     run = np.array([0.31, -0.67, -0.16])  # seed 72's prediction, 241's frame
-    off = verify(LoopConfig(edge_check=0.0), run)
+    off = verify(LoopConfig(edge_check=0.0, corridor_ridge=0.0), run)
     assert off.accepted and off.axis is not None and is_false_loop(off, truth)
+    assert not verify(LoopConfig(corridor_ridge=0.0), run).accepted
     on = verify(LoopConfig(), run)
     assert not on.accepted and on.reason.startswith("edge: searched again")
     # seed 67's 241 -> 1250, its truth 0.13-0.33 m beyond the window: on the edge too, but the
@@ -471,7 +488,9 @@ def test_real_freiburg_campus_seed_446_false_loop_is_the_truths(real: Path) -> N
     map placed by the truth, fit within 0.05 m across of the loop and 0.6 m from where the truth
     puts 1245, and 1245 fits its own truth-placed neighbours 0.5 m off (the corrected log
     zigzags across the corridor at 1242-1249). Right by the scans: no test should refuse it;
-    `query_odometry` (full loops only) leaves it."""
+    `query_odometry` (full loops only) leaves it. The run with session 36's coarse corridor
+    axis (`corridor_ridge` off): the ridge's axis leaves the loop 0.48 m across, under the
+    false-loop bound, the same loop."""
     from toolkit.se2 import between, compose
     from toolkit.slam.grid import voxel_subsample
     from toolkit.slam.loops import LoopConfig, path_length
@@ -480,7 +499,8 @@ def test_real_freiburg_campus_seed_446_false_loop_is_the_truths(real: Path) -> N
     ds = drifted_carmen(real, "freiburg-campus", seed=446)
     truth = truth_poses(ds)
     assert truth is not None
-    _, run = slam_trajectory(ds, slam=SlamConfig())
+    coarse_axis = replace(SlamConfig(), loop=replace(LoopConfig(), corridor_ridge=0.0))
+    _, run = slam_trajectory(ds, slam=coarse_axis)
     false = [lp for lp in run.loops if lp.accepted and is_false_loop(lp, truth)]
     assert [lp.pair for lp in false] == [(243, 1245)]
     loop = false[0]

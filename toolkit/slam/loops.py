@@ -49,6 +49,7 @@ from toolkit.slam.grid import (
     LikelihoodGrid,
     SearchResult,
     _first_in_cell,
+    _score,
     bounds,
     coarse_ambiguity,
     coarse_scores,
@@ -158,6 +159,17 @@ class LoopConfig:
     # unchanged; docs/journal/maps.md); 0: off
     corridor_slide: float = 4.0
     corridor_rematch: bool = True
+    # > 0 (m): a corridor loop's axis is the direction, within `ridge_turn` rad of the coarse
+    # one (`corridor_axis`, from poses 0.2 m apart), along which the query slid +-this many m
+    # from the winner keeps the highest mean fine score: the corridor's own axis to a fraction
+    # of a degree. Along the axis the loop takes the trajectory's position, so an axis a few
+    # degrees off the corridor's carries the across offset found at the winner, metres along,
+    # wrong to there (infinite-corridor seed 23's 237 -> 497: winner 3.1 m along, coarse
+    # axis 4.5 deg off the walls, 0.44 m across off the truth; on by default since session
+    # 41: development seeds 0-24, accepted corridor loops over 0.2 m across off the truth
+    # 26 -> 0, the 99th percentile 0.21 -> 0.09 m; docs/journal/maps.md); 0: the coarse axis
+    corridor_ridge: float = 2.5
+    ridge_turn: float = 0.14
     # a winner within this many metres of its search window's edge is the best pose the
     # window holds, and the best one may lie beyond it (a drift larger than the window): the
     # query is searched again centred on that winner (the same window and heading window), and
@@ -809,6 +821,14 @@ class LoopCloser:
                     f"edge: searched again from its winner on the window's edge, {moved:.2f} m off"
                 )
         ok = not why
+        if ok and axis is not None and cfg.corridor_ridge > 0:  # the corridor's own axis
+            axis = ridge_axis(points[2], query, found.pose, axis, cfg)
+            pose = found.pose.copy()
+            pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
+            pose_k, axis_k = pose, axis
+            if k != a:
+                rel = between(poses[k], poses[a])
+                pose_k, axis_k = compose(rel, pose), rotation(rel[2]) @ axis
         loop = Loop(k, b, pose_k, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
         if k != a:
             loop.anchored = a
@@ -1078,6 +1098,69 @@ def corridor_axis(
     if far.any() and vol[far].max() > config.max_ambiguity * best:
         return None
     out: np.ndarray = axis
+    return out
+
+
+RIDGE_STEPS = (11, math.radians(0.5))  # slides along a candidate axis; the candidates' spacing
+RIDGE_NEAR = 8.0  # m: the query's points this near scan b tell the corridor there
+
+
+def ridge_axis(
+    ref: np.ndarray, query: np.ndarray, winner: np.ndarray, axis: np.ndarray, config: LoopConfig
+) -> np.ndarray:
+    """The direction within `ridge_turn` of `axis` along which `query` (b's frame; its points
+    within `RIDGE_NEAR` of b) slid from `winner` (a's frame) over +-`corridor_ridge` m scores
+    highest on the fine grid of `ref` (a's local map), summed over the slides: the ridge of
+    a corridor's score surface. Run on a corridor loop that passed every test."""
+    query = query[np.hypot(query[:, 0], query[:, 1]) <= RIDGE_NEAR]
+    if len(query) < config.min_points:
+        return axis
+    reach = config.corridor_ridge + 1.0
+    c, sn = np.cos(winner[2]), np.sin(winner[2])
+    lo, hi = bounds(winner[:2] + query @ np.array([[c, sn], [-sn, c]]))
+    near = inside(ref, lo - reach, hi + reach)
+    if len(near) < config.min_points:
+        return axis
+    fine = LikelihoodGrid.build(near, config.fine, config.fine_sigma, margin=1.0)
+    slides, spacing = RIDGE_STEPS
+    half = int(config.ridge_turn / spacing)
+    phis = np.arange(-half, half + 1) * spacing
+    base = math.atan2(axis[1], axis[0])
+    units = np.column_stack([np.cos(base + phis), np.sin(base + phis)])
+    ts = np.linspace(-config.corridor_ridge, config.corridor_ridge, slides)
+    scores = _ridge_scores(
+        fine.likelihood,
+        fine.origin,
+        fine.resolution,
+        np.ascontiguousarray(query),
+        winner,
+        units,
+        ts,
+    )
+    out: np.ndarray = units[int(np.argmax(scores))]
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _ridge_scores(
+    like: np.ndarray,
+    origin: np.ndarray,
+    res: float,
+    pts: np.ndarray,
+    winner: np.ndarray,
+    units: np.ndarray,
+    ts: np.ndarray,
+) -> np.ndarray:
+    """Per direction in `units`, the summed mean likelihood of `pts` at `winner` slid by each
+    of `ts` along it (`LikelihoodGrid.score` of each)."""
+    out = np.zeros(units.shape[0])
+    pose = np.empty(3)
+    pose[2] = winner[2]
+    for k in range(units.shape[0]):
+        for t in ts:
+            pose[0] = winner[0] + t * units[k, 0]
+            pose[1] = winner[1] + t * units[k, 1]
+            out[k] += _score(like, origin, res, pts, pose)
     return out
 
 
