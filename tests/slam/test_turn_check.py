@@ -125,7 +125,8 @@ def test_a_slip_under_turn_check_is_refitted_from_the_previous_heading(real: Pat
     search's unclear winner 0.30 (0.88 off). The refit from the previous heading fits 0.68,
     0.002 off. With `poor_refit` 0.15 (off by default) it is taken; every scan before is placed
     alike, and the whole mapper's ATE falls from 1.85 to 0.41 m (docs/journal/maps.md,
-    session 34, ic34)."""
+    session 34, ic34; 0.52 m with session 41's corridor axes: infinite-corridor's runs without
+    a slip lie at 0.25-0.8 m)."""
     from toolkit.metrics import evaluate
     from toolkit.poses import odometry_poses
     from toolkit.slam.pipeline import SlamConfig
@@ -155,7 +156,7 @@ def test_a_slip_under_turn_check_is_refitted_from_the_previous_heading(real: Pat
     assert off(placed[1]) < 0.05
     config = SlamConfig(scan_map=MapConfig(poor_refit=0.15))
     poses = slam_trajectory(ds, slam=config)[0].poses
-    assert evaluate(poses, truth)["ate"]["rmse"] < 0.5
+    assert evaluate(poses, truth)["ate"]["rmse"] < 0.6
 
 
 def test_a_search_from_the_previous_heading_finds_the_turn_the_refit_misses(real: Path) -> None:
