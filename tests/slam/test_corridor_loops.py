@@ -142,3 +142,50 @@ def test_corridor_slides_measures_b_along_the_axis_only() -> None:
     across = Loop(0, 5, np.array([7.0, 2.0, 0.0]), 1.0, 1.0, 0.9, True, axis=np.array([1.0, 0.0]))
     out = corridor_slides([corr, full, across], keys, poses)
     assert out == pytest.approx([6.5, 0.0, 0.0])
+
+
+def test_the_ridge_axis_follows_a_corridor_the_coarse_axis_misses_by_degrees() -> None:
+    """A corridor whose walls run 4.5 deg off the coarse axis (1, 0): the query, its two walls
+    seen from b, slid along the ridge keeps to them, so `ridge_axis` turns the axis onto the
+    walls (within its 0.5 deg steps); a corridor on the axis keeps it."""
+    from toolkit.se2 import rotation
+    from toolkit.slam.loops import LoopConfig, ridge_axis
+
+    def walls(tilt: float, x0: float, x1: float) -> np.ndarray:
+        x = np.arange(x0, x1, 0.05)
+        both = np.concatenate(
+            [np.column_stack([x, x * 0 + 1.2]), np.column_stack([x, x * 0 - 1.2])]
+        )
+        out: np.ndarray = both @ rotation(tilt).T
+        return out
+
+    cfg = LoopConfig()
+    coarse = np.array([1.0, 0.0])
+    for tilt in (np.radians(4.5), 0.0):
+        ref = walls(tilt, -12.0, 12.0)  # a's local map, a's frame
+        query = walls(0.0, -5.0, 5.0)  # b's own view: the walls along its x axis
+        winner = np.array([3.0 * np.cos(tilt), 3.0 * np.sin(tilt), tilt])  # b 3 m along
+        axis = ridge_axis(ref, query, winner, coarse, cfg)
+        assert abs(np.degrees(np.arctan2(axis[1], axis[0])) - np.degrees(tilt)) <= 0.5
+
+
+def test_real_infinite_corridor_loop_across_its_axis_taken_along_the_ridge(real: Path) -> None:
+    """infinite-corridor drift seed 11's corridor loop 1433 -> 1768 (development): with the
+    coarse search's axis its across offset, found where the winner lies and carried back along
+    that axis to the trajectory's position, is 0.30 m off the truth; along the ridge's axis
+    (`corridor_ridge`, the default) 0.09 m, its heading the same (docs/journal/maps.md, session
+    41: on seeds 0-24, OpenBLAS's Haswell kernels, no accepted corridor loop over 0.2 m across
+    with the ridge, 26 with the coarse axis)."""
+    ds = drifted_carmen(real, "infinite-corridor", seed=11)
+    truth = truth_poses(ds)
+    assert truth is not None
+    coarse = replace(SlamConfig(), loop=replace(SlamConfig().loop, corridor_ridge=0.0))
+    errors = []
+    for cfg in (coarse, SlamConfig()):
+        loops = {lp.pair: lp for lp in slam_trajectory(ds, slam=cfg)[1].loops}
+        lp = loops[(1433, 1768)]
+        assert lp.accepted and lp.axis is not None
+        errors.append(loop_truth_error(lp, truth))
+    assert errors[0][0] > 0.3
+    assert errors[1][0] < 0.1
+    assert abs(errors[1][1] - errors[0][1]) < 0.01

@@ -14,7 +14,8 @@ clear winner: the best pose elsewhere in the window (0.6 m or 0.15 rad away) sco
 `max_ambiguity` of the winner, among those seen points (`seen_ambiguity`; a corridor, where a
 shift along it scores alike, fails it). A match that fails only that test, and whose
 alike poses lie along one axis with none across it (`corridor_axis`), is kept as a corridor
-loop: trusted across the axis and in heading only (`Loop.covariance`). A loop is in the earlier
+loop: trusted across the axis and in heading only (`Loop.covariance`), its axis the ridge of
+the fine score where the match put it (`corridor_ridge`). A loop is in the earlier
 keyframe's frame, and a front-end slip there passes into it: it is refused when that scan fits
 the rest of its local map, or the query fits that scan alone, 0.3 m from where the trajectory
 put it (`anchor`, `anchor_match`); a corridor loop, trusted in heading, is refused when
