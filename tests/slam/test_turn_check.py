@@ -192,3 +192,17 @@ def test_an_unsupported_fit_gives_way_to_a_witness_turning_less(real: Path) -> N
     assert _off(truth, mended, step) < 0.05
     assert evaluate(kept, truth)["ate"]["rmse"] > 10.0
     assert evaluate(mended, truth)["ate"]["rmse"] < 5.0
+
+
+def test_a_refit_in_the_held_fits_own_basin_that_fits_more_is_taken(real: Path) -> None:
+    """infinite-corridor drift seed 596, step 503 -> 504 (session 41's held-out false loop): a
+    wheel slip turns the odometry 0.84 rad, the truth 0.27, in a junction; the fit from the
+    slipped prediction stops some 5 deg off the truth's turn fitting 0.63-0.65 of the returns,
+    the search around the unturned prediction lies within 0.5 deg of it fitting 0.77: over
+    `FITS_MORE` more, under `turn_gain`, and not another solution (under `turn_check` from the
+    fit held). With `turn_near` (default) it is taken: the step within 0.02 rad of the truth's
+    turn; without, over 0.07 rad off (the slip a corridor loop across it carried, 5.6 deg)."""
+    assert MapConfig().turn_near
+    without, near = _mended(real, 596, 503, MapConfig(turn_near=False), log="infinite-corridor")
+    assert without > 0.07
+    assert near < 0.02

@@ -187,6 +187,15 @@ class MapConfig:
     # paired development runs (ten logs x drift seeds 0-40, orebro 41-360, fhw 41-160,
     # infinite-corridor and freiburg-campus 41-70) it moves 5, freiburg-101 36 0.083 -> 0.053
     # m, the others by 0.4-2.5 mm (docs/journal/maps.md, session 35)
+    turn_near: bool = True  # `turn_check` also takes its refit (or its search's fit) that
+    # lies within `turn_check` of the fit held and fits `FITS_MORE` more of the returns: not
+    # another solution but the held one's own, further on in its basin than the fit from the
+    # slipped prediction stopped (`turn_gain` guards against aliases a radian away).
+    # infinite-corridor drift seed 596, scan 504 (session 41's held-out false loop): the
+    # odometry turns 0.84 rad, the truth 0.27; the fit held stopped 5.6 deg off fitting 0.63,
+    # the search around the unturned prediction 0.3 deg off fitting 0.77, 0.006 short of
+    # `turn_gain`; the slip stayed in the map and a corridor loop across it was 5.6 deg off
+    # (docs/journal/maps.md, session 41); False: off
     turn_unfit: float = 0.05  # > 0: on a step `turn_check` examines (the odometry turns more
     # than it), a fit held that fewer than this share of the returns support has nothing to
     # hold the odometry's turn against its witnesses: the best of them (the refit, the search
@@ -967,8 +976,13 @@ class MapMatcher:
             and ((cfg.turn_tie > 0 and res[4] >= out[4] - cfg.turn_tie) or past)
             and another_turning_less(res)
         )
+        near = (  # the same solution, further on in its basin than the fit held stopped
+            cfg.turn_near
+            and abs(_wrap(res[2] - out[2])) <= cfg.turn_check
+            and res[4] >= out[4] + FITS_MORE
+        )
         taken: tuple[np.ndarray, np.ndarray] | None
-        if res[4] >= out[4] + cfg.turn_gain or tie:
+        if res[4] >= out[4] + cfg.turn_gain or tie or near:
             taken = (res, c)
         else:  # the searches' unclear winners, the +-search_turn one's first
             unclear = ((cfg.turn_refused, refused), (cfg.turn_circle, circled))
