@@ -123,23 +123,23 @@ def test_a_slip_under_turn_check_is_refitted_from_the_previous_heading(real: Pat
     rad where the truth turns -0.23, under `turn_check` (0.5), so no turn rule looks; the
     prediction's fit holds 0.33 of the returns 0.44 rad off the truth's turn, the +-1 rad
     search's unclear winner 0.30 (0.88 off). The refit from the previous heading fits 0.68,
-    0.002 off. With `poor_refit` 0.15 (off by default) it is taken; every scan before is placed
-    alike, and the whole mapper's ATE falls from 1.85 to 0.41 m (docs/journal/maps.md,
-    session 34, ic34; 0.52 m with session 41's corridor axes: infinite-corridor's runs without
-    a slip lie at 0.25-0.8 m)."""
+    0.002 off. With `poor_refit` 0.15 (the default since session 41) it is taken; every scan
+    before is placed alike, and the whole mapper's ATE falls from 1.85 to 0.41 m
+    (docs/journal/maps.md, session 34, ic34; 0.52 m with session 41's corridor axes:
+    infinite-corridor's runs without a slip lie at 0.25-0.8 m)."""
     from toolkit.metrics import evaluate
     from toolkit.poses import odometry_poses
     from toolkit.slam.pipeline import SlamConfig
     from toolkit.slam.run import slam_trajectory
     from toolkit.slam.scanmap import MapMatcher
 
-    assert MapConfig().poor_refit == 0.0
+    assert MapConfig().poor_refit == 0.15
     ds = drifted_carmen(real, "infinite-corridor", seed=151)
     truth, odometry = truth_poses(ds), odometry_poses(ds)
     assert truth is not None and odometry is not None
     step = 148
     placed = []
-    for config in (MapConfig(), MapConfig(poor_refit=0.15)):
+    for config in (MapConfig(poor_refit=0.0), MapConfig()):
         matcher = MapMatcher(ds.laser, config)
         placed.append(
             np.array(
@@ -154,8 +154,7 @@ def test_a_slip_under_turn_check_is_refitted_from_the_previous_heading(real: Pat
 
     assert off(placed[0]) > 0.4
     assert off(placed[1]) < 0.05
-    config = SlamConfig(scan_map=MapConfig(poor_refit=0.15))
-    poses = slam_trajectory(ds, slam=config)[0].poses
+    poses = slam_trajectory(ds, slam=SlamConfig())[0].poses
     assert evaluate(poses, truth)["ate"]["rmse"] < 0.6
 
 
