@@ -775,10 +775,10 @@ class LoopCloser:
             if axis is None:
                 why.append(f"ambiguity {ambiguity:.2f} > {cfg.max_ambiguity}")
             else:  # along the axis the match says nothing: keep the trajectory's position
-                pose = pose.copy()
-                pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
+                pose = at_prediction(found.pose, prediction, axis)
         # the loop's frame: scan a's, or (`reanchor`) a neighbour's when a fits turned
         k, pose_k, won_k, axis_k = a, pose, found.pose, axis
+        rel: np.ndarray | None = None  # a's pose in k's frame, when k is not a
         if not why and cfg.anchor:
             moved, agree, turned = self.anchor_fit(a, along, keys, poses, cfg)
             if moved > cfg.anchor_slip:
@@ -792,9 +792,8 @@ class LoopCloser:
                 else:  # the same match, in n's frame (as the trajectory places a from n)
                     n, agree = steady
                     rel = between(poses[n], poses[a])
-                    k, pose_k, won_k = n, compose(rel, pose), compose(rel, found.pose)
-                    if axis is not None:
-                        axis_k = rotation(rel[2]) @ axis
+                    k, won_k = n, compose(rel, found.pose)
+                    pose_k, axis_k = in_frame(rel, pose, axis)
             if not why and axis_k is not None and agree < cfg.anchor_agree:
                 why.append(
                     f"anchor: scan {k} fits its local map with {agree:.2f} of its returns"
@@ -824,12 +823,8 @@ class LoopCloser:
         ok = not why
         if ok and axis is not None and cfg.corridor_ridge > 0:  # the corridor's own axis
             axis = ridge_axis(points[2], query, found.pose, axis, cfg)
-            pose = found.pose.copy()
-            pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
-            pose_k, axis_k = pose, axis
-            if k != a:
-                rel = between(poses[k], poses[a])
-                pose_k, axis_k = compose(rel, pose), rotation(rel[2]) @ axis
+            pose = at_prediction(found.pose, prediction, axis)
+            pose_k, axis_k = (pose, axis) if rel is None else in_frame(rel, pose, axis)
         loop = Loop(k, b, pose_k, found.score, inliers, ambiguity, ok, ok, "; ".join(why))
         if k != a:
             loop.anchored = a
@@ -1100,6 +1095,22 @@ def corridor_axis(
         return None
     out: np.ndarray = axis
     return out
+
+
+def at_prediction(winner: np.ndarray, prediction: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """A corridor match's `winner` moved along `axis` to `prediction`'s position along it
+    (along the axis the match says nothing: the trajectory's position is kept)."""
+    pose = winner.copy()
+    pose[:2] -= ((pose[:2] - prediction[:2]) @ axis) * axis
+    return pose
+
+
+def in_frame(
+    rel: np.ndarray, pose: np.ndarray, axis: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """A loop's `pose` and corridor `axis` (scan a's frame) in the frame of the scan from
+    which a lies at `rel` (`reanchor`)."""
+    return compose(rel, pose), None if axis is None else rotation(rel[2]) @ axis
 
 
 RIDGE_STEPS = (11, math.radians(0.5))  # slides along a candidate axis; the candidates' spacing

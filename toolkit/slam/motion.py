@@ -62,7 +62,6 @@ class MotionMatcher(sc.StreamMatcher):
         self.heading = heading
         self._probed = 0  # scans since the last probe
         self._pending: list[float] = []  # forward motions waiting for the next probe
-        self._filters = probe_filters and probe > 0  # the response weighs the forward part
         self.response = 1.0  # the last scan's: share of the forward offset the fit took out
         self._axis = np.array([1.0, 0.0])  # ... along this axis (robot frame; the heading
         # unless `probe_axis` is "motion")
@@ -115,6 +114,11 @@ class MotionMatcher(sc.StreamMatcher):
         self._last = pose
         self._t = t
         return pose
+
+    @property
+    def _filters(self) -> bool:
+        """Whether the probe's response weighs the forward part of the velocity."""
+        return self.probe_filters and self.probe_shift > 0
 
     def _follow_probed(self, moved: np.ndarray, probed: bool) -> None:
         """The velocity follows the matched motion `moved`: across the probed axis and in turn

@@ -952,9 +952,13 @@ class MapMatcher:
         if turned(predicted) <= cfg.turn_check:
             return
 
+        def another(pose: np.ndarray) -> bool:
+            """Another solution than the fit held (more than `turn_check` from it)."""
+            return abs(_wrap(pose[2] - out[2])) > cfg.turn_check
+
         def another_turning_less(pose: np.ndarray) -> bool:
             """Another solution than the fit held, and one that turns the step less."""
-            return abs(_wrap(pose[2] - out[2])) > cfg.turn_check and turned(pose) < turned(out)
+            return another(pose) and turned(pose) < turned(out)
 
         res, c = self._from_last_heading(step)
         witnesses = [(res, c)]
@@ -982,11 +986,8 @@ class MapMatcher:
             and ((cfg.turn_tie > 0 and res[4] >= out[4] - cfg.turn_tie) or past)
             and another_turning_less(res)
         )
-        near = (  # the same solution, further on in its basin than the fit held stopped
-            cfg.turn_near
-            and abs(_wrap(res[2] - out[2])) <= cfg.turn_check
-            and res[4] >= out[4] + FITS_MORE
-        )
+        # the held solution itself, further on in its basin than the fit held stopped
+        near = cfg.turn_near and not another(res) and res[4] >= out[4] + FITS_MORE
         taken: tuple[np.ndarray, np.ndarray] | None
         if res[4] >= out[4] + cfg.turn_gain or tie or near:
             taken = (res, c)
