@@ -448,9 +448,10 @@ def test_real_freiburg_campus_full_loop_on_a_slipped_query_is_refused(real: Path
     off the truth there, does not), so the query of scan 1258 (1258 and 1259, 1 m apart) is a
     double image; matched by appearance against 251's and 252's local maps it wins 0.57 / 0.70
     m off the truth (ambiguity 0.83, under 0.85), and the loops agree with the slipped chain and
-    with each other, so the consistency test keeps them (with `query_odometry` off). With it
-    (0.35 m, the default) both are refused (scan 1259 placed 0.39 m nearer 1258 than the
-    odometry has it): no false loop, ATE 0.396 -> 0.352 m."""
+    with each other, so the consistency test keeps them (with `query_odometry` and
+    `query_alone` off; the latter alone refuses 251's). With `query_odometry` (0.35 m, the
+    default) both are refused (scan 1259 placed 0.39 m nearer 1258 than the odometry has it):
+    no false loop, ATE 0.396 -> 0.352 m."""
     from dataclasses import replace as changed
 
     from toolkit.poses import odometry_poses
@@ -471,7 +472,7 @@ def test_real_freiburg_campus_full_loop_on_a_slipped_query_is_refused(real: Path
         result, slam = slam_trajectory(ds, slam=changed(cfg, loop=changed(cfg.loop, **loop)))
         return evaluate(result.poses, truth)["ate"]["rmse"], slam.loops
 
-    ate, loops = run(query_odometry=0.0)
+    ate, loops = run(query_odometry=0.0, query_alone=0.0)  # `query_alone` refuses 251's
     false = {lp.pair for lp in loops if lp.accepted and is_false_loop(lp, truth)}
     assert false == {(251, 1258), (252, 1258)}
     ate_on, loops_on = run()  # the default, 0.35 m
@@ -524,3 +525,39 @@ def test_real_freiburg_campus_seed_446_false_loop_is_the_truths(real: Path) -> N
     refs = np.nonzero(np.abs(along - along[1245]) <= cfg.reference_path)[0]
     alone = closer.anchor_consistency(1245, refs, truth, cfg)
     assert alone is not None and np.hypot(*alone[0][:2]) > 0.5
+
+
+def test_real_freiburg_campus_full_loop_whose_scan_alone_fits_elsewhere_is_refused(
+    real: Path,
+) -> None:
+    """freiburg-campus's corridor at scans 1244-1260 against 237-253 (drift seeds 1 and 562's
+    false loops 252 -> 1258 / 1260, docs/journal/maps.md, session 42): one scan there fits
+    its revisit's local map at more than one place along, so a query's match rests on where
+    the trajectory put its other scans. Placed by the truth, the query of 1258 (1258 and
+    1259) matches 251's local map as a full loop 0.16 m off the truth, but 1258's own returns
+    fit 0.5 m from that match: `query_alone` (0.2 m, the default) refuses the pair; off, it
+    passes. A place where one scan fits where the query does (357 -> 1005) passes either way."""
+    from toolkit.slam.loops import LoopConfig, loop_truth_error, path_length
+    from toolkit.slam.pipeline import keyframes_of
+
+    ds = drifted_carmen(real, "freiburg-campus", seed=1)
+    truth = truth_poses(ds)
+    assert truth is not None
+    cfg = SlamConfig()
+    keys = keyframes_of(truth, cfg.keyframe_distance, cfg.keyframe_angle)
+    along = path_length(truth)
+
+    def verify(a: int, b: int, alone: float) -> Loop:
+        closer = LoopCloser(ds.ranges, ds.laser, replace(LoopConfig(), query_alone=alone))
+        loop = closer.verify(a, b, 0.5, truth, along, keys)
+        assert loop is not None and loop.axis is None  # a full loop: the test's
+        return loop
+
+    off = verify(251, 1258, 0.0)
+    assert off.accepted and loop_truth_error(off, truth)[0] < 0.2
+    on = verify(251, 1258, LoopConfig().query_alone)
+    assert not on.accepted
+    assert on.reason.startswith("query: scan 1258 alone fits")
+    assert float(on.reason.split("fits ")[1].split(" m")[0]) > 0.4
+    for alone in (0.0, LoopConfig().query_alone):
+        assert verify(357, 1005, alone).accepted

@@ -195,6 +195,16 @@ class LoopConfig:
     # to the bit; docs/journal/maps.md); the bench's odometry is the truth's with drift, so
     # where the truth is wrong it is too. 0: off
     query_odometry: float = 0.35
+    # a full loop whose scan b, its own returns alone, fits a's local map more than this (m)
+    # off the query's match (`LoopCloser.query_alone`: from that match over `anchor_window`)
+    # is refused: one scan of the place fits elsewhere, so the match rests on where the
+    # trajectory put the query's other scans, and a front-end slip among them moves it
+    # (freiburg-campus's corridor at scans 1244-1260 against 237-253: drift seeds 1 and 562's
+    # 252 -> 1258 / 1260, 0.66 / 0.51 m off the truth, scan b alone 0.23 / 0.24 m off the
+    # match). On freiburg-campus seeds 0-119 false loops 5 -> 3, ATE -0.0004 +- 0.0019 m;
+    # the other nine logs within noise; 3-4% more of the mapper's time on freiburg-campus
+    # (docs/journal/maps.md, session 42). 0: off
+    query_alone: float = 0.2
     # loop candidates by appearance too (`toolkit.slam.recognition`: a Scan Context of each
     # keyframe's local map), not only by nearness on the trajectory: a round of its own after
     # the first (`toolkit.slam.pipeline`), for revisits the drift put beyond every window. On
@@ -814,6 +824,10 @@ class LoopCloser:
                 why.append(
                     f"query: scan {s} placed {off:.2f} m off the odometry's distance from {b}"
                 )
+        if not why and cfg.query_alone > 0 and axis is None:
+            moved = self.query_alone(b, poses, ref=points[2], pose=found.pose, config=cfg)
+            if moved > cfg.query_alone:
+                why.append(f"query: scan {b} alone fits {moved:.2f} m off the query's match")
         if not why and cfg.edge_check > 0:
             moved = self.edge_move(radius, cfg, prediction, points, found.pose, axis)
             if moved > cfg.anchor_slip:
@@ -903,6 +917,16 @@ class LoopCloser:
         own = self.local_points(a, np.array([a]), poses)
         pts = query[self.seen(query, pose, a, np.array([a]), poses)]
         return self._refit(own, pts, pose, config)
+
+    def query_alone(
+        self, b: int, poses: np.ndarray, ref: np.ndarray, pose: np.ndarray, config: LoopConfig
+    ) -> float:
+        """How far (m, b's frame) scan `b`'s own returns alone fit `ref` (a's local map) from
+        `pose` (the query's match there); 0 when too few to tell. Far: one scan of the place
+        fits elsewhere, and the match rests on the trajectory's placement of the others."""
+        own = voxel_subsample(self.local_points(b, np.array([b]), poses), config.query_voxel)
+        got = self._refit(ref, own, pose, config)
+        return 0.0 if got is None else float(np.hypot(got[0][0], got[0][1]))
 
     def anchor_fit(
         self,
