@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Container
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numba as nb
@@ -195,6 +195,9 @@ class LoopConfig:
     # to the bit; docs/journal/maps.md); the bench's odometry is the truth's with drift, so
     # where the truth is wrong it is too. 0: off
     query_odometry: float = 0.35
+    # the fine level's winner moved to the parabola's top through its neighbours' scores
+    # (`subcell`): loops nearer the truth (docs/journal/maps.md, session 42)
+    subcell: bool = True
     # a full loop whose scan b, its own returns alone, fits a's local map more than this (m)
     # off the query's match (`LoopCloser.query_alone`: from that match over `anchor_window`)
     # is refused: one scan of the place fits elsewhere, so the match rests on where the
@@ -436,7 +439,31 @@ def _fine(staged: Staged) -> tuple[SearchResult, LikelihoodGrid, LikelihoodGrid]
         return grids[-1]
 
     found = fine_search(staged.level, fine_over, fine_resolution=cfg.fine)
+    if cfg.subcell:
+        level = staged.level
+        found = replace(found, pose=subcell(grids[0], level.points, found.pose, level.turn_step))
     return found, staged.grid, grids[0]
+
+
+def subcell(
+    fine: LikelihoodGrid, query: np.ndarray, pose: np.ndarray, turn_step: float
+) -> np.ndarray:
+    """`pose` (the fine level's winner: a cell and one of its 7 headings) moved, in x, y and
+    heading each, to the top of the parabola through the query's scores on `fine` one step
+    either side (a cell; a third of `turn_step`), at most half a step: the search's steps (4 cm,
+    0.38 deg) are coarser than a loop's heading needs."""
+    out = pose.copy()
+    pts = np.ascontiguousarray(query)
+    here = _score(fine.likelihood, fine.origin, fine.resolution, pts, pose)
+    for axis, step in enumerate((fine.resolution, fine.resolution, turn_step / 3)):
+        side = np.zeros(3)
+        side[axis] = step
+        below = _score(fine.likelihood, fine.origin, fine.resolution, pts, pose - side)
+        above = _score(fine.likelihood, fine.origin, fine.resolution, pts, pose + side)
+        bend = below - 2.0 * here + above
+        if bend < 0.0:
+            out[axis] += float(np.clip(0.5 * (below - above) / bend, -0.5, 0.5)) * step
+    return out
 
 
 def _search(
