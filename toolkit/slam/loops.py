@@ -204,9 +204,9 @@ class LoopConfig:
     # trajectory put the query's other scans, and a front-end slip among them moves it
     # (freiburg-campus's corridor at scans 1244-1260 against 237-253: drift seeds 1 and 562's
     # 252 -> 1258 / 1260, 0.66 / 0.51 m off the truth, scan b alone 0.23 / 0.24 m off the
-    # match). On freiburg-campus seeds 0-119 false loops 5 -> 3, ATE -0.0004 +- 0.0019 m;
-    # the other nine logs within noise; 3-4% more of the mapper's time on freiburg-campus
-    # (docs/journal/maps.md, session 42). 0: off
+    # match). Measured before `subcell`: freiburg-campus false loops 7 -> 4 in 220 runs (40
+    # held out), none added in 384 runs of every log and the simulator, ATE within noise;
+    # 2-7% more of the mapper's time (docs/journal/maps.md, session 42). 0: off
     query_alone: float = 0.2
     # loop candidates by appearance too (`toolkit.slam.recognition`: a Scan Context of each
     # keyframe's local map), not only by nearness on the trajectory: a round of its own after
