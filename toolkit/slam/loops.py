@@ -453,13 +453,11 @@ def subcell(
     either side (a cell; a third of `turn_step`), at most half a step: the search's steps (4 cm,
     0.38 deg) are coarser than a loop's heading needs."""
     out = pose.copy()
-    pts = np.ascontiguousarray(query)
-    here = _score(fine.likelihood, fine.origin, fine.resolution, pts, pose)
+    here = fine.score(query, pose)
     for axis, step in enumerate((fine.resolution, fine.resolution, turn_step / 3)):
         side = np.zeros(3)
         side[axis] = step
-        below = _score(fine.likelihood, fine.origin, fine.resolution, pts, pose - side)
-        above = _score(fine.likelihood, fine.origin, fine.resolution, pts, pose + side)
+        below, above = fine.score(query, pose - side), fine.score(query, pose + side)
         bend = below - 2.0 * here + above
         if bend < 0.0:
             out[axis] += float(np.clip(0.5 * (below - above) / bend, -0.5, 0.5)) * step
