@@ -143,10 +143,11 @@ class SlamConfig:
     # for the loops to take out; needs `close_loops(odometry=...)` (`slam_trajectory` passes
     # it; 0: off). The default since session 43 (docs/journal/maps.md): infinite-corridor
     # drift seed 724 (a 54 deg slip kept fitting 0.18 of the returns, the rival 60 deg away)
-    # 3.30 -> 0.36 m. Of the development runs it acts on that kind of step alone: a sparse
-    # outdoor scan's doubts (freiburg-campus: rivals a reversed corridor away, 1-3 rad, on
-    # nearly every seed) lie on steps the odometry turns a few degrees, where `doubted`
-    # moved every campus run by up to 0.1 m either way
+    # 3.30 -> 0.36 m. A sparse outdoor scan's doubts (freiburg-campus: rivals a reversed
+    # corridor away, 1-3 rad, on nearly every seed) lie on steps the odometry turns a few
+    # degrees, where `doubted` moved every campus run by up to 0.1 m either way; of 1,350
+    # development runs this loosens a step on two (freiburg-campus 59, orebro 65: a slip
+    # refused, the fit held right), and the loops keep it (-8 mm, +1 mm)
     doubted_slip: float = 0.5
     # > 0 (rad): a blind stretch (scans too sparse to search whose fit failed, between two
     # fitted scans) whose turn between its fitted ends differs from the odometry's by more
