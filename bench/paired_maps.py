@@ -18,7 +18,8 @@ freiburg-101 and freiburg-campus as the robot's (the reading before session 34; 
 they are the laser's and the truth the robot's behind them: docs/journal/maps.md, sessions 32
 to 34). `--sim`: the
 simulator's corridor and building instead (world = seed), with drifted odometry and as LMS-200
-captures without odometry (`bench_slam.sim_logs`).
+captures without odometry (`bench_slam.sim_logs`). `--mirror`: the real logs' drift turned the
+other way (every seed drifts the same way otherwise: +2% scale, +0.87 deg/m).
 How each default of the mapper was judged (docs/journal/maps.md); the csv keeps every run.
 """
 
@@ -40,7 +41,7 @@ from importers.carmen import CarmenOptions
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
-from toolkit.poses import truth_poses, with_drift
+from toolkit.poses import REAL_LOG_DRIFT, truth_poses, with_drift
 from toolkit.slam.pipeline import SlamConfig
 from toolkit.typed import int_ranges
 
@@ -94,6 +95,11 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=JSON")
     parser.add_argument("--kiss", action="store_true", help="KISS-ICP beside (slower)")
     parser.add_argument(
+        "--mirror",
+        action="store_true",
+        help="the drift mirrored: the wheels' difference and the scale error negated",
+    )
+    parser.add_argument(
         "--sim", action="store_true", help="the simulator's corridor and building (world = seed)"
     )
     parser.add_argument("--out", type=Path, default=Path("out/paired_maps.csv"))
@@ -116,7 +122,11 @@ def main() -> None:
         raise SystemExit(f"-O: {error}") from None
     args.out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    runs = simulated(args.seeds, wanted) if args.sim else drifted(read_as, args.seeds, wanted)
+    runs = (
+        simulated(args.seeds, wanted)
+        if args.sim
+        else drifted(read_as, args.seeds, wanted, args.mirror)
+    )
     for name, seed, ds in runs:
         row: dict[str, Any] = {"log": name, "seed": seed}
         row |= {f"default_{k}": v for k, v in mapped(ds, SlamConfig()).items()}
@@ -135,12 +145,14 @@ def main() -> None:
 
 
 def drifted(
-    read_as: CarmenOptions, seeds: tuple[int, ...], wanted: set[str] | None
+    read_as: CarmenOptions, seeds: tuple[int, ...], wanted: set[str] | None, mirror: bool = False
 ) -> Iterator[tuple[str, int, Dataset]]:
-    """Each real log's odometry drifted by each seed."""
+    """Each real log's odometry drifted by each seed (`mirror`: the drift's direction turned
+    round, REAL_LOG_DRIFT's wheel difference and scale error negated)."""
+    turned = {k: -REAL_LOG_DRIFT[k] for k in ("wheel_diff", "scale_error")} if mirror else {}
     for name, log in real_logs(read_as, wanted):
         for seed in seeds:
-            yield name, seed, with_drift(log, seed)
+            yield name, seed, with_drift(log, seed, **turned)
 
 
 def simulated(

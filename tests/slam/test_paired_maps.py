@@ -7,9 +7,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
+import pytest
 
-from bench.paired_maps import variant
+from bench.paired_maps import drifted, variant
+from importers.carmen import CarmenOptions
+from toolkit import se2
+from toolkit.poses import odometry_poses, truth_poses
 from toolkit.typed import int_ranges
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,3 +63,21 @@ def test_the_simulator_is_paired_by_world(tmp_path: Path) -> None:
     row = frame.iloc[0]
     assert row["default_loops"] >= 5 and row["variant_loops"] == 0
     assert row["default_ate"] < row["variant_ate"] and row["default_false"] == 0
+
+
+def test_the_mirrored_drift_turns_the_odometry_the_other_way(
+    real: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`--mirror`: every seed's odometry otherwise drifts one way (2% long, turning left); the
+    mirror makes it 2% short and turning right, from the same seed's noise and slips."""
+    monkeypatch.setenv("TOOLKIT_REAL_DATA", str(real))
+    read_as = CarmenOptions.parse({"poses": "groundtruth"})
+    for mirror, longer in ((False, True), (True, False)):
+        ((name, seed, ds),) = drifted(read_as, (0,), {"intel"}, mirror)
+        odo, truth = odometry_poses(ds), truth_poses(ds)
+        assert odo is not None and truth is not None and (name, seed) == ("intel", 0)
+        path = np.hypot(*np.diff(odo[:, :2], axis=0).T).sum()
+        true = np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()
+        assert (path > 1.01 * true) if longer else (path < 0.99 * true)
+        turned = se2.wrap(np.diff(odo[:, 2])) - se2.wrap(np.diff(truth[:, 2]))
+        assert (np.median(turned) > 0) == longer
