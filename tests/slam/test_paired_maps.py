@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pytest
 
 from bench.paired_maps import drifted, variant
 from importers.carmen import CarmenOptions
@@ -65,12 +64,9 @@ def test_the_simulator_is_paired_by_world(tmp_path: Path) -> None:
     assert row["default_ate"] < row["variant_ate"] and row["default_false"] == 0
 
 
-def test_the_mirrored_drift_turns_the_odometry_the_other_way(
-    real: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_the_mirrored_drift_turns_the_odometry_the_other_way(real: Path) -> None:
     """`--mirror`: every seed's odometry otherwise drifts one way (2% long, turning left); the
     mirror makes it 2% short and turning right, from the same seed's noise and slips."""
-    monkeypatch.setenv("TOOLKIT_REAL_DATA", str(real))
     read_as = CarmenOptions.parse({"poses": "groundtruth"})
     for mirror, longer in ((False, True), (True, False)):
         ((name, seed, ds),) = drifted(read_as, (0,), {"intel"}, mirror)
