@@ -10,6 +10,7 @@ import numpy as np
 
 from toolkit.se2 import between, compose
 from toolkit.slam import graph as pg
+from toolkit.slam.pipeline import SlamConfig, restarted
 
 
 def _loop_graph(
@@ -76,3 +77,40 @@ def test_the_optimum_read_in_one_call_equals_node_by_node() -> None:
     assert got.tobytes() == one.tobytes() and np.abs(got - start).max() > 0.05
     shuffled = rng.permutation(len(nodes))  # out of order: node by node, in the asked order
     assert np.array_equal(pg.optimise(graph, values, nodes[shuffled]), one[shuffled])
+
+
+def test_lagos_start_needs_no_guess_and_takes_any_turn() -> None:
+    """LAGO places the square walked twice (two full turns, scan-index keys) from its edges
+    alone, near the truth; the first node held where it is given."""
+    rng = np.random.default_rng(3)
+    nodes, start, sequential, loops = _loop_graph(rng)
+    right = [e for k, e in enumerate(loops) if k != 3]  # the metre-wrong loop left out
+    got = pg.lago_start(nodes, sequential + right, start[0])
+    n = len(nodes)
+    t = np.arange(n) / 40 * 2 * np.pi
+    truth = np.c_[10 * np.cos(t), 10 * np.sin(t), t + np.pi / 2]
+    assert got.shape == (n, 3) and np.allclose(got[0], start[0], atol=1e-5)
+    assert np.hypot(*(got[:, :2] - truth[:, :2]).T).max() < 0.3
+    assert np.abs(np.angle(np.exp(1j * (got[:, 2] - truth[:, 2])))).max() < 0.05
+
+
+def test_an_optimum_with_a_stretch_turned_a_quarter_is_restarted_from_lago() -> None:
+    """`restarted`: a warm start's optimum with the second lap turned 90 deg about its first
+    node (a local minimum the graph's error shows) gives way to LAGO's; the right optimum is
+    kept as it is (the same array: no other run changes)."""
+    rng = np.random.default_rng(5)
+    nodes, start, sequential, loops = _loop_graph(rng)
+    graph, values = pg.factor_graph(nodes, start, sequential + loops, robust=1.0)
+    right = pg.optimise(graph, values, nodes)
+    kept = restarted(graph, nodes, sequential + loops, start[0], right, SlamConfig())
+    assert kept is right
+    turned = right.copy()
+    pivot = right[40]
+    c, s = np.cos(np.pi / 2), np.sin(np.pi / 2)
+    rel = turned[40:, :2] - pivot[:2]
+    turned[40:, :2] = pivot[:2] + rel @ np.array([[c, s], [-s, c]])
+    turned[40:, 2] += np.pi / 2
+    assert pg.error(graph, nodes, turned) > 10 * pg.error(graph, nodes, right)
+    mended = restarted(graph, nodes, sequential + loops, start[0], turned, SlamConfig())
+    assert np.hypot(*(mended[:, :2] - right[:, :2]).T).max() < 0.05
+    assert pg.error(graph, nodes, mended) < 1.01 * pg.error(graph, nodes, right)

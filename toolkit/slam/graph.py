@@ -43,15 +43,46 @@ def factor_graph(
     before `edges`: the factors of edges that many optimisations share, built once (the
     same graph, factor for factor, as those edges given first in `edges`)."""
     graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    for node, pose in zip(nodes, poses, strict=True):
-        values.insert(int(node), _pose(pose))
+    values = initial_values(nodes, poses)
     prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
     graph.add(gtsam.PriorFactorPose2(int(nodes[0]), _pose(poses[0]), prior))
     if base is not None:
         graph.push_back(base)
     _add_edges(graph, edges, robust)
     return graph, values
+
+
+def initial_values(nodes: np.ndarray, poses: np.ndarray) -> gtsam.Values:
+    """GTSAM values: each node's pose (K x 3, in `nodes` order)."""
+    values = gtsam.Values()
+    for node, pose in zip(nodes, poses, strict=True):
+        values.insert(int(node), _pose(pose))
+    return values
+
+
+def error(graph: gtsam.NonlinearFactorGraph, nodes: np.ndarray, poses: np.ndarray) -> float:
+    """The graph's total error (half the sum of squared whitened residuals, kernels applied)
+    at `poses`."""
+    return float(graph.error(initial_values(nodes, poses)))
+
+
+def lago_start(nodes: np.ndarray, edges: list[Edge], first: np.ndarray) -> np.ndarray:
+    """The nodes' poses (K x 3) by GTSAM's LAGO (the orientations by linear least squares over
+    the graph, then the positions), the first held at `first`: a start for Levenberg-Marquardt
+    that takes turns of any size, where the last optimum may sit in the basin of a stretch
+    turned a quarter round. LAGO asks for keys 0..K-1 along the sequential chain and diagonal
+    noise: the nodes are renumbered and each edge keeps its covariance's diagonal."""
+    index = {int(n): k for k, n in enumerate(nodes)}
+    graph = gtsam.NonlinearFactorGraph()
+    hold = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+    graph.add(gtsam.PriorFactorPose2(0, _pose(first), hold))
+    for e in edges:
+        spread = np.sqrt(np.maximum(np.diag(np.asarray(e.covariance, np.float64)), 1e-12))
+        noise = gtsam.noiseModel.Diagonal.Sigmas(spread)
+        graph.add(gtsam.BetweenFactorPose2(index[e.a], index[e.b], _pose(e.pose), noise))
+    start = gtsam.lago.initialize(graph, True)
+    out: np.ndarray = np.ascontiguousarray(gtsam.utilities.extractPose2(start))
+    return out
 
 
 def edge_factors(edges: list[Edge], robust: float = 1.0) -> gtsam.NonlinearFactorGraph:

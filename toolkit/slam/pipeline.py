@@ -24,7 +24,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,6 +45,9 @@ from toolkit.slam.loops import (
     path_length,
 )
 from toolkit.slam.scanmap import SEARCH_MIN, MapConfig, returns
+
+if TYPE_CHECKING:
+    import gtsam
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,15 @@ class SlamConfig:
     # each optimisation starts from the last optimum (the loops a round adds or drops move it
     # little) instead of from the sequential estimate: fewer Levenberg-Marquardt iterations
     warm_start: bool = True
+    # an optimisation that leaves a loop beyond `reject_chi2` is run again from GTSAM's LAGO
+    # start (`graph.lago_start`: the orientations solved linearly over the whole graph, turns
+    # of any size) and that optimum kept if the graph's error there is under this share of the
+    # warm start's (0: off). Levenberg-Marquardt from the last optimum can settle with a
+    # stretch turned a quarter round after a round of loops that turn the trajectory far: the
+    # million-scan laps (bench_loops_scale), after the appearance round, 5,669 scans 90 deg
+    # off (graph error 288 against LAGO's 106), then held there by loops at the building's 90
+    # deg alias (10 false loops, ATE 1.80 m; docs/journal/maps.md, session 43)
+    lago_restart: float = 0.9
     local_map: int = 4  # keyframe front end: each keyframe is also matched against this many
     # earlier ones (0: none); the scan-to-map front end has its own local map
     min_agreement: float = 0.5  # a local-map match with fewer agreeing returns is left out
@@ -546,6 +558,27 @@ def local_map_edges(
     return edges
 
 
+def restarted(
+    graph: gtsam.NonlinearFactorGraph,
+    keys: np.ndarray,
+    edges: list[pg.Edge],
+    first: np.ndarray,
+    current: np.ndarray,
+    config: SlamConfig,
+) -> np.ndarray:
+    """`current` (an optimum of `graph` from the last one), or the optimum from LAGO's start
+    (`SlamConfig.lago_restart`) when the graph's error there is under that share of its own:
+    the warm start's may be a local minimum with a stretch turned far."""
+    try:
+        start = pg.lago_start(keys, edges, first)
+    except (ValueError, IndexError, RuntimeError):  # GTSAM refuses the graph: keep the optimum
+        return current
+    other = pg.optimise(graph, pg.initial_values(keys, start), keys)
+    if pg.error(graph, keys, other) < config.lago_restart * pg.error(graph, keys, current):
+        return other
+    return current
+
+
 def hang(keys: np.ndarray, before: np.ndarray, optimised: np.ndarray) -> np.ndarray:
     """Every scan's pose: its last keyframe's optimised pose composed with the scan's offset
     from that keyframe in the sequential estimate."""
@@ -655,14 +688,21 @@ def close_loops(
                 pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True)
                 for lp in accepted
             ]
+            first = start[0].copy()
             graph, values = pg.factor_graph(keys, start, loop_edges, config.robust, fixed)
             current = pg.optimise(graph, values, keys)
-            if config.warm_start:
-                start = current
             if not loop_edges:
+                if config.warm_start:
+                    start = current
                 break
             chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
             bad = chi2 > config.reject_chi2
+            if bad.any() and config.lago_restart > 0:
+                current = restarted(graph, keys, edges + loop_edges, first, current, config)
+                chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
+                bad = chi2 > config.reject_chi2
+            if config.warm_start:
+                start = current
             slid = corridor_slides(accepted, keys, current)
             gone = (slid > config.loop.corridor_slide) & (config.loop.corridor_slide > 0)
             if not (bad | gone).any():
