@@ -26,6 +26,10 @@ class Edge:
     loop: bool = False
 
 
+# the first node's prior: held where it is (a graph's gauge)
+_HOLD = np.array([1e-3, 1e-3, 1e-4])
+
+
 def _pose(p: np.ndarray) -> gtsam.Pose2:
     return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
 
@@ -44,7 +48,7 @@ def factor_graph(
     same graph, factor for factor, as those edges given first in `edges`)."""
     graph = gtsam.NonlinearFactorGraph()
     values = initial_values(nodes, poses)
-    prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+    prior = gtsam.noiseModel.Diagonal.Sigmas(_HOLD)
     graph.add(gtsam.PriorFactorPose2(int(nodes[0]), _pose(poses[0]), prior))
     if base is not None:
         graph.push_back(base)
@@ -74,8 +78,7 @@ def lago_start(nodes: np.ndarray, edges: list[Edge], first: np.ndarray) -> np.nd
     noise: the nodes are renumbered and each edge keeps its covariance's diagonal."""
     index = {int(n): k for k, n in enumerate(nodes)}
     graph = gtsam.NonlinearFactorGraph()
-    hold = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
-    graph.add(gtsam.PriorFactorPose2(0, _pose(first), hold))
+    graph.add(gtsam.PriorFactorPose2(0, _pose(first), gtsam.noiseModel.Diagonal.Sigmas(_HOLD)))
     for e in edges:
         spread = np.sqrt(np.maximum(np.diag(np.asarray(e.covariance, np.float64)), 1e-12))
         noise = gtsam.noiseModel.Diagonal.Sigmas(spread)

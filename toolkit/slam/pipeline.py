@@ -320,12 +320,18 @@ def unverified(ranges: np.ndarray, step_fit: np.ndarray, config: SlamConfig) -> 
     return out
 
 
+def step_turns(poses: np.ndarray) -> np.ndarray:
+    """Each step's turn (S - 1, rad, signed) along `poses` (S x 3)."""
+    turns: np.ndarray = se2.between(poses[:-1], poses[1:])[:, 2]
+    return turns
+
+
 def blind_steps(
     ranges: np.ndarray, step_fit: np.ndarray, before: np.ndarray, config: SlamConfig
 ) -> np.ndarray:
     """The `unverified` steps that turn (in the estimate `before`) more than
     `blind_min_turn`: where a slip may hide."""
-    turn = np.abs(se2.between(before[:-1], before[1:])[:, 2])
+    turn = np.abs(step_turns(before))
     out: np.ndarray = unverified(ranges, step_fit, config) & (turn > config.blind_min_turn)
     return out
 
@@ -337,7 +343,7 @@ def doubted_steps(
     `doubted_slip` where the logged odometry turns more than `scan_map.turn_check`)."""
     out = step_doubt > config.doubted if config.doubted > 0 else np.zeros(len(step_doubt), bool)
     if config.doubted_slip > 0 and odometry is not None:
-        turn = np.abs(se2.between(odometry[:-1], odometry[1:])[:, 2])
+        turn = np.abs(step_turns(odometry))
         out |= (step_doubt > config.doubted_slip) & (turn > config.scan_map.turn_check)
     return out
 
@@ -427,9 +433,7 @@ def mend_excursions(
     if config.excursion_mend <= 0:
         return before
     cfg = config.scan_map
-    d = se2.wrap(
-        se2.between(before[:-1], before[1:])[:, 2] - se2.between(odometry[:-1], odometry[1:])[:, 2]
-    )
+    d = se2.wrap(step_turns(before) - step_turns(odometry))
     if not np.any(np.abs(d) > config.excursion_mend):
         return before  # no return: scipy.spatial not loaded (0.3-0.5 s on a map's start)
     from scipy.spatial import cKDTree  # noqa: PLC0415
@@ -688,7 +692,6 @@ def close_loops(
                 pg.Edge(lp.a, lp.b, lp.pose, lp.covariance(config.loop_sigma), loop=True)
                 for lp in accepted
             ]
-            first = start[0].copy()
             graph, values = pg.factor_graph(keys, start, loop_edges, config.robust, fixed)
             current = pg.optimise(graph, values, keys)
             if not loop_edges:
@@ -698,7 +701,8 @@ def close_loops(
             chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
             bad = chi2 > config.reject_chi2
             if bad.any() and config.lago_restart > 0:
-                current = restarted(graph, keys, edges + loop_edges, first, current, config)
+                # `start` is still the graph's own (its prior holds start[0])
+                current = restarted(graph, keys, edges + loop_edges, start[0], current, config)
                 chi2 = pg.residuals(current, keys, loop_edges)[:, 2]
                 bad = chi2 > config.reject_chi2
             if config.warm_start:
