@@ -487,3 +487,21 @@ def test_box_selections_in_one_pass_equal_the_numpy_forms() -> None:
         cells = grid_mod._cells_within(ij, i0, i1)
         keep = ((ij >= i0) & (ij < i1)).all(axis=1)
         assert cells.flags.c_contiguous and np.array_equal(cells, ij[keep] - i0)
+
+
+def test_loops_verified_in_threads_are_the_loops_verified_one_by_one(
+    drifted: Dataset, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A round's candidates verified side by side (`LoopCloser.workers`) give the mapper's
+    loops, verdicts and poses of one thread, to the bit."""
+    from toolkit.slam import loops as loops_mod
+    from toolkit.slam.run import slam_trajectory
+
+    runs = []
+    for workers in (1, 2):
+        monkeypatch.setattr(loops_mod, "WORKERS", workers)
+        result, slam = slam_trajectory(drifted)
+        verdicts = [(lp.a, lp.b, lp.pose.tobytes(), lp.accepted, lp.reason) for lp in slam.loops]
+        runs.append((result.poses.tobytes(), verdicts))
+    assert sum(accepted for *_, accepted, _ in runs[0][1]) >= 5
+    assert runs[1] == runs[0]

@@ -35,9 +35,11 @@ last one up to `SlamConfig.wide_window` where no loop closed yet).
 from __future__ import annotations
 
 import math
-from collections.abc import Container
+import os
+from collections.abc import Callable, Container, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numba as nb
 import numpy as np
@@ -567,6 +569,19 @@ def _placed_voxelled(
     return m
 
 
+_T = TypeVar("_T")
+
+
+def _usable_cpus() -> int:
+    affinity = getattr(os, "sched_getaffinity", None)
+    return len(affinity(0)) if affinity is not None else os.cpu_count() or 1
+
+
+#: threads that verify a round's candidates side by side (the CPUs this process may use, at
+#: most 4); 1: one after the other. The loops found are the same either way.
+WORKERS = min(_usable_cpus(), 4)
+
+
 class LoopCloser:
     """Finds and verifies loops over a log's scans (S x B ranges; the returns of the few
     scans a test needs are computed when it needs them, so memory does not grow with S)."""
@@ -594,6 +609,7 @@ class LoopCloser:
         self._fov = (float(laser.angles.min()), float(laser.angles.max()))
         self._beam0, self._step = float(laser.angles[0]), float(laser.angle_increment)
         self._anchor_fits: dict[int, tuple[float, float, float]] = {}
+        self.workers = WORKERS
 
     def local_points(self, centre: int, scans: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The returns of `scans` (within `max_range` of the robot) in the frame of scan
@@ -1056,14 +1072,19 @@ class LoopCloser:
         Candidate pairs (a, b) in `known` (verified before) are not verified again."""
         cfg = config or self.config
         along = path_length(poses)
-        out = []
-        for a, b, radius in candidates(keys, poses, along, cfg, skip):
-            if (a, b) in known:
-                continue
-            loop = self.verify(a, b, radius, poses, along, keys, cfg)
-            if loop is not None:
-                out.append(loop)
-        return out
+        todo = [c for c in candidates(keys, poses, along, cfg, skip) if c[:2] not in known]
+        return self.each(lambda c: self.verify(*c, poses, along, keys, cfg), todo)
+
+    def each(self, check: Callable[[_T], Loop | None], todo: Sequence[_T]) -> list[Loop]:
+        """`check` of every item of `todo`, in order, the Nones left out: in `workers` threads
+        (the searches are nogil numba kernels; a pair's verdict does not depend on the
+        others', so the loops are the same whatever the threads)."""
+        if self.workers <= 1 or len(todo) < 2:
+            found = [check(t) for t in todo]
+        else:
+            with ThreadPoolExecutor(self.workers) as pool:
+                found = list(pool.map(check, todo))
+        return [lp for lp in found if lp is not None]
 
 
 def response_covariance(

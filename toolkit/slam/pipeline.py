@@ -750,26 +750,31 @@ def close_loops(
     # (measured: no better on fhw seeds 0-1, intel, seattle seed 0, and slower: off)
     poses = before
     loop_cfg = config.loop
-    index = KeyIndex(keys, poses, along, loop_cfg)
-    next_at = 0.0
-    for q in range(len(keys)):
-        if along[keys[q]] < next_at:
-            continue
+    if config.incremental:
+        index = KeyIndex(keys, poses, along, loop_cfg)
+        next_at = 0.0
+        for q in range(len(keys)):
+            if along[keys[q]] < next_at:
+                continue
+            t0 = time.perf_counter()
+            cand = index.candidate(q)
+            lp = closer.verify(*cand, poses, along, keys) if cand is not None else None
+            timings["loops"] += time.perf_counter() - t0
+            if cand is None:
+                continue
+            next_at = along[keys[q]] + loop_cfg.every
+            if lp is None:
+                continue
+            found[lp.pair] = lp
+            if lp.accepted:
+                moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
+                if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
+                    poses = solve()
+                    index = KeyIndex(keys, poses, along, loop_cfg)
+    else:  # the same candidates, verified side by side (`LoopCloser.workers`)
         t0 = time.perf_counter()
-        cand = index.candidate(q)
-        lp = closer.verify(*cand, poses, along, keys) if cand is not None else None
+        found |= {lp.pair: lp for lp in closer.find(keys, poses, loop_cfg)}
         timings["loops"] += time.perf_counter() - t0
-        if cand is None:
-            continue
-        next_at = along[keys[q]] + loop_cfg.every
-        if lp is None:
-            continue
-        found[lp.pair] = lp
-        if lp.accepted and config.incremental:
-            moved = se2.between(se2.between(poses[lp.a], poses[lp.b]), lp.pose)
-            if np.hypot(moved[0], moved[1]) > 0.3 or abs(moved[2]) > 0.05:
-                poses = solve()
-                index = KeyIndex(keys, poses, along, loop_cfg)
     poses = solve()
     if loop_cfg.recognition:
         # candidates by appearance, where no loop closed yet, whatever the drift (a revisit

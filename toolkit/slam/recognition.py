@@ -341,18 +341,22 @@ def find(
         return []
     desc, ok = keyframe_descriptors(closer, keys, poses, along, cfg)
     verify_cfg = replace(loop_config, corridor=False, turn=cfg.turn)
-    out = []
-    for a, b, _, heading in candidates(desc, ok, keys, along, cfg, skip, poses, reach):
-        if (a, b) in known:
-            continue
+    todo = [
+        (a, b, heading)
+        for a, b, _, heading in candidates(desc, ok, keys, along, cfg, skip, poses, reach)
+        if (a, b) not in known
+    ]
+
+    def check(pair: tuple[int, int, float]) -> Loop | None:
+        a, b, heading = pair
         prediction = np.array([0.0, 0.0, heading])
         # the pair's points once for both headings
         points = closer.pair_points(a, b, poses, along, keys, verify_cfg)
         if points is None:
-            continue
+            return None
         staged = closer.search_coarse(cfg.window, verify_cfg, prediction, points)
         if staged is None:
-            continue
+            return None
         both = cfg.turn < np.pi / 2 and not cfg.opposite_if_passed
         flipped = np.array([0.0, 0.0, wrap(heading + np.pi)])
         other_staged = None
@@ -369,8 +373,7 @@ def find(
                 early.reason += ", both headings"
         if early is not None:
             early.recognised = True
-            out.append(early)
-            continue
+            return early
         searched = closer.search_fine(staged)
         other, loop = None, None
         if cfg.turn < np.pi / 2 and cfg.opposite_if_passed:
@@ -381,8 +384,7 @@ def find(
             )
             if not loop.accepted:
                 loop.recognised = True
-                out.append(loop)
-                continue
+                return loop
         if cfg.turn < np.pi / 2:
             # a narrow heading window: the opposite heading searched too (a corridor or a
             # symmetric room looks alike turned round); the better wins, and the other
@@ -406,8 +408,9 @@ def find(
                 if r
             )
         loop.recognised = True
-        out.append(loop)
-    return out
+        return loop
+
+    return closer.each(check, todo)
 
 
 __all__ = [
