@@ -505,3 +505,27 @@ def test_loops_verified_in_threads_are_the_loops_verified_one_by_one(
         runs.append((result.poses.tobytes(), verdicts))
     assert sum(accepted for *_, accepted, _ in runs[0][1]) >= 5
     assert runs[1] == runs[0]
+
+
+def test_a_stop_while_verifying_in_threads_leaves_the_rest_unverified() -> None:
+    """Ctrl-C while a round is verified in threads ends the round at once: the pairs not
+    begun are dropped, not verified one after another before the stop lands."""
+    import threading
+    import time
+
+    laser = LaserGeometry(beams=4, angle_min=-1.0, angle_increment=0.5, range_max=10.0)
+    closer = LoopCloser(np.ones((3, 4)), laser)
+    closer.workers = 2
+    begun = []
+    lock = threading.Lock()
+
+    def check(item: int) -> None:
+        with lock:
+            begun.append(item)
+        if item == 3:
+            raise KeyboardInterrupt
+        time.sleep(0.01)
+
+    with pytest.raises(KeyboardInterrupt):
+        closer.each(check, list(range(400)))
+    assert 4 <= len(begun) < 40
