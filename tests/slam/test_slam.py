@@ -315,6 +315,43 @@ def test_real_edmonton_corrected_poses_are_the_centred_lasers(real: Path) -> Non
         assert centred > 1.2 * _turned_revisit_agreement(ds, x), x
 
 
+def _cells_per_return(ds: toolkit.Dataset, robot: np.ndarray, cell: float = 0.05) -> float:
+    """Occupied cells per return within 20 m of the scans placed at `robot`: the fewer, the
+    better the scans agree with each other (a truth-free crispness)."""
+    from toolkit.raster import world_points
+
+    xy, _ = world_points(np.where(ds.ranges < 20.0, ds.ranges, np.nan), robot, ds.laser)
+    return len(np.unique(np.floor(xy / cell).astype(np.int64), axis=0)) / len(xy)
+
+
+@pytest.mark.parametrize("name", ["infinite-corridor", "edmonton"])
+def test_real_corrected_poses_are_larger_than_their_scans_say(real: Path, name: str) -> None:
+    """infinite-corridor and edmonton: the corrected poses scaled about their centroid place
+    the scans crispest at about 0.998 (a parabola through the occupied 5 cm cells per return
+    at scales 0.994-1.004: vertex 0.9978 / 0.9980; at 1.000 368.1 / 630.6 cells per 1000
+    returns, at 0.998 367.6 / 629.0). The scans see both paths about 0.2% shorter than their
+    corrected poses, so a map that read the scans perfectly would lie 0.20 m (infinite-corridor,
+    232 x 198 m) from that truth from scale alone, two thirds of issue #20's 0.3 m
+    (docs/journal/maps.md, session 45)."""
+    from importers.carmen import Carmen, CarmenOptions
+
+    path = real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"
+    ds = Carmen().read([path], CarmenOptions(poses="groundtruth"))
+    truth = truth_poses(ds)
+    assert truth is not None
+    centre = truth[:, :2].mean(axis=0)
+    scales = np.round(np.arange(0.994, 1.0045, 0.002), 3)
+    cells = []
+    for scale in scales:
+        scaled = truth.copy()
+        scaled[:, :2] = centre + scale * (truth[:, :2] - centre)
+        cells.append(_cells_per_return(ds, scaled))
+    curve, slope, _ = np.polyfit(scales, cells, 2)
+    crispest = -slope / (2 * curve)
+    assert curve > 0 and 0.996 < crispest < 0.9995, (crispest, cells)
+    assert cells[list(scales).index(0.998)] < cells[list(scales).index(1.0)], cells
+
+
 def test_real_edmonton_run_over_0_3_m_is_a_hinge_at_the_stretch_driven_once(real: Path) -> None:
     """edmonton drift seed 0 (ATE 0.35 m, over issue #20's 0.3): the two parts of the map either
     side of scans 80-130 (driven once, through an open hall) are each right alone, within 0.12 m
