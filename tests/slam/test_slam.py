@@ -21,7 +21,7 @@ from toolkit.metrics import evaluate, relation_error, truth_relations
 from toolkit.poses import odometry_poses, truth_poses, with_drift
 from toolkit.sim import simulate
 from toolkit.slam.loops import loop_truth_error
-from toolkit.slam.render import read_pgm
+from toolkit.slam.render import map_consistency, read_pgm
 from toolkit.slam.run import slam_trajectory
 
 
@@ -315,24 +315,15 @@ def test_real_edmonton_corrected_poses_are_the_centred_lasers(real: Path) -> Non
         assert centred > 1.2 * _turned_revisit_agreement(ds, x), x
 
 
-def _cells_per_return(ds: toolkit.Dataset, robot: np.ndarray, cell: float = 0.05) -> float:
-    """Occupied cells per return within 20 m of the scans placed at `robot`: the fewer, the
-    better the scans agree with each other (a truth-free crispness)."""
-    from toolkit.raster import world_points
-
-    xy, _ = world_points(np.where(ds.ranges < 20.0, ds.ranges, np.nan), robot, ds.laser)
-    return len(np.unique(np.floor(xy / cell).astype(np.int64), axis=0)) / len(xy)
-
-
 @pytest.mark.parametrize("name", ["infinite-corridor", "edmonton"])
 def test_real_corrected_poses_are_larger_than_their_scans_say(real: Path, name: str) -> None:
     """infinite-corridor and edmonton: the corrected poses scaled about their centroid place
-    the scans crispest at about 0.998 (a parabola through the occupied 5 cm cells per return
-    at scales 0.994-1.004: vertex 0.9978 / 0.9980; at 1.000 368.1 / 630.6 cells per 1000
-    returns, at 0.998 367.6 / 629.0). The scans see both paths about 0.2% shorter than their
-    corrected poses, so a map that read the scans perfectly would lie 0.20 m (infinite-corridor,
-    232 x 198 m) from that truth from scale alone, two thirds of issue #20's 0.3 m
-    (docs/journal/maps.md, session 45)."""
+    the scans crispest at about 0.998 (a parabola through map.pgm's `consistency.cells`, the
+    5 cm cells holding a return per 1000 returns, at scales 0.994-1.004: vertex 0.9978 /
+    0.9983; at 1.000 369.8 / 637.5, at 0.998 369.2 / 636.4). The scans see both paths about
+    0.2% shorter than their corrected poses, so a map that read the scans perfectly would lie
+    0.20 m (infinite-corridor, 232 x 198 m) from that truth from scale alone, two thirds of
+    issue #20's 0.3 m (docs/journal/maps.md, session 45)."""
     from importers.carmen import Carmen, CarmenOptions
 
     path = real / "carmen_radish_corrected" / f"{name}-corrected.log.gz"
@@ -341,11 +332,13 @@ def test_real_corrected_poses_are_larger_than_their_scans_say(real: Path, name: 
     assert truth is not None
     centre = truth[:, :2].mean(axis=0)
     scales = np.round(np.arange(0.994, 1.0045, 0.002), 3)
-    cells = []
+    cells: list[float] = []
     for scale in scales:
         scaled = truth.copy()
         scaled[:, :2] = centre + scale * (truth[:, :2] - centre)
-        cells.append(_cells_per_return(ds, scaled))
+        per_return = map_consistency(ds, scaled)["cells"]
+        assert per_return is not None
+        cells.append(float(per_return))
     curve, slope, _ = np.polyfit(scales, cells, 2)
     crispest = -slope / (2 * curve)
     assert curve > 0 and 0.996 < crispest < 0.9995, (crispest, cells)
