@@ -41,6 +41,7 @@ import pyarrow.parquet as pq
 
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output, writer_threads
+from toolkit.beams import fixed_beams, without_beams
 from toolkit.dataset import META, ODOMETRY, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
@@ -405,6 +406,11 @@ def map_run(
     timed = {"read": time.perf_counter() - t0} if not isinstance(dataset, Dataset) else {}
     config = config or sc.MatchConfig()
     method = Method.parse(method)
+    fixed = np.empty(0, dtype=np.int64)
+    wheels = odometry_poses(ds) if method != Method.ODOMETRY else None
+    if wheels is not None:  # beams that read the robot itself would hold every match still
+        fixed = fixed_beams(ds.ranges, wheels)
+        ds = without_beams(ds, fixed)
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
     steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
     with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
@@ -484,6 +490,8 @@ def map_run(
                 timing("groundtruth.tum", lambda p: write_tum(p, ds.t, truth))
             t0 = time.perf_counter()
             metrics = run_metrics(ds, result)
+            if len(fixed):
+                metrics["fixed_beams"] = fixed.tolist()
             metrics["relation_error"] = relation_metrics(ds, robot)
             metrics |= slam.metrics(ds) if slam is not None else {}
             measuring = time.perf_counter() - t0

@@ -175,6 +175,11 @@ def map_command(
     line = f"{run.path}: {metrics['scans']} scans by {method}"
     if "loops" in metrics:
         line += f", {metrics['loops']} loops"
+    if metrics.get("fixed_beams"):
+        from toolkit.beams import beam_spans  # on use: numpy and the dataset's module
+
+        spans = beam_spans(metrics["fixed_beams"])
+        line += f", beams {spans} left out (the same range through every turn)"
     if metrics.get("pairs_per_second"):
         line += f", {metrics['pairs_per_second']:.0f} pairs/s"
     if metrics.get("groundtruth"):
