@@ -1,0 +1,134 @@
+"""Maps of logs whose laser sees the robot itself, and the beams `toolkit map` leaves out.
+
+    python -m bench.robot_in_view --worlds 418-425             # the simulator, KISS-ICP beside
+    python -m bench.robot_in_view --worlds 418-421 --no-kiss
+    python -m bench.robot_in_view --real                        # the real logs: beams found
+
+The simulator's corridor and building (600 scans, world = seed) with the first and last
+`--edge` beams reading the robot's frame at 0.3 m (5 mm of noise): the odometry's ATE, the
+clean log's by `toolkit map` (`toolkit.mapping.map_run`), the mapper given every beam
+(`toolkit.slam.run.slam_trajectory`, as before the beams were left out), `toolkit map` (the
+fixed beams left out), the beams it found, and with `--kiss` KISS-ICP seeded by the same
+odometry (best of voxel 0.1 / 0.3 m) on the clean and the seen log. `--real`: the beams
+`toolkit.beams.fixed_beams` finds on the real CARMEN logs' drifted odometry over `--seeds`,
+both directions (none expected). docs/maps.md, "Beams that see the robot".
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from bench.bench_slam import kiss_best, real_logs
+from toolkit.beams import fixed_beams
+from toolkit.dataset import Dataset
+from toolkit.mapping import map_run
+from toolkit.metrics import evaluate
+from toolkit.poses import REAL_LOG_DRIFT, odometry_poses, truth_poses, with_drift
+from toolkit.sim import simulate
+from toolkit.slam.run import slam_trajectory
+from toolkit.typed import int_ranges
+
+
+def seeing_the_robot(ds: Dataset, edge: int, seed: int) -> Dataset:
+    """`ds` with its first and last `edge` beams reading the robot's frame at 0.3 m."""
+    ranges = ds.ranges.copy()
+    rng = np.random.default_rng(seed)
+    for beams in (slice(0, edge), slice(-edge, None)):
+        ranges[:, beams] = 0.3 + rng.normal(0, 0.005, ranges[:, beams].shape)
+    return replace(ds, ranges=ranges)
+
+
+def mapped(ds: Dataset) -> dict[str, Any]:
+    """`toolkit map`'s ATE and the beams it left out."""
+    with tempfile.TemporaryDirectory() as tmp:
+        run = map_run(ds, Path(tmp) / "run", outputs=("metrics.json",))
+    return {"ate": run.metrics["ate"]["rmse"], "left_out": len(run.metrics.get("fixed_beams", []))}
+
+
+def simulated(worlds: tuple[int, ...], edges: tuple[int, ...], kiss: bool) -> pd.DataFrame:
+    rows = []
+    for world in ("corridor", "building"):
+        for seed in worlds:
+            ds = simulate(world, seed=seed, scans=600).dataset
+            truth = truth_poses(ds)
+            odometry = odometry_poses(ds)
+            assert truth is not None and odometry is not None
+
+            def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
+                return float(evaluate(poses, truth)["ate"]["rmse"])
+
+            clean = mapped(ds)
+            base = {"world": world, "seed": seed, "odometry": ate(odometry)}
+            base |= {"clean": clean["ate"], "clean_left_out": clean["left_out"]}
+            if kiss:
+                base["kiss_clean"] = ate(kiss_best(ds)[0])
+            for edge in edges:
+                seen = seeing_the_robot(ds, edge, seed)
+                every, _ = slam_trajectory(seen)
+                run = mapped(seen)
+                row = base | {"edge": edge, "every_beam": ate(every.poses)}
+                row |= {"toolkit_map": run["ate"], "left_out": run["left_out"]}
+                if kiss:
+                    row["kiss"] = ate(kiss_best(seen)[0])
+                rows.append(row)
+                print(
+                    " ".join(
+                        f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                        for k, v in row.items()
+                    ),
+                    flush=True,
+                )
+    return pd.DataFrame(rows)
+
+
+def real(seeds: tuple[int, ...]) -> pd.DataFrame:
+    turned = {k: -REAL_LOG_DRIFT[k] for k in ("wheel_diff", "scale_error")}
+    rows = []
+    for name, ds in real_logs():
+        for seed in seeds:
+            for direction, drift in (("+", {}), ("mirrored", turned)):
+                drifted = with_drift(ds, seed, **drift)
+                odometry = odometry_poses(drifted)
+                assert odometry is not None
+                found = fixed_beams(drifted.ranges, odometry)
+                rows.append({"log": name, "seed": seed, "drift": direction, "found": len(found)})
+    return pd.DataFrame(rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--worlds", type=int_ranges, default="418-425")
+    parser.add_argument("--edge", type=int_ranges, default="20,40", help="beams at each edge")
+    parser.add_argument("--no-kiss", dest="kiss", action="store_false", help="no KISS-ICP")
+    parser.add_argument("--real", action="store_true", help="the real logs' beams instead")
+    parser.add_argument("--seeds", type=int_ranges, default="575-584", help="with --real")
+    parser.add_argument("--out", type=Path, default=Path("out/robot_in_view.csv"))
+    args = parser.parse_args()
+    table = real(args.seeds) if args.real else simulated(args.worlds, args.edge, args.kiss)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(args.out, index=False)
+    if args.real:
+        print(table.groupby("log")["found"].sum().to_string())
+        print(f"{len(table)} runs, {int((table['found'] > 0).sum())} with a beam found")
+        return
+    numbers = [
+        c
+        for c in ("odometry", "clean", "every_beam", "toolkit_map", "kiss_clean", "kiss")
+        if c in table
+    ]
+    print(table.groupby(["world", "edge"])[numbers].median().round(3).to_string())
+    print(
+        f"beams found where none were fixed: {int(table['clean_left_out'].sum())}; "
+        f"runs that found other than 2 x edge: {int((table['left_out'] != 2 * table['edge']).sum())}"
+    )
+
+
+if __name__ == "__main__":
+    main()
