@@ -9,7 +9,10 @@ meta.json (`rosbag` and the import report's notes):
   the count is kept (`rosbag.invalid_readings`).
 - geometry: angle_min / angle_increment of the first message (a change of beam count is an
   error naming the message); mounting from a base_link (or base_footprint) -> laser-frame
-  transform on /tf_static or /tf, else zero.
+  transform on /tf_static or /tf, else zero: its position and the heading of the laser's x
+  axis; a laser mounted upside down (the transform turns its z axis down, as a roll of 180
+  deg does) has its beam angles mirrored (angle_min and angle_increment negated), and a scan
+  plane tilted by more than 10 deg is noted.
 - odometry: the one nav_msgs/Odometry topic (ground-truth topics aside), or odom -> base_link
   (base_footprint) transforms on /tf; ground truth from an Odometry topic named like
   /ground_truth (`-O gt_topic=`).
@@ -56,6 +59,9 @@ BATCH = 4096
 
 def _bare(name: str) -> str:
     return name.strip("/")
+
+
+LEVEL = math.cos(math.radians(10.0))  # a scan plane tilted more than 10 deg is noted
 
 
 class _Quaternion(Protocol):
@@ -329,14 +335,23 @@ def _tf_odometry(
     return _pose_frame(rows), child
 
 
-def _mounting(items: list[tuple[int, Any]], laser_frame: str) -> dict[str, float] | None:
+def _up(q: _Quaternion) -> float:
+    """The z component of the laser's z axis in the robot's frame: 1 level, -1 upside down."""
+    return 1.0 - 2.0 * (q.x * q.x + q.y * q.y)
+
+
+def _mounting(
+    items: list[tuple[int, Any]], laser_frame: str
+) -> tuple[dict[str, float], float] | None:
+    """The base_link -> laser transform: x, y, z, yaw (the heading of the laser's x axis)
+    and `_up` of its rotation."""
     for _, msg in items:
         if msg is None:
             continue
         for tr in msg.transforms:
             if _bare(tr.header.frame_id) in BASE_FRAMES and _bare(tr.child_frame_id) == laser_frame:
-                v = tr.transform.translation
-                return {"x": v.x, "y": v.y, "z": v.z, "yaw": _yaw(tr.transform.rotation)}
+                v, q = tr.transform.translation, tr.transform.rotation
+                return {"x": v.x, "y": v.y, "z": v.z, "yaw": _yaw(q)}, _up(q)
     return None
 
 
@@ -423,14 +438,24 @@ def _assemble(
     range_min = max(0.0, float(finite_min.min())) if finite_min.size else 0.0
 
     laser_frame = _bare(frame_id)
-    mount = _mounting(got.tf, laser_frame)
-    if mount is None:
-        mount = {"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}
+    found = _mounting(got.tf, laser_frame)
+    mount, up = found if found is not None else ({"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}, 1.0)
+    if found is None:
         which = laser_frame or "laser"
         report.note(f"no base_link -> {which} transform in the bag; laser mounting taken as zero")
-    if not all(math.isfinite(v) for v in mount.values()):
-        mount = {"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}
+    if not all(math.isfinite(v) for v in (*mount.values(), up)):
+        mount, up = {"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}, 1.0
         report.note("laser mounting transform is not finite; taken as zero")
+    if up < 0.0:
+        # seen from below, the scan turns the other way: a beam at angle a in the laser's
+        # frame points at yaw - a in the robot's
+        angle_min, angle_increment = -angle_min, -angle_increment
+        report.note(
+            "the laser is mounted upside down (its z axis points down): beam angles mirrored"
+        )
+    if abs(up) < LEVEL:
+        tilt = math.degrees(math.acos(min(abs(up), 1.0)))
+        report.note(f"the laser's scan plane is tilted {tilt:.0f} deg; its returns taken as level")
     laser = LaserGeometry(beams, angle_min, angle_increment, range_max, range_min, **mount)
 
     odometry: pd.DataFrame | None = None

@@ -182,6 +182,7 @@ def _ros1_bag(path: Path, messages: list[tuple[str, str, float, object]]) -> Pat
 
 
 SCAN = "sensor_msgs/msg/LaserScan"
+ODOMETRY = "nav_msgs/msg/Odometry"
 
 
 def test_two_scan_topics_need_a_choice(tmp_path: Path) -> None:
@@ -261,6 +262,71 @@ def test_odometry_and_mounting_from_tf_and_zero_stamps(tmp_path: Path) -> None:
     np.testing.assert_allclose(ds.odometry.theta, 0.05 * np.arange(6), atol=1e-12)
     assert (ds.laser.x, ds.laser.z) == pytest.approx((0.15, 0.2))
     assert any("all zero" in n for n in ds.report.notes)
+
+
+def _simulated_bag(path: Path, ds: Dataset, upside_down: bool) -> Path:
+    """`ds` (odometry, truth) as a ROS1 bag whose laser is mounted level or upside down
+    (a roll of 180 deg: the scan seen from below, its beams in the opposite order)."""
+    m = _Messages(_typestore(True), True)
+    ty, laser = m.types, ds.laser
+    rotation = (
+        ty["geometry_msgs/msg/Quaternion"](x=1.0, y=0.0, z=0.0, w=0.0)
+        if upside_down
+        else m.quaternion(0.0)
+    )
+    mount = ty["geometry_msgs/msg/TransformStamped"](
+        header=m.header(0.0, "base_link"),
+        child_frame_id="laser",
+        transform=ty["geometry_msgs/msg/Transform"](
+            translation=ty["geometry_msgs/msg/Vector3"](x=laser.x, y=laser.y, z=laser.z),
+            rotation=rotation,
+        ),
+    )
+    items: list[tuple[str, str, float, object]] = [
+        ("/tf_static", TFMESSAGE, ds.t[0], ty[TFMESSAGE](transforms=[mount]))
+    ]
+    last = laser.angle_min + laser.angle_increment * (laser.beams - 1)
+    odo, truth = ds.stream("odometry"), ds.stream("groundtruth")
+    assert odo is not None and truth is not None
+    for k, t in enumerate(ds.t):
+        ranges = ds.ranges[k, ::-1] if upside_down else ds.ranges[k]
+        scan = _laserscan(
+            m, t, laser.beams, angle_min=-last if upside_down else laser.angle_min,
+            angle_max=-laser.angle_min if upside_down else last,
+            angle_increment=laser.angle_increment, range_min=0.0, range_max=laser.range_max,
+            ranges=np.nan_to_num(ranges, nan=np.inf),
+        )  # fmt: skip
+        items.append(("/scan", SCAN, t, scan))
+        for topic, poses, parent in (("/odom", odo, "odom"), ("/ground_truth", truth, "map")):
+            x, y, theta = (float(v) for v in poses.xyt[k])
+            items.append((topic, ODOMETRY, t, m.odometry(t, x, y, theta, parent, k)))
+    return _ros1_bag(path, items)
+
+
+def test_a_laser_mounted_upside_down_maps_as_one_mounted_level(tmp_path: Path) -> None:
+    """A bag whose base_link -> laser transform turns the laser over (a common mounting):
+    its beams' angles are mirrored on import, so that each return lands where the level
+    laser's does and the map holds (read as level, every scan is a mirror image)."""
+    from toolkit.mapping import map_run
+    from toolkit.sim import simulate
+
+    ds = simulate("corridor", seed=0, scans=300).dataset
+    level = ROSBAG.read([_simulated_bag(tmp_path / "level.bag", ds, False)], RosbagOptions())
+    over = ROSBAG.read([_simulated_bag(tmp_path / "over.bag", ds, True)], RosbagOptions())
+    assert level.laser.angle_increment > 0 > over.laser.angle_increment
+    assert any("upside down" in n for n in over.report.notes)
+    assert not any("upside down" in n for n in level.report.notes)
+
+    def robot_frame(d: Dataset) -> np.ndarray:
+        a = d.laser.angles + d.laser.yaw
+        return np.stack([d.ranges * np.cos(a) + d.laser.x, d.ranges * np.sin(a) + d.laser.y])
+
+    np.testing.assert_allclose(robot_frame(over)[:, :, ::-1], robot_frame(level), atol=1e-5)
+    ates = [
+        map_run(d, tmp_path / name, outputs=("metrics.json",)).metrics["ate"]["rmse"]
+        for name, d in (("level", level), ("over", over))
+    ]
+    assert max(ates) < 0.3
 
 
 def test_two_odometry_topics_need_a_choice(tmp_path: Path) -> None:
