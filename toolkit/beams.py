@@ -83,6 +83,18 @@ def without_beams(ds: Dataset, beams: np.ndarray) -> Dataset:
     return replace(ds, ranges=ranges)
 
 
+FAR = 100.0  # m: beyond any 2D laser's reach (an LMS-200's is 80 m)
+
+
+def share_beyond_reach(ranges: np.ndarray) -> float:
+    """The share of the returns of `ranges` (S x B; up to MAX_PAIRS scans, evenly spread)
+    beyond FAR m: most of them there means ranges in cm or mm, which no matcher reads."""
+    sample = ranges[:: max(1, len(ranges) // MAX_PAIRS)]
+    seen = np.isfinite(sample)
+    count = int(seen.sum())
+    return float((sample[seen] > FAR).sum() / count) if count else 0.0
+
+
 def beam_spans(beams: list[int]) -> str:
     """Beam indices (ascending) as runs, e.g. "0-19, 161-180"."""
     runs: list[list[int]] = []

@@ -41,7 +41,7 @@ import pyarrow.parquet as pq
 
 from toolkit.align import scan as sc
 from toolkit.atomic import atomic_dir, check_output, writer_threads
-from toolkit.beams import fixed_beams, without_beams
+from toolkit.beams import fixed_beams, share_beyond_reach, without_beams
 from toolkit.dataset import META, ODOMETRY, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
@@ -492,6 +492,8 @@ def map_run(
             metrics = run_metrics(ds, result)
             if len(fixed):
                 metrics["fixed_beams"] = fixed.tolist()
+            if method != Method.ODOMETRY and (far := share_beyond_reach(ds.ranges)) > 0.5:
+                metrics["beyond_reach"] = round(far, 3)  # units: the map is the odometry's
             metrics["relation_error"] = relation_metrics(ds, robot)
             metrics |= slam.metrics(ds) if slam is not None else {}
             measuring = time.perf_counter() - t0

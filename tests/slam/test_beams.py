@@ -95,3 +95,20 @@ def test_the_bench_maps_a_world_seeing_the_robot(tmp_path: Path) -> None:
     assert list(table["world"]) == ["corridor", "building"]
     assert (table["left_out"] == 40).all() and (table["clean_left_out"] == 0).all()
     assert (table["toolkit_map"] < 0.5).all() and (table["every_beam"] > 1.0).all()
+
+
+def test_ranges_in_millimetres_are_said_to_be_out_of_reach(cli: Cli, tmp_path: Path) -> None:
+    """Every return beyond any laser's reach (a table read in metres that holds mm): nothing
+    is matched, and the run says so instead of handing back the odometry as a map."""
+    ds = simulate("corridor", seed=0, scans=300).dataset
+    toolkit.save(replace(ds, ranges=ds.ranges * 1000), tmp_path / "mm")
+    toolkit.save(ds, tmp_path / "m")
+    code, out, err = cli("map", tmp_path / "mm", "--out", tmp_path / "run-mm")
+    assert code == 0, err
+    assert "100% of the returns beyond 100 m (ranges in cm or mm?" in out
+    metrics = json.loads((tmp_path / "run-mm" / "metrics.json").read_text())
+    assert metrics["beyond_reach"] == 1.0
+    assert metrics["ate"]["rmse"] == pytest.approx(metrics["odometry"]["ate"]["rmse"], rel=0.05)
+    code, out, _ = cli("map", tmp_path / "m", "--out", tmp_path / "run-m")
+    assert code == 0 and "beyond 100 m" not in out
+    assert "beyond_reach" not in json.loads((tmp_path / "run-m" / "metrics.json").read_text())

@@ -180,6 +180,11 @@ def map_command(
 
         spans = beam_spans(metrics["fixed_beams"])
         line += f", beams {spans} left out (the same range through every turn)"
+    if metrics.get("beyond_reach"):
+        line += (
+            f", {metrics['beyond_reach']:.0%} of the returns beyond 100 m"
+            " (ranges in cm or mm? nothing matched: the map is the odometry's)"
+        )
     if metrics.get("pairs_per_second"):
         line += f", {metrics['pairs_per_second']:.0f} pairs/s"
     if metrics.get("groundtruth"):
