@@ -6,7 +6,8 @@ simulated corridor, 20 beams at each edge of a 181-beam scan fixed at 0.3 m take
 from 0.11 m to 0.78 m of ATE, 40 to 33 m (the odometry alone: 3.3 m). A world surface seen
 by one beam changes its range when the robot turns; these do not. `fixed_beams` finds them
 from the odometry's turns (docs/maps.md, "Beams that see the robot"); `without_beams` leaves
-them out (no return), as a laser filter would.
+them out (no return), as a laser filter would. `share_beyond_reach` tells a log whose ranges
+are in cm or mm: every return beyond any laser's reach.
 """
 
 from __future__ import annotations
@@ -51,8 +52,9 @@ def _turn_pairs(odometry: np.ndarray, turn: float) -> tuple[np.ndarray, np.ndarr
 
 def fixed_beams(ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
     """The beams (ascending indices) of `ranges` (S x B) within NEAR m (median) whose range
-    stays within SAME m across AGREE of the scan pairs a turn of each of TURNS apart
-    and within MOVE m (`odometry`: S x 3, at the scans). A log that never turns that far gives none.
+    stays within SAME m in AGREE of the scan pairs a turn of each of TURNS apart and within
+    MOVE m of each other (`odometry`: S x 3, at the scans). A log that never turns that far
+    gives none.
 
     Far beams are kept whatever they read: acapulco's last beam reads 50.0 m in every scan
     (a stuck beam, or the log's stand-in for no return), and the mapper's poses there were
@@ -61,8 +63,9 @@ def fixed_beams(ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
         warnings.simplefilter("ignore", RuntimeWarning)
         median = np.nanmedian(ranges[:: max(1, len(ranges) // MAX_PAIRS)], axis=0)
     fixed = median <= NEAR
+    odometry = np.asarray(odometry, dtype=np.float64)
     for turn in TURNS:
-        i, j = _turn_pairs(np.asarray(odometry, dtype=np.float64), turn)
+        i, j = _turn_pairs(odometry, turn)
         a, b = ranges[i], ranges[j]
         seen = np.isfinite(a) & np.isfinite(b)
         alike = seen & (np.abs(a - b) <= SAME)
