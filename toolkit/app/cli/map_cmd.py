@@ -117,6 +117,9 @@ def map_command(
     --config and --set change expert settings, every dataset's alike, matcher.* those of the
     matcher each dataset runs (checked once, before any work); config.json records every
     setting that ran, and a fleet's re-run redoes the runs of other settings.
+    Beams that read the robot itself (a short range that stays the same through the
+    odometry's turns) are left out and named on the summary line; the line also says when
+    the ranges lie beyond any laser's reach (cm or mm).
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
