@@ -30,6 +30,12 @@ MOVE = 2.0  # m: pairs whose odometry moved further than this are not compared (
 CHANGED = 0.3  # pairs in which fewer beams than this share changed are not compared (the
 # odometry turned, the scan did not: a wheel's slip)
 MAX_PAIRS = 2000  # pairs compared per turn, evenly spread over the log (memory)
+SAMPLE = 2000  # scans, evenly spread, that give a beam's median and the returns' reach
+
+
+def _sample(ranges: np.ndarray) -> np.ndarray:
+    """At most about SAMPLE scans of `ranges`, evenly spread (a view: nothing copied)."""
+    return ranges[:: max(1, len(ranges) // SAMPLE)]
 
 
 def _turn_pairs(odometry: np.ndarray, turn: float) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +67,7 @@ def fixed_beams(ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
     judged with it."""
     with warnings.catch_warnings():  # a beam without a return: its median is NaN
         warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(ranges[:: max(1, len(ranges) // MAX_PAIRS)], axis=0)
+        median = np.nanmedian(_sample(ranges), axis=0)
     fixed = median <= NEAR
     odometry = np.asarray(odometry, dtype=np.float64)
     for turn in TURNS:
@@ -90,9 +96,9 @@ FAR = 100.0  # m: beyond any 2D laser's reach (an LMS-200's is 80 m)
 
 
 def share_beyond_reach(ranges: np.ndarray) -> float:
-    """The share of the returns of `ranges` (S x B; up to MAX_PAIRS scans, evenly spread)
-    beyond FAR m: most of them there means ranges in cm or mm, which no matcher reads."""
-    sample = ranges[:: max(1, len(ranges) // MAX_PAIRS)]
+    """The share of the returns of `ranges` (S x B; `_sample`'s scans) beyond FAR m: most of
+    them there means ranges in cm or mm, which no matcher reads."""
+    sample = _sample(ranges)
     seen = np.isfinite(sample)
     count = int(seen.sum())
     return float((sample[seen] > FAR).sum() / count) if count else 0.0

@@ -406,11 +406,15 @@ def map_run(
     timed = {"read": time.perf_counter() - t0} if not isinstance(dataset, Dataset) else {}
     config = config or sc.MatchConfig()
     method = Method.parse(method)
+    # the scans' own checks, when they are matched: beams that read the robot itself would
+    # hold every match still; ranges beyond any laser's reach (cm or mm) match nothing
+    matched_scans = method != Method.ODOMETRY
     fixed = np.empty(0, dtype=np.int64)
-    wheels = odometry_poses(ds) if method != Method.ODOMETRY else None
-    if wheels is not None:  # beams that read the robot itself would hold every match still
+    wheels = odometry_poses(ds) if matched_scans else None
+    if wheels is not None:
         fixed = fixed_beams(ds.ranges, wheels)
         ds = without_beams(ds, fixed)
+    beyond_reach = share_beyond_reach(ds.ranges) if matched_scans else 0.0
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
     steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
     with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
@@ -492,8 +496,8 @@ def map_run(
             metrics = run_metrics(ds, result)
             if len(fixed):
                 metrics["fixed_beams"] = fixed.tolist()
-            if method != Method.ODOMETRY and (far := share_beyond_reach(ds.ranges)) > 0.5:
-                metrics["beyond_reach"] = round(far, 3)  # units: the map is the odometry's
+            if beyond_reach > 0.5:  # nothing matched: the map is the odometry's
+                metrics["beyond_reach"] = round(beyond_reach, 3)
             metrics["relation_error"] = relation_metrics(ds, robot)
             metrics |= slam.metrics(ds) if slam is not None else {}
             measuring = time.perf_counter() - t0

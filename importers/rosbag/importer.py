@@ -142,6 +142,9 @@ class RosbagWriteOptions(FormatOptions):
     gt_topic: str = option("/ground_truth", "ground-truth Odometry topic")
     frame_id: str = option("laser", "the scans' frame")
     name: str = option("log", "bag name")
+    upside_down: bool = option(
+        False, "the laser mounted upside down (the tf turns it over; the scans as it sees them)"
+    )
 
 
 @register
@@ -179,6 +182,7 @@ class RosbagImporter(Importer[RosbagOptions, RosbagWriteOptions]):
             write_bag(
                 ds, Path(out), version=o.version, scan_topic=o.scan_topic,
                 odom_topic=o.odom_topic, gt_topic=o.gt_topic, frame_id=o.frame_id, name=o.name,
+                upside_down=o.upside_down,
             )
         ]  # fmt: skip
 
@@ -438,13 +442,14 @@ def _assemble(
     range_min = max(0.0, float(finite_min.min())) if finite_min.size else 0.0
 
     laser_frame = _bare(frame_id)
+    level: tuple[dict[str, float], float] = ({"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}, 1.0)
     found = _mounting(got.tf, laser_frame)
-    mount, up = found if found is not None else ({"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}, 1.0)
+    mount, up = found or level
     if found is None:
         which = laser_frame or "laser"
         report.note(f"no base_link -> {which} transform in the bag; laser mounting taken as zero")
-    if not all(math.isfinite(v) for v in (*mount.values(), up)):
-        mount, up = {"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0}, 1.0
+    elif not all(math.isfinite(v) for v in (*mount.values(), up)):
+        mount, up = level
         report.note("laser mounting transform is not finite; taken as zero")
     if up < 0.0:
         # seen from below, the scan turns the other way: a beam at angle a in the laser's

@@ -78,14 +78,23 @@ class _Messages:
             ),
         )
 
-    def mounting(self, t: float, frame: str, laser: LaserGeometry) -> Msg:
+    def mounting(
+        self, t: float, frame: str, laser: LaserGeometry, upside_down: bool = False
+    ) -> Msg:
+        """base_link -> `frame`: the laser's position and heading; `upside_down`, also turned
+        over about its x axis (a roll of 180 deg: its z axis points down)."""
         ty = self.types
+        rotation = self.quaternion(laser.yaw)
+        if upside_down:  # Rz(yaw) Rx(pi)
+            rotation = ty["geometry_msgs/msg/Quaternion"](
+                x=math.cos(laser.yaw / 2), y=math.sin(laser.yaw / 2), z=0.0, w=0.0
+            )
         transform = ty["geometry_msgs/msg/TransformStamped"](
             header=self.header(t, "base_link"),
             child_frame_id=frame,
             transform=ty["geometry_msgs/msg/Transform"](
                 translation=ty["geometry_msgs/msg/Vector3"](x=laser.x, y=laser.y, z=laser.z),
-                rotation=self.quaternion(laser.yaw),
+                rotation=rotation,
             ),
         )
         return ty[TFMESSAGE](transforms=[transform])
@@ -105,15 +114,18 @@ def write_bag(
     gt_topic: str = "/ground_truth",
     frame_id: str = "laser",
     name: str = "log",
+    upside_down: bool = False,
 ) -> Path:
-    """Write the bag under directory `out`, atomically; returns its path."""
+    """Write the bag under directory `out`, atomically; returns its path. `upside_down`: the
+    laser as one mounted turned over records it (`_Messages.mounting`; each scan's beams in
+    the opposite order, from the mirrored last angle), which the reader turns back."""
     if version not in VERSIONS:
         raise ToolkitError(f"rosbag version {version!r}: expected one of {', '.join(VERSIONS)}")
     ros1 = version == "ros1"
     final = out / (f"{name}.bag" if ros1 else name)
     with atomic_path(final) as path:
         msgs = _Messages(_typestore(ros1), ros1)
-        streams = _streams(ds, msgs, scan_topic, odom_topic, gt_topic, frame_id)
+        streams = _streams(ds, msgs, scan_topic, odom_topic, gt_topic, frame_id, upside_down)
         if ros1:
             with Writer1(path) as w1:
                 conns1 = {
@@ -149,12 +161,22 @@ class _Streams:
 
 
 def _streams(
-    ds: Dataset, msgs: _Messages, scan_topic: str, odom_topic: str, gt_topic: str, frame: str
+    ds: Dataset,
+    msgs: _Messages,
+    scan_topic: str,
+    odom_topic: str,
+    gt_topic: str,
+    frame: str,
+    upside_down: bool = False,
 ) -> _Streams:
     ty = msgs.types
     streams = _Streams()
     laser = ds.laser
     ranges = np.where(np.isnan(ds.ranges), np.float32(np.inf), ds.ranges).astype(np.float32)
+    angle_min = laser.angle_min
+    if upside_down:  # turned over, beam k points at -angle(B - 1 - k) in the laser's frame
+        ranges = np.ascontiguousarray(ranges[:, ::-1])
+        angle_min = -(laser.angle_min + laser.angle_increment * (laser.beams - 1))
     dt = float(np.median(np.diff(ds.t))) if ds.n_scans > 1 else 0.0
     empty = np.zeros(0, np.float32)
     if ds.n_scans:
@@ -162,13 +184,13 @@ def _streams(
             "/tf_static",
             TFMESSAGE,
             float(ds.t[0]),
-            msgs.serialize(msgs.mounting(float(ds.t[0]), frame, laser), TFMESSAGE),
+            msgs.serialize(msgs.mounting(float(ds.t[0]), frame, laser, upside_down), TFMESSAGE),
         )
     for i, t in enumerate(ds.t.tolist()):
         msg = ty["sensor_msgs/msg/LaserScan"](
             header=msgs.header(t, frame, i),
-            angle_min=laser.angle_min,
-            angle_max=laser.angle_min + laser.angle_increment * (laser.beams - 1),
+            angle_min=angle_min,
+            angle_max=angle_min + laser.angle_increment * (laser.beams - 1),
             angle_increment=laser.angle_increment,
             time_increment=0.0,
             scan_time=dt,

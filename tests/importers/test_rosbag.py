@@ -182,7 +182,6 @@ def _ros1_bag(path: Path, messages: list[tuple[str, str, float, object]]) -> Pat
 
 
 SCAN = "sensor_msgs/msg/LaserScan"
-ODOMETRY = "nav_msgs/msg/Odometry"
 
 
 def test_two_scan_topics_need_a_choice(tmp_path: Path) -> None:
@@ -264,45 +263,6 @@ def test_odometry_and_mounting_from_tf_and_zero_stamps(tmp_path: Path) -> None:
     assert any("all zero" in n for n in ds.report.notes)
 
 
-def _simulated_bag(path: Path, ds: Dataset, upside_down: bool) -> Path:
-    """`ds` (odometry, truth) as a ROS1 bag whose laser is mounted level or upside down
-    (a roll of 180 deg: the scan seen from below, its beams in the opposite order)."""
-    m = _Messages(_typestore(True), True)
-    ty, laser = m.types, ds.laser
-    rotation = (
-        ty["geometry_msgs/msg/Quaternion"](x=1.0, y=0.0, z=0.0, w=0.0)
-        if upside_down
-        else m.quaternion(0.0)
-    )
-    mount = ty["geometry_msgs/msg/TransformStamped"](
-        header=m.header(0.0, "base_link"),
-        child_frame_id="laser",
-        transform=ty["geometry_msgs/msg/Transform"](
-            translation=ty["geometry_msgs/msg/Vector3"](x=laser.x, y=laser.y, z=laser.z),
-            rotation=rotation,
-        ),
-    )
-    items: list[tuple[str, str, float, object]] = [
-        ("/tf_static", TFMESSAGE, ds.t[0], ty[TFMESSAGE](transforms=[mount]))
-    ]
-    last = laser.angle_min + laser.angle_increment * (laser.beams - 1)
-    odo, truth = ds.stream("odometry"), ds.stream("groundtruth")
-    assert odo is not None and truth is not None
-    for k, t in enumerate(ds.t):
-        ranges = ds.ranges[k, ::-1] if upside_down else ds.ranges[k]
-        scan = _laserscan(
-            m, t, laser.beams, angle_min=-last if upside_down else laser.angle_min,
-            angle_max=-laser.angle_min if upside_down else last,
-            angle_increment=laser.angle_increment, range_min=0.0, range_max=laser.range_max,
-            ranges=np.nan_to_num(ranges, nan=np.inf),
-        )  # fmt: skip
-        items.append(("/scan", SCAN, t, scan))
-        for topic, poses, parent in (("/odom", odo, "odom"), ("/ground_truth", truth, "map")):
-            x, y, theta = (float(v) for v in poses.xyt[k])
-            items.append((topic, ODOMETRY, t, m.odometry(t, x, y, theta, parent, k)))
-    return _ros1_bag(path, items)
-
-
 def test_a_laser_mounted_upside_down_maps_as_one_mounted_level(tmp_path: Path) -> None:
     """A bag whose base_link -> laser transform turns the laser over (a common mounting):
     its beams' angles are mirrored on import, so that each return lands where the level
@@ -311,8 +271,13 @@ def test_a_laser_mounted_upside_down_maps_as_one_mounted_level(tmp_path: Path) -
     from toolkit.sim import simulate
 
     ds = simulate("corridor", seed=0, scans=300).dataset
-    level = ROSBAG.read([_simulated_bag(tmp_path / "level.bag", ds, False)], RosbagOptions())
-    over = ROSBAG.read([_simulated_bag(tmp_path / "over.bag", ds, True)], RosbagOptions())
+    level, over = (
+        ROSBAG.read(
+            ROSBAG.write(ds, tmp_path, RosbagWriteOptions(name=name, upside_down=turned)),
+            RosbagOptions(),
+        )
+        for name, turned in (("level", False), ("over", True))
+    )
     assert level.laser.angle_increment > 0 > over.laser.angle_increment
     assert any("upside down" in n for n in over.report.notes)
     assert not any("upside down" in n for n in level.report.notes)

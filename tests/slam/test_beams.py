@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 import toolkit
+from bench.robot_in_view import seeing_the_robot
 from tests.conftest import Cli
 from tests.slam.conftest import drifted_carmen
 from toolkit.beams import beam_spans, fixed_beams
@@ -28,12 +29,7 @@ EDGE = 20  # beams at each edge of the 181-beam scan that see the robot's frame
 def _seeing_the_robot(seed: int) -> toolkit.Dataset:
     """The simulated corridor whose EDGE first and last beams read the robot's frame at
     0.3 m (5 mm of range noise), as an LMS-200 mounted behind a bumper does."""
-    ds = simulate("corridor", seed=seed, scans=600).dataset
-    ranges = ds.ranges.copy()
-    rng = np.random.default_rng(seed)
-    for beams in (slice(0, EDGE), slice(-EDGE, None)):
-        ranges[:, beams] = 0.3 + rng.normal(0, 0.005, ranges[:, beams].shape)
-    return replace(ds, ranges=ranges)
+    return seeing_the_robot(simulate("corridor", seed=seed, scans=600).dataset, EDGE, seed)
 
 
 def _odometry(ds: toolkit.Dataset) -> np.ndarray:
