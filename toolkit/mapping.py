@@ -59,6 +59,7 @@ from toolkit.raster import BeamFrame, beam_frame, return_xy, scan_chunks, write_
 from toolkit.raster import world_points as world_points  # re-exported: the cloud's arithmetic
 from toolkit.slam.relations import relation_metrics
 from toolkit.slam.render import write_occupancy, write_side_by_side
+from toolkit.slam.stalls import Stall, mend_stalls, still_stretches
 from toolkit.writers import (
     CLOUD,
     PCD,
@@ -415,18 +416,27 @@ def map_run(
         fixed = fixed_beams(ds.ranges, wheels)
         ds = without_beams(ds, fixed)
     beyond_reach = share_beyond_reach(ds.ranges) if matched_scans else 0.0
+    # odometry that stood still while the scans moved (a stalled encoder, a stream that
+    # starts late or stops early) is mended from the scans for the matching (each still
+    # stretch mapped first, counted with the pairs); the outputs and metrics keep the
+    # odometry as logged
+    stretches = still_stretches(wheels) if wheels is not None else []
     pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
+    pairs += sum(last - first for first, last in stretches)
     steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
     with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
+        matched_ds, stalls = ds, list[Stall]()
+        if wheels is not None and stretches:
+            matched_ds, stalls = mend_stalls(ds, wheels, config, slam_config, matched)
         slam: SlamRun | None = None
         if loops and method != Method.ODOMETRY:
             # on use: loop closure and the pose graph load GTSAM and scipy.ndimage
             slam_run = importlib.import_module("toolkit.slam.run")
             result, slam = slam_run.slam_trajectory(
-                ds, method, config, matcher, slam_config, progress=matched
+                matched_ds, method, config, matcher, slam_config, progress=matched
             )
         else:
-            result = build(ds, method, config, matcher, progress=matched)
+            result = build(matched_ds, method, config, matcher, progress=matched)
         timed |= result.timings
         step()
         robot = result.poses
@@ -496,6 +506,8 @@ def map_run(
             metrics = run_metrics(ds, result)
             if len(fixed):
                 metrics["fixed_beams"] = fixed.tolist()
+            if stalls:
+                metrics["odometry_stalls"] = [stall.to_dict() for stall in stalls]
             if beyond_reach > 0.5:  # nothing matched: the map is the odometry's
                 metrics["beyond_reach"] = round(beyond_reach, 3)
             metrics["relation_error"] = relation_metrics(ds, robot)

@@ -136,17 +136,22 @@ def sequential(
     ds: Dataset,
     config: sc.MatchConfig | None = None,
     progress: Callable[[int], object] | None = None,
+    velocity: np.ndarray | None = None,
 ) -> TrajectoryResult:
     """The sequential trajectory of `ds`: the batch matcher seeded by odometry, or the streaming
-    matcher seeded by constant velocity (filtered, from `start_velocity`) when the log has no
-    odometry. `progress(m)`: m more scan pairs matched (S - 1 in all)."""
+    matcher seeded by constant velocity (filtered, from `start_velocity`, or from `velocity`,
+    the motion per scan the log is known to start with) when the log has no odometry.
+    `progress(m)`: m more scan pairs matched (S - 1 in all)."""
     if odometry_poses(ds) is not None:
         return build(ds, "gaussian", config, progress=progress)
     config = config or sc.MatchConfig()
     t0 = time.perf_counter()
-    rest = standing(ds.ranges)  # the start velocity from where the robot starts moving
-    rest = rest if rest > 1 else 0  # the first scan alone is no rest
-    velocity = start_velocity(ds, config, begin=rest)
+    if velocity is None:
+        rest = standing(ds.ranges)  # the start velocity from where the robot starts moving
+        rest = rest if rest > 1 else 0  # the first scan alone is no rest
+        velocity = start_velocity(ds, config, begin=rest)
+    else:
+        rest = 0
     heading = HeadingMap(ds.laser, config.heading_map) if config.heading_map > 0 else None
     matcher = MotionMatcher(ds.laser, config, None if rest else velocity, heading=heading)
     poses = np.zeros((ds.n_scans, 3))

@@ -113,10 +113,12 @@ def slam_trajectory(
     matcher: Callable[..., sc.PairMatches] | None = None,
     slam: SlamConfig | None = None,
     progress: Callable[[int], object] | None = None,
+    velocity: np.ndarray | None = None,
 ) -> tuple[TrajectoryResult, SlamRun]:
     """The sequential trajectory by `method` (gaussian: odometry or constant velocity as the
     motion model), then loops and the pose graph; the result's frame holds the final poses.
-    `progress(m)`: m more scan pairs matched (`toolkit.poses.build`)."""
+    `progress(m)`: m more scan pairs matched (`toolkit.poses.build`). `velocity`: without
+    odometry, the motion per scan the log starts with (None: measured, `sequential`)."""
     slam = slam or SlamConfig()
     t0 = time.perf_counter()
     wheels = odometry_poses(ds)
@@ -125,7 +127,7 @@ def slam_trajectory(
         # matches independent scan pairs), so a run gives the same poses on a cluster or not
         result = scan_to_map(ds, slam.scan_map, progress)
     elif method == "gaussian" and matcher is None:
-        result = sequential(ds, config, progress)
+        result = sequential(ds, config, progress, velocity)
         slam = replace(slam, front_end="keyframe")  # no odometry: the keyframe front end
     else:
         result = build(ds, method, config, matcher, progress)

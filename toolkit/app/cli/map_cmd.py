@@ -119,7 +119,9 @@ def map_command(
     setting that ran, and a fleet's re-run redoes the runs of other settings.
     Beams that read the robot itself (a short range that stays the same through the
     odometry's turns) are left out and named on the summary line; the line also says when
-    the ranges lie beyond any laser's reach (cm or mm).
+    the ranges lie beyond any laser's reach (cm or mm). Odometry that stands still while the
+    scans move (a stalled encoder, an odometry stream that starts late or stops early) is
+    mended from the scans over those scans (mapped as without odometry) and named there too.
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
@@ -183,6 +185,11 @@ def map_command(
 
         spans = beam_spans(metrics["fixed_beams"])
         line += f", beams {spans} left out (the same range through every turn)"
+    for stall in metrics.get("odometry_stalls", []):
+        line += (
+            f", odometry still over scans {stall['first']}-{stall['last']} while the scans "
+            f"moved {stall['moved_m']:.1f} m: mended from the scans"
+        )
     if metrics.get("beyond_reach"):
         line += (
             f", {metrics['beyond_reach']:.0%} of the returns beyond 100 m"
