@@ -45,6 +45,7 @@ from toolkit.beams import fixed_beams, share_beyond_reach, without_beams
 from toolkit.dataset import META, ODOMETRY, Dataset, load, sha256, write_described
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
+from toolkit.mounting import Mounting, mounting
 from toolkit.poses import (
     ICP_METHODS,
     Method,
@@ -412,9 +413,15 @@ def map_run(
     matched_scans = method != Method.ODOMETRY
     fixed = np.empty(0, dtype=np.int64)
     wheels = odometry_poses(ds) if matched_scans else None
+    mount: Mounting | None = None
     if wheels is not None:
         fixed = fixed_beams(ds.ranges, wheels)
         ds = without_beams(ds, fixed)
+        # a laser turned round or upside down against what the log says fights the odometry
+        # in every match: read as the scans and the odometry agree it is mounted
+        mount = mounting(ds.ranges, wheels, ds.laser)
+        if mount.changed:
+            ds = replace(ds, laser=mount.laser(ds.laser))
     beyond_reach = share_beyond_reach(ds.ranges) if matched_scans else 0.0
     # odometry that stood still while the scans moved (a stalled encoder, a stream that
     # starts late or stops early) is mended from the scans for the matching (each still
@@ -506,6 +513,8 @@ def map_run(
             metrics = run_metrics(ds, result)
             if len(fixed):
                 metrics["fixed_beams"] = fixed.tolist()
+            if mount is not None and mount.changed:
+                metrics["laser_mounting"] = {"read_as": mount.describe(), **mount.to_dict()}
             if stalls:
                 metrics["odometry_stalls"] = [stall.to_dict() for stall in stalls]
             if beyond_reach > 0.5:  # nothing matched: the map is the odometry's

@@ -122,6 +122,8 @@ def map_command(
     the ranges lie beyond any laser's reach (cm or mm). Odometry that stands still while the
     scans move (a stalled encoder, an odometry stream that starts late or stops early) is
     mended from the scans over those scans (mapped as without odometry) and named there too.
+    A laser that the scans and the odometry agree is mounted turned round or upside down,
+    against what the log says, is read so, and the line says it.
     """
     # on use: the matcher (numba) loads for `map` alone, with loops also the loop
     # closer and GTSAM (`map_run` loads it first thing); no garbage collection meanwhile
@@ -185,6 +187,11 @@ def map_command(
 
         spans = beam_spans(metrics["fixed_beams"])
         line += f", beams {spans} left out (the same range through every turn)"
+    if metrics.get("laser_mounting"):
+        line += (
+            f", the laser read as mounted {metrics['laser_mounting']['read_as']}: the scans and"
+            " the odometry agree only so"
+        )
     for stall in metrics.get("odometry_stalls", []):
         line += (
             f", odometry still over scans {stall['first']}-{stall['last']} while the scans "
