@@ -50,7 +50,7 @@ from bench import peers
 from toolkit import se2
 from toolkit.dataset import Dataset
 from toolkit.metrics import evaluate, relation_error, shared_error, truth_relations
-from toolkit.poses import build, odometry_poses, truth_poses, with_drift
+from toolkit.poses import REAL_LOG_DRIFT, build, odometry_poses, truth_poses, with_drift
 
 if TYPE_CHECKING:
     from importers.carmen import CarmenOptions
@@ -63,6 +63,44 @@ CARMEN = REAL / "carmen_radish_corrected"
 #: `tuned` column. Since then each session has held out fresh seeds, run them once and spent
 #: them for development (docs/maps.md, "Where it stands": 0-50 used, the next set 51 and up)
 TUNED_SEEDS = (0, 1, 2)
+#: `with_drift`'s parameters for the drift's other direction: REAL_LOG_DRIFT's wheel difference
+#: and scale error negated (the defaults were tuned under one; `--mirror`)
+MIRRORED_DRIFT = {k: -REAL_LOG_DRIFT[k] for k in ("wheel_diff", "scale_error")}
+
+
+def drifted_both_ways(
+    seeds: tuple[int, ...],
+) -> Iterator[tuple[str, int, str, Dataset, np.ndarray]]:
+    """Each real log (`real_logs`) drifted by each seed in both directions ("+", "mirrored"):
+    its name, the seed, the direction, the drifted log and its odometry at the scan times."""
+    for name, ds in real_logs():
+        for seed in seeds:
+            for direction, drift in (("+", {}), ("mirrored", MIRRORED_DRIFT)):
+                log = with_drift(ds, seed, **drift)
+                odometry = odometry_poses(log)
+                assert odometry is not None
+                yield name, seed, direction, log, odometry
+
+
+def sim_worlds(
+    worlds: tuple[int, ...], scans: int | None = None
+) -> Iterator[tuple[str, int, Dataset, np.ndarray, np.ndarray]]:
+    """The simulator's corridor and building on each world (its seed), of `scans` scans or
+    their own count: the scenario, the world, the log, its truth and its odometry."""
+    from toolkit.sim import simulate
+
+    for world in ("corridor", "building"):
+        for seed in worlds:
+            ds = simulate(world, seed=seed, **({"scans": scans} if scans else {})).dataset
+            truth, odometry = truth_poses(ds), odometry_poses(ds)
+            assert truth is not None and odometry is not None
+            yield world, seed, ds, truth, odometry
+
+
+def print_row(row: dict[str, Any]) -> None:
+    """One result as `key=value` pairs on a line (floats to 3 decimals), as a bench goes."""
+    text = (f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())
+    print(" ".join(text), flush=True)
 
 
 def real_logs(

@@ -25,13 +25,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import kiss_best, real_logs
+from bench.bench_slam import drifted_both_ways, kiss_best, print_row, sim_worlds
 from toolkit.dataset import Dataset
 from toolkit.mapping import map_run
 from toolkit.metrics import evaluate
 from toolkit.mounting import mounted, mounting
-from toolkit.poses import REAL_LOG_DRIFT, odometry_poses, truth_poses, with_drift
-from toolkit.sim import simulate
 from toolkit.slam.run import slam_trajectory
 from toolkit.typed import int_ranges
 
@@ -58,49 +56,31 @@ def mapped(ds: Dataset) -> dict[str, Any]:
 
 def simulated(worlds: tuple[int, ...], kiss: bool) -> pd.DataFrame:
     rows = []
-    for world in ("corridor", "building"):
-        for seed in worlds:
-            ds = simulate(world, seed=seed).dataset
-            truth = truth_poses(ds)
-            assert truth is not None
-            for fault in FAULTS:
-                log = faulted(ds, fault)
-                run = mapped(log)
-                row: dict[str, Any] = {"world": world, "seed": seed, "fault": fault}
-                row["as_said"] = float(
-                    evaluate(slam_trajectory(log)[0].poses, truth)["ate"]["rmse"]
-                )
-                row |= {"toolkit_map": run["ate"], "read_as": run["read_as"]}
-                if kiss:
-                    row["kiss"] = float(evaluate(kiss_best(log)[0], truth)["ate"]["rmse"])
-                rows.append(row)
-                print(
-                    " ".join(
-                        f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
-                        for k, v in row.items()
-                    ),
-                    flush=True,
-                )
+    for world, seed, ds, truth, _ in sim_worlds(worlds):
+        for fault in FAULTS:
+            log = faulted(ds, fault)
+            run = mapped(log)
+            row: dict[str, Any] = {"world": world, "seed": seed, "fault": fault}
+            row["as_said"] = float(evaluate(slam_trajectory(log)[0].poses, truth)["ate"]["rmse"])
+            row |= {"toolkit_map": run["ate"], "read_as": run["read_as"]}
+            if kiss:
+                row["kiss"] = float(evaluate(kiss_best(log)[0], truth)["ate"]["rmse"])
+            rows.append(row)
+            print_row(row)
     return pd.DataFrame(rows)
 
 
 def real(seeds: tuple[int, ...]) -> pd.DataFrame:
-    turned = {k: -REAL_LOG_DRIFT[k] for k in ("wheel_diff", "scale_error")}
     rows = []
-    for name, ds in real_logs():
-        for seed in seeds:
-            for direction, drift in (("+", {}), ("mirrored", turned)):
-                drifted = with_drift(ds, seed, **drift)
-                odometry = odometry_poses(drifted)
-                assert odometry is not None
-                for fault in FAULTS:
-                    log = faulted(drifted, fault)
-                    votes = mounting(log.ranges, odometry, log.laser)
-                    row = {"log": name, "seed": seed, "drift": direction, "fault": fault}
-                    row |= {"read_as": votes.describe()}
-                    for side, vote in votes.to_dict().items():
-                        row |= {f"{side}_pairs": vote["pairs"], f"{side}_share": vote["share"]}
-                    rows.append(row)
+    for name, seed, direction, drifted, odometry in drifted_both_ways(seeds):
+        for fault in FAULTS:
+            log = faulted(drifted, fault)
+            votes = mounting(log.ranges, odometry, log.laser)
+            row = {"log": name, "seed": seed, "drift": direction, "fault": fault}
+            row |= {"read_as": votes.describe()}
+            for side, vote in votes.to_dict().items():
+                row |= {f"{side}_pairs": vote["pairs"], f"{side}_share": vote["share"]}
+            rows.append(row)
     return pd.DataFrame(rows)
 
 

@@ -32,13 +32,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import kiss_best
+from bench.bench_slam import kiss_best, print_row, sim_worlds
 from toolkit import se2
 from toolkit.dataset import Dataset, PoseStream
 from toolkit.mapping import map_run
 from toolkit.metrics import evaluate
-from toolkit.poses import odometry_poses, truth_poses
-from toolkit.sim import simulate
 from toolkit.slam.run import slam_trajectory
 from toolkit.typed import int_ranges
 
@@ -76,39 +74,28 @@ def simulated(
     worlds: tuple[int, ...], cases: list[str], kiss: bool, scans: int | None = None
 ) -> pd.DataFrame:
     rows = []
-    for world in ("corridor", "building"):
-        for seed in worlds:
-            ds = simulate(world, seed=seed, **({"scans": scans} if scans else {})).dataset
-            truth = truth_poses(ds)
-            odometry = odometry_poses(ds)
-            assert truth is not None and odometry is not None
+    for world, seed, ds, truth, odometry in sim_worlds(worlds, scans):
 
-            def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
-                return float(evaluate(poses, truth)["ate"]["rmse"])
+        def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
+            return float(evaluate(poses, truth)["ate"]["rmse"])
 
-            clean = mapped(ds)
-            blind = replace(ds, odometry=None)
-            base = {"world": world, "seed": seed, "scans": ds.n_scans, "clean": clean["ate"]}
-            base |= {"clean_found": len(clean["stalls"])}
-            base["no_odometry"] = ate(slam_trajectory(blind)[0].poses)
-            for case in cases:
-                first, last = CASES[case](ds.n_scans)
-                wheels = stalled(odometry, first, last)
-                log = replace(ds, odometry=PoseStream(ds.t, wheels))
-                run = mapped(log)
-                row = base | {"case": case, "first": first, "last": last}
-                row |= {"odometry": ate(wheels), "as_logged": ate(slam_trajectory(log)[0].poses)}
-                row |= {"toolkit_map": run["ate"], "found": str(run["stalls"])}
-                if kiss:
-                    row["kiss"] = ate(kiss_best(log)[0])
-                rows.append(row)
-                print(
-                    " ".join(
-                        f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
-                        for k, v in row.items()
-                    ),
-                    flush=True,
-                )
+        clean = mapped(ds)
+        blind = replace(ds, odometry=None)
+        base = {"world": world, "seed": seed, "scans": ds.n_scans, "clean": clean["ate"]}
+        base |= {"clean_found": len(clean["stalls"])}
+        base["no_odometry"] = ate(slam_trajectory(blind)[0].poses)
+        for case in cases:
+            first, last = CASES[case](ds.n_scans)
+            wheels = stalled(odometry, first, last)
+            log = replace(ds, odometry=PoseStream(ds.t, wheels))
+            run = mapped(log)
+            row = base | {"case": case, "first": first, "last": last}
+            row |= {"odometry": ate(wheels), "as_logged": ate(slam_trajectory(log)[0].poses)}
+            row |= {"toolkit_map": run["ate"], "found": str(run["stalls"])}
+            if kiss:
+                row["kiss"] = ate(kiss_best(log)[0])
+            rows.append(row)
+            print_row(row)
     return pd.DataFrame(rows)
 
 

@@ -36,12 +36,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import kiss_best, mapper, real_logs, sim_logs
+from bench.bench_slam import MIRRORED_DRIFT, kiss_best, mapper, real_logs, sim_logs
 from importers.carmen import CarmenOptions
 from toolkit.dataset import Dataset
 from toolkit.errors import ToolkitError
 from toolkit.metrics import evaluate
-from toolkit.poses import REAL_LOG_DRIFT, truth_poses, with_drift
+from toolkit.poses import truth_poses, with_drift
 from toolkit.slam.pipeline import SlamConfig
 from toolkit.typed import int_ranges
 
@@ -149,7 +149,7 @@ def drifted(
 ) -> Iterator[tuple[str, int, Dataset]]:
     """Each real log's odometry drifted by each seed (`mirror`: the drift's direction turned
     round, REAL_LOG_DRIFT's wheel difference and scale error negated)."""
-    turned = {k: -REAL_LOG_DRIFT[k] for k in ("wheel_diff", "scale_error")} if mirror else {}
+    turned = MIRRORED_DRIFT if mirror else {}
     for name, log in real_logs(read_as, wanted):
         for seed in seeds:
             yield name, seed, with_drift(log, seed, **turned)

@@ -25,13 +25,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import kiss_best, real_logs
+from bench.bench_slam import drifted_both_ways, kiss_best, print_row, sim_worlds
 from toolkit.beams import fixed_beams
 from toolkit.dataset import Dataset
 from toolkit.mapping import map_run
 from toolkit.metrics import evaluate
-from toolkit.poses import REAL_LOG_DRIFT, odometry_poses, truth_poses, with_drift
-from toolkit.sim import simulate
 from toolkit.slam.run import slam_trajectory
 from toolkit.typed import int_ranges
 
@@ -54,51 +52,34 @@ def mapped(ds: Dataset) -> dict[str, Any]:
 
 def simulated(worlds: tuple[int, ...], edges: tuple[int, ...], kiss: bool) -> pd.DataFrame:
     rows = []
-    for world in ("corridor", "building"):
-        for seed in worlds:
-            ds = simulate(world, seed=seed, scans=600).dataset
-            truth = truth_poses(ds)
-            odometry = odometry_poses(ds)
-            assert truth is not None and odometry is not None
+    for world, seed, ds, truth, odometry in sim_worlds(worlds, scans=600):
 
-            def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
-                return float(evaluate(poses, truth)["ate"]["rmse"])
+        def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
+            return float(evaluate(poses, truth)["ate"]["rmse"])
 
-            clean = mapped(ds)
-            base = {"world": world, "seed": seed, "odometry": ate(odometry)}
-            base |= {"clean": clean["ate"], "clean_left_out": clean["left_out"]}
+        clean = mapped(ds)
+        base = {"world": world, "seed": seed, "odometry": ate(odometry)}
+        base |= {"clean": clean["ate"], "clean_left_out": clean["left_out"]}
+        if kiss:
+            base["kiss_clean"] = ate(kiss_best(ds)[0])
+        for edge in edges:
+            seen = seeing_the_robot(ds, edge, seed)
+            every, _ = slam_trajectory(seen)
+            run = mapped(seen)
+            row = base | {"edge": edge, "every_beam": ate(every.poses)}
+            row |= {"toolkit_map": run["ate"], "left_out": run["left_out"]}
             if kiss:
-                base["kiss_clean"] = ate(kiss_best(ds)[0])
-            for edge in edges:
-                seen = seeing_the_robot(ds, edge, seed)
-                every, _ = slam_trajectory(seen)
-                run = mapped(seen)
-                row = base | {"edge": edge, "every_beam": ate(every.poses)}
-                row |= {"toolkit_map": run["ate"], "left_out": run["left_out"]}
-                if kiss:
-                    row["kiss"] = ate(kiss_best(seen)[0])
-                rows.append(row)
-                print(
-                    " ".join(
-                        f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
-                        for k, v in row.items()
-                    ),
-                    flush=True,
-                )
+                row["kiss"] = ate(kiss_best(seen)[0])
+            rows.append(row)
+            print_row(row)
     return pd.DataFrame(rows)
 
 
 def real(seeds: tuple[int, ...]) -> pd.DataFrame:
-    turned = {k: -REAL_LOG_DRIFT[k] for k in ("wheel_diff", "scale_error")}
     rows = []
-    for name, ds in real_logs():
-        for seed in seeds:
-            for direction, drift in (("+", {}), ("mirrored", turned)):
-                drifted = with_drift(ds, seed, **drift)
-                odometry = odometry_poses(drifted)
-                assert odometry is not None
-                found = fixed_beams(drifted.ranges, odometry)
-                rows.append({"log": name, "seed": seed, "drift": direction, "found": len(found)})
+    for name, seed, direction, drifted, odometry in drifted_both_ways(seeds):
+        found = fixed_beams(drifted.ranges, odometry)
+        rows.append({"log": name, "seed": seed, "drift": direction, "found": len(found)})
     return pd.DataFrame(rows)
 
 
