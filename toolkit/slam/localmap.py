@@ -105,7 +105,13 @@ def start_velocity(
         return None
     longest = max(m, min(START_MAX, total)) if START_STRONG > 0 else m
     first = MotionMatcher(
-        ds.laser, config, gain=1.0, probe=PROBE_SHIFT, probe_every=1, probe_filters=False
+        ds.laser,
+        config,
+        gain=1.0,
+        probe=PROBE_SHIFT,
+        probe_every=1,
+        probe_filters=False,
+        resume=False,
     )
     poses = np.empty((longest, 3))
     seen = np.zeros(longest)  # scan i's forward response (measured from the pass's third scan)
