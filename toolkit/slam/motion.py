@@ -45,7 +45,8 @@ class MotionMatcher(sc.StreamMatcher):
     measured, but the forward part follows by `gain` like the rest (the start-velocity
     pass). `heading`: each scan's heading is fitted to this local map of the keyframes
     (`MatchConfig.heading_map`), the keyframe kept with the fitted pose, before the velocity
-    takes the motion."""
+    takes the motion. `resume`: once a turn ends, the forward part is at least the speed
+    before it (`_resume`; a vehicle's, not a swaying hand-held scanner's)."""
 
     def __init__(
         self,
