@@ -48,9 +48,10 @@ def stalled(odometry: np.ndarray, first: int, last: int) -> np.ndarray:
     steps from there (an encoder that stops counting and starts again)."""
     out = odometry.copy()
     out[first : last + 1] = odometry[first]
-    after = se2.between(odometry[last:-1], odometry[last + 1 :])
-    for k, step in enumerate(after, start=last + 1):
-        out[k] = se2.compose(out[k - 1 : k], step[None])[0]
+    rest = len(odometry) - last  # from scan `last` on: the held pose, then the odometry's own
+    # motion since `last`
+    since = se2.between(np.broadcast_to(odometry[last], (rest, 3)), odometry[last:])
+    out[last:] = se2.compose(np.broadcast_to(odometry[first], (rest, 3)), since)
     return out
 
 

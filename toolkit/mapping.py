@@ -428,13 +428,13 @@ def map_run(
     # stretch mapped first, counted with the pairs); the outputs and metrics keep the
     # odometry as logged
     stretches = still_stretches(wheels) if wheels is not None else []
-    pairs = max(ds.n_scans - 1, 0) if method != Method.ODOMETRY else 0
+    pairs = max(ds.n_scans - 1, 0) if matched_scans else 0
     pairs += sum(last - first for first, last in stretches)
-    steps = "loops, outputs" if loops and method != Method.ODOMETRY else "outputs"
+    steps = "loops, outputs" if loops and matched_scans else "outputs"
     with counted(f"map ({method})", pairs, "scan pairs", steps, MAP_STEPS) as (matched, step):
         matched_ds, stalls = ds, list[Stall]()
-        if wheels is not None and stretches:
-            matched_ds, stalls = mend_stalls(ds, wheels, config, slam_config, matched)
+        if wheels is not None:
+            matched_ds, stalls = mend_stalls(ds, wheels, stretches, config, slam_config, matched)
         slam: SlamRun | None = None
         if loops and method != Method.ODOMETRY:
             # on use: loop closure and the pose graph load GTSAM and scipy.ndimage

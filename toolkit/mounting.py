@@ -31,6 +31,7 @@ from toolkit.dataset import LaserGeometry
 
 MOVE, TURN = 0.3, 0.3  # m, rad: a pair's second scan is the first this far along the odometry
 FAR, FAR_TURN = 1.0, 0.8  # m, rad: ... and no further (the scans must still overlap)
+HORIZON = 200  # scans looked ahead of a pair's first scan for its second
 PAIRS = 1000  # pairs tried at most, evenly spread over the log
 MARGIN = 0.1  # share of the returns by which one mounting must fit more to tell
 MIN_PAIRS = 8  # fewer pairs that tell: the mounting as logged (the simulated corridor's
@@ -102,25 +103,23 @@ def mounted(laser: LaserGeometry, backwards: bool, upside_down: bool) -> LaserGe
 
 def step_pairs(odometry: np.ndarray, most: int = PAIRS) -> np.ndarray:
     """Up to `most` pairs (i, j), evenly spread: j the first scan MOVE m or TURN rad along the
-    odometry from i, kept when within FAR m and FAR_TURN rad."""
+    odometry from i (looked for over the next HORIZON scans), kept when within FAR m and
+    FAR_TURN rad."""
     n = len(odometry)
     if n < 2:
         return np.empty((0, 2), dtype=np.int64)
     starts = np.unique(np.linspace(0, n - 2, min(most, n - 1)).astype(np.int64))
-    horizon = 200  # scans looked ahead for the second scan of a pair
-    found = []
-    for i in starts:  # a bounded look-ahead per pair: at most `most` x `horizon` poses
-        ahead = se2.between(
-            np.broadcast_to(odometry[i], (min(horizon, n - 1 - i), 3)),
-            odometry[i + 1 : i + 1 + horizon],
-        )
-        far = (np.hypot(ahead[:, 0], ahead[:, 1]) >= MOVE) | (np.abs(ahead[:, 2]) >= TURN)
-        if not far.any():
-            continue
-        k = int(np.argmax(far))
-        if np.hypot(ahead[k, 0], ahead[k, 1]) <= FAR and abs(ahead[k, 2]) <= FAR_TURN:
-            found.append((i, i + 1 + k))
-    return np.array(found, dtype=np.int64).reshape(-1, 2)
+    later = starts[:, None] + 1 + np.arange(HORIZON)  # each start's look-ahead (P x HORIZON)
+    inside = later < n
+    later = np.minimum(later, n - 1)
+    origin = np.broadcast_to(odometry[starts, None], (*later.shape, 3))
+    ahead = se2.between(origin.reshape(-1, 3), odometry[later].reshape(-1, 3)).reshape(origin.shape)
+    moved = np.hypot(ahead[..., 0], ahead[..., 1])
+    far = ((moved >= MOVE) | (np.abs(ahead[..., 2]) >= TURN)) & inside
+    k = np.argmax(far, axis=1)  # the first scan far enough along, where any
+    rows = np.arange(len(starts))
+    kept = far[rows, k] & (moved[rows, k] <= FAR) & (np.abs(ahead[rows, k, 2]) <= FAR_TURN)
+    return np.column_stack([starts[kept], later[rows, k][kept]]).astype(np.int64)
 
 
 def mounting(ranges: np.ndarray, odometry: np.ndarray, laser: LaserGeometry) -> Mounting:

@@ -4,7 +4,6 @@ the odometry by `toolkit map`, never on the real logs as they are."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +11,7 @@ import pytest
 
 import importers
 import toolkit
+from bench.laser_mounting import faulted
 from importers.base import ImportOptions
 from importers.carmen import Carmen, CarmenOptions, CarmenWriteOptions
 from tests.conftest import Cli
@@ -34,8 +34,9 @@ def test_a_carmen_log_of_a_laser_mounted_upside_down_maps(cli: Cli, tmp_path: Pa
     beams in the opposite order; CARMEN says nothing of it): a mirror image to every matcher,
     read upside down by `toolkit map`."""
     ds = simulate("building", seed=0, scans=2000).dataset
-    over = replace(ds, ranges=np.ascontiguousarray(ds.ranges[:, ::-1]))
-    (log,) = Carmen().write(over, tmp_path, CarmenWriteOptions(name="over.log"))
+    (log,) = Carmen().write(
+        faulted(ds, "upside down"), tmp_path, CarmenWriteOptions(name="over.log")
+    )
     read = Carmen().read([log], CarmenOptions())
     truth = truth_poses(read)
     assert truth is not None
@@ -56,7 +57,7 @@ def test_a_laser_said_to_look_back_while_it_looks_ahead_is_read_ahead() -> None:
     """The simulated corridor whose log says its laser is mounted turned round (yaw pi, a
     table imported with the wrong `laser_yaw`): the scans move against the odometry."""
     ds = simulate("corridor", seed=1, scans=2000).dataset
-    said = replace(ds, laser=mounted(ds.laser, backwards=True, upside_down=False))
+    said = faulted(ds, "turned round")
     votes = mounting(said.ranges, _odometry(said), said.laser)
     assert votes.backwards.decided and not votes.upside_down.decided
     assert votes.laser(said.laser).yaw == pytest.approx(ds.laser.yaw, abs=1e-12)
@@ -71,7 +72,7 @@ def test_real_lasers_keep_their_mounting(real: Path, name: str) -> None:
     ds = drifted_carmen(real, name, seed=0)
     odometry = _odometry(ds)
     assert not mounting(ds.ranges, odometry, ds.laser).changed
-    over = mounting(np.ascontiguousarray(ds.ranges[:, ::-1]), odometry, ds.laser)
+    over = mounting(faulted(ds, "upside down").ranges, odometry, ds.laser)
     assert over.upside_down.decided and not over.backwards.decided
 
 

@@ -12,6 +12,7 @@ import pytest
 
 import importers
 import toolkit
+from bench.odometry_stalls import stalled
 from importers.base import ImportOptions
 from importers.rosbag.importer import RosbagOptions, RosbagWriteOptions
 from tests.conftest import Cli
@@ -58,21 +59,16 @@ def test_an_encoder_stalled_mid_log_is_mended_and_the_rest_continues() -> None:
     wheels, truth = odometry_poses(ds), truth_poses(ds)
     assert wheels is not None and truth is not None
     a, b = 666, 1333
-    frozen = wheels.copy()
-    frozen[a:b] = wheels[a]
-    frozen[b:] = se2.compose(
-        np.broadcast_to(wheels[a], (len(wheels) - b, 3)),
-        se2.between(np.broadcast_to(wheels[b], (len(wheels) - b, 3)), wheels[b:]),
-    )
-    stalled = replace(ds, odometry=PoseStream(ds.t, frozen))
-    mended, stalls = mend_stalls(stalled, frozen)
+    frozen = stalled(wheels, a, b)  # as the bench stalls it
+    log = replace(ds, odometry=PoseStream(ds.t, frozen))
+    mended, stalls = mend_stalls(log, frozen, still_stretches(frozen))
     assert [(s.first, s.last) for s in stalls] == [(a, b)]
     got = odometry_poses(mended)
     assert got is not None
     np.testing.assert_allclose(got[: a + 1], frozen[: a + 1])  # before: as logged
     after = se2.between(got[b:-1], got[b + 1 :])  # after: the odometry's own steps
     np.testing.assert_allclose(after, se2.between(frozen[b:-1], frozen[b + 1 :]), atol=1e-9)
-    as_logged = evaluate(slam_trajectory(stalled)[0].poses, truth)["ate"]["rmse"]
+    as_logged = evaluate(slam_trajectory(log)[0].poses, truth)["ate"]["rmse"]
     assert as_logged > 5.0
     assert evaluate(slam_trajectory(mended)[0].poses, truth)["ate"]["rmse"] < 0.2 * as_logged
 
@@ -94,8 +90,9 @@ def test_real_robots_that_stood_still_keep_their_odometry(
     ds = importer.read(paths, importers.read_options(importer, ImportOptions(extra=options)))
     wheels = odometry_poses(ds)
     assert wheels is not None
-    assert still_stretches(wheels)  # the robot stops: looked at ...
-    mended, stalls = mend_stalls(ds, wheels)
+    stretches = still_stretches(wheels)
+    assert stretches  # the robot stops: looked at ...
+    mended, stalls = mend_stalls(ds, wheels, stretches)
     assert stalls == [] and mended is ds  # ... and kept
 
 

@@ -89,33 +89,34 @@ def _lead(steps: np.ndarray, first: int) -> np.ndarray | None:
 def mend_stalls(
     ds: Dataset,
     odometry: np.ndarray,
+    stretches: list[tuple[int, int]],
     config: sc.MatchConfig | None = None,
     slam: SlamConfig | None = None,
     progress: Callable[[int], object] | None = None,
 ) -> tuple[Dataset, list[Stall]]:
     """`ds` with its odometry mended where it stalled (at the scan times), and the stalls;
-    `ds` itself when there is none. `odometry`: the odometry at the scan times. Each still
-    stretch is mapped without odometry by `config` and `slam` (None: the defaults);
-    `progress(m)`: m more of the stretches' scan pairs matched."""
-    steps = se2.between(odometry[:-1], odometry[1:]) if len(odometry) > 1 else None
-    found: list[Stall] = []
-    for first, last in still_stretches(odometry):
-        # on use, as map_run loads the mapper: GTSAM and scipy.ndimage
-        from toolkit.slam.run import slam_trajectory  # noqa: PLC0415
+    `ds` itself when there is none. `odometry`: the odometry at the scan times; `stretches`:
+    its `still_stretches`, each mapped without odometry by `config` and `slam` (None: the
+    defaults); `progress(m)`: m more of the stretches' scan pairs matched."""
+    if not stretches:
+        return ds, []
+    # on use, as map_run loads the mapper: GTSAM and scipy.ndimage
+    from toolkit.slam.run import slam_trajectory  # noqa: PLC0415
 
+    steps = se2.between(odometry[:-1], odometry[1:])
+    found: list[Stall] = []
+    for first, last in stretches:
         part = Dataset(t=ds.t[first : last + 1], ranges=ds.ranges[first : last + 1], laser=ds.laser)
-        velocity = _lead(steps, first) if steps is not None else None
+        velocity = _lead(steps, first)
         poses = slam_trajectory(part, "gaussian", config, None, slam, progress, velocity)[0].poses
         end = se2.between(poses[:1], poses[-1:])[0]
         moved, turned = float(np.hypot(end[0], end[1])), abs(float(end[2]))
         if moved < MOVED and turned < TURNED:
             continue  # the robot stood still
-        assert steps is not None
         steps[first:last] = se2.between(poses[:-1], poses[1:])
         found.append(Stall(first, last, moved, turned))
     if not found:
         return ds, found
-    assert steps is not None
     mended = compose_steps(odometry[0], steps)
     return replace(ds, odometry=PoseStream(ds.t, mended)), found
 
