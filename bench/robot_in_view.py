@@ -3,15 +3,21 @@
     python -m bench.robot_in_view --worlds 418-425             # the simulator, KISS-ICP beside
     python -m bench.robot_in_view --worlds 418-421 --no-kiss
     python -m bench.robot_in_view --real                        # the real logs: beams found
+    python -m bench.robot_in_view --worlds 458-465 --no-odometry  # as LMS-200 captures
+    python -m bench.robot_in_view --real --no-odometry
 
 The simulator's corridor and building (600 scans, world = seed) with the first and last
 `--edge` beams reading the robot's frame at 0.3 m (5 mm of noise): the odometry's ATE, the
 clean log's by `toolkit map` (`toolkit.mapping.map_run`), the mapper given every beam
 (`toolkit.slam.run.slam_trajectory`, as before the beams were left out), `toolkit map` (the
 fixed beams left out), the beams it found, and with `--kiss` KISS-ICP seeded by the same
-odometry (best of voxel 0.1 / 0.3 m) on the clean and the seen log. `--real`: the beams
+odometry (best of voxel 0.1 / 0.3 m) on the clean and the seen log; `narrow`: the clean log
+with the same beams left out (what the narrower view costs). `--no-odometry`: the logs
+without odometry, as raw LMS-200 captures (2,000 scans unless `--scans`: the mapper needs
+them dense without odometry; KISS-ICP with its constant velocity). `--real`: the beams
 `toolkit.beams.fixed_beams` finds on the real CARMEN logs' drifted odometry over `--seeds`,
-both directions (none expected). docs/maps.md, "Beams that see the robot".
+both directions; with `--no-odometry` on every real log read without its odometry (none
+expected either way). docs/maps.md, "Beams that see the robot".
 """
 
 from __future__ import annotations
@@ -25,8 +31,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import drifted_both_ways, kiss_best, print_row, sim_worlds
-from toolkit.beams import fixed_beams
+import importers
+from bench.bench_slam import REAL, drifted_both_ways, kiss_best, print_row, real_logs, sim_worlds
+from importers.base import ImportOptions
+from toolkit.beams import fixed_beams, without_beams
 from toolkit.dataset import Dataset
 from toolkit.mapping import map_run
 from toolkit.metrics import evaluate
@@ -50,15 +58,20 @@ def mapped(ds: Dataset) -> dict[str, Any]:
     return {"ate": run.metrics["ate"]["rmse"], "left_out": len(run.metrics.get("fixed_beams", []))}
 
 
-def simulated(worlds: tuple[int, ...], edges: tuple[int, ...], kiss: bool) -> pd.DataFrame:
+def simulated(
+    worlds: tuple[int, ...], edges: tuple[int, ...], kiss: bool, scans: int, with_odometry: bool
+) -> pd.DataFrame:
     rows = []
-    for world, seed, ds, truth, odometry in sim_worlds(worlds, scans=600):
+    for world, seed, log, truth, odometry in sim_worlds(worlds, scans=scans):
+        ds = log if with_odometry else replace(log, odometry=None)
 
         def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
             return float(evaluate(poses, truth)["ate"]["rmse"])
 
         clean = mapped(ds)
-        base = {"world": world, "seed": seed, "odometry": ate(odometry)}
+        base: dict[str, Any] = {"world": world, "seed": seed}
+        if with_odometry:
+            base["odometry"] = ate(odometry)
         base |= {"clean": clean["ate"], "clean_left_out": clean["left_out"]}
         if kiss:
             base["kiss_clean"] = ate(kiss_best(ds)[0])
@@ -66,8 +79,10 @@ def simulated(worlds: tuple[int, ...], edges: tuple[int, ...], kiss: bool) -> pd
             seen = seeing_the_robot(ds, edge, seed)
             every, _ = slam_trajectory(seen)
             run = mapped(seen)
+            beams = np.r_[0:edge, ds.n_beams - edge : ds.n_beams]
             row = base | {"edge": edge, "every_beam": ate(every.poses)}
             row |= {"toolkit_map": run["ate"], "left_out": run["left_out"]}
+            row["narrow"] = mapped(without_beams(ds, beams))["ate"]
             if kiss:
                 row["kiss"] = ate(kiss_best(seen)[0])
             rows.append(row)
@@ -83,6 +98,29 @@ def real(seeds: tuple[int, ...]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+#: the real logs that are not corrected CARMEN logs, and their import options
+OTHER_REAL = {
+    "csm_laserazos/laserazosSM3.log": {},
+    "dpslam_loop5/loop5.log": {},
+    "breezyslam_mines_urg04lx/exp1.dat": {"preset": "mines"},
+    "breezyslam_mines_urg04lx/exp2.dat": {"preset": "mines"},
+    "ccny_scan_tools_bags/laser_scan_matcher/demo.bag": {},
+    "ccny_scan_tools_bags/laser_scan_sparsifier/demo.bag": {},
+}
+
+
+def real_without_odometry() -> pd.DataFrame:
+    """The beams found on every real log read as if it had no odometry."""
+    rows = []
+    for name, ds in real_logs():
+        rows.append({"log": name, "found": len(fixed_beams(ds.ranges, None))})
+    for source, options in OTHER_REAL.items():
+        importer, paths = importers.resolve("table" if options else "auto", [REAL / source])
+        ds = importer.read(paths, importers.read_options(importer, ImportOptions(extra=options)))
+        rows.append({"log": source, "found": len(fixed_beams(ds.ranges, None))})
+    return pd.DataFrame(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--worlds", type=int_ranges, default="418-425")
@@ -90,9 +128,19 @@ def main() -> None:
     parser.add_argument("--no-kiss", dest="kiss", action="store_false", help="no KISS-ICP")
     parser.add_argument("--real", action="store_true", help="the real logs' beams instead")
     parser.add_argument("--seeds", type=int_ranges, default="575-584", help="with --real")
+    parser.add_argument(
+        "--no-odometry", dest="odometry", action="store_false", help="the logs without odometry"
+    )
+    parser.add_argument(
+        "--scans", type=int, help="scans per simulated log (600; 2,000 without odometry)"
+    )
     parser.add_argument("--out", type=Path, default=Path("out/robot_in_view.csv"))
     args = parser.parse_args()
-    table = real(args.seeds) if args.real else simulated(args.worlds, args.edge, args.kiss)
+    if args.real:
+        table = real(args.seeds) if args.odometry else real_without_odometry()
+    else:
+        scans = args.scans or (600 if args.odometry else 2000)
+        table = simulated(args.worlds, args.edge, args.kiss, scans, args.odometry)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False)
     if args.real:
@@ -101,7 +149,7 @@ def main() -> None:
         return
     numbers = [
         c
-        for c in ("odometry", "clean", "every_beam", "toolkit_map", "kiss_clean", "kiss")
+        for c in ("odometry", "clean", "every_beam", "toolkit_map", "narrow", "kiss_clean", "kiss")
         if c in table
     ]
     print(table.groupby(["world", "edge"])[numbers].median().round(3).to_string())

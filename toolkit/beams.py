@@ -5,8 +5,9 @@ Such returns move with the robot, so every matcher reads them as "no motion": on
 simulated corridor, 20 beams at each edge of a 181-beam scan fixed at 0.3 m take the mapper
 from 0.11 m to 0.78 m of ATE, 40 to 33 m (the odometry alone: 3.3 m). A world surface seen
 by one beam changes its range when the robot turns; these do not. `fixed_beams` finds them
-from the odometry's turns (docs/maps.md, "Beams that see the robot"); `without_beams` leaves
-them out (no return), as a laser filter would. `share_beyond_reach` tells a log whose ranges
+from the odometry's turns, or in a log without odometry (a raw LMS-200 capture) from scans far
+apart in time (docs/maps.md, "Beams that see the robot"); `without_beams` leaves them out (no
+return), as a laser filter would. `share_beyond_reach` tells a log whose ranges
 are in cm or mm: every return beyond any laser's reach.
 """
 
@@ -30,6 +31,13 @@ MOVE = 2.0  # m: pairs whose odometry moved further than this are not compared (
 CHANGED = 0.3  # pairs in which fewer beams than this share changed are not compared (the
 # odometry turned, the scan did not: a wheel's slip)
 MAX_PAIRS = 2000  # pairs compared per turn, evenly spread over the log (memory)
+# without odometry: scans a quarter and half the log apart are compared (both must agree) ...
+APART = (4, 2)
+# ... and a beam is fixed when its ranges are the same in this share of the pairs. Stricter
+# than AGREE: nothing says the robot turned between the two scans, and on the simulated
+# corridor the wall beside a robot that drives straight along it reads the same in 0.88 of
+# them; a body seen with 1 cm of range noise reads the same in about 0.97
+APART_AGREE = 0.95
 SAMPLE = 2000  # scans, evenly spread, that give a beam's median and the returns' reach
 
 
@@ -56,11 +64,23 @@ def _turn_pairs(odometry: np.ndarray, turn: float) -> tuple[np.ndarray, np.ndarr
     return i, j
 
 
-def fixed_beams(ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+def _apart_pairs(scans: int, part: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scan pairs (i, i + scans // part) of a log of `scans` scans; at most MAX_PAIRS, evenly
+    spread."""
+    gap = scans // part
+    i = np.arange(max(scans - gap, 0)) if gap > 0 else np.empty(0, dtype=np.int64)
+    if len(i) > MAX_PAIRS:
+        i = i[np.linspace(0, len(i) - 1, MAX_PAIRS).astype(np.int64)]
+    return i, i + gap
+
+
+def fixed_beams(ranges: np.ndarray, odometry: np.ndarray | None) -> np.ndarray:
     """The beams (ascending indices) of `ranges` (S x B) within NEAR m (median) whose range
     stays within SAME m in AGREE of the scan pairs a turn of each of TURNS apart and within
     MOVE m of each other (`odometry`: S x 3, at the scans). A log that never turns that far
-    gives none.
+    gives none. Without odometry (None), in APART_AGREE of the pairs a quarter and half the
+    log apart in time. Either way only pairs in which CHANGED of the beams changed count:
+    a robot that stood still tells nothing.
 
     Far beams are kept whatever they read: acapulco's last beam reads 50.0 m in every scan
     (a stuck beam, or the log's stand-in for no return), and the mapper's poses there were
@@ -69,9 +89,14 @@ def fixed_beams(ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
         warnings.simplefilter("ignore", RuntimeWarning)
         median = np.nanmedian(_sample(ranges), axis=0)
     fixed = median <= NEAR
-    odometry = np.asarray(odometry, dtype=np.float64)
-    for turn in TURNS:
-        i, j = _turn_pairs(odometry, turn)
+    if odometry is None:
+        pairs = [_apart_pairs(len(ranges), part) for part in APART]
+        agree = APART_AGREE
+    else:
+        odometry = np.asarray(odometry, dtype=np.float64)
+        pairs = [_turn_pairs(odometry, turn) for turn in TURNS]
+        agree = AGREE
+    for i, j in pairs:
         a, b = ranges[i], ranges[j]
         seen = np.isfinite(a) & np.isfinite(b)
         alike = seen & (np.abs(a - b) <= SAME)
@@ -79,7 +104,7 @@ def fixed_beams(ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
         seen &= changed[:, None]
         same = (alike & seen).sum(axis=0)
         count = seen.sum(axis=0)
-        fixed &= (count >= MIN_PAIRS) & (same >= AGREE * np.maximum(count, 1))
+        fixed &= (count >= MIN_PAIRS) & (same >= agree * np.maximum(count, 1))
     return np.nonzero(fixed)[0]
 
 

@@ -414,9 +414,10 @@ def map_run(
     fixed = np.empty(0, dtype=np.int64)
     wheels = odometry_poses(ds) if matched_scans else None
     mount: Mounting | None = None
-    if wheels is not None:
-        fixed = fixed_beams(ds.ranges, wheels)
+    if matched_scans:
+        fixed = fixed_beams(ds.ranges, wheels)  # without odometry: from scans far apart
         ds = without_beams(ds, fixed)
+    if wheels is not None:
         # a laser turned round or upside down against what the log says fights the odometry
         # in every match: read as the scans and the odometry agree it is mounted
         mount = mounting(ds.ranges, wheels, ds.laser)

@@ -1,5 +1,6 @@
-"""Beams that read the robot itself (`toolkit.beams`): found from the odometry's turns and
-left out of `toolkit map`, never found on the real logs."""
+"""Beams that read the robot itself (`toolkit.beams`): found from the odometry's turns, or
+without odometry from scans far apart in time, and left out of `toolkit map`; never found on
+the real logs."""
 
 from __future__ import annotations
 
@@ -13,10 +14,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import importers
 import toolkit
 from bench.robot_in_view import seeing_the_robot
 from tests.conftest import Cli
 from tests.slam.conftest import drifted_carmen
+from toolkit import beams
 from toolkit.beams import beam_spans, fixed_beams
 from toolkit.metrics import evaluate
 from toolkit.poses import odometry_poses, truth_poses
@@ -74,6 +77,39 @@ def test_real_no_beam_reads_the_robot(real: Path, name: str) -> None:
         assert np.all(ds.ranges[:, -1][np.isfinite(ds.ranges[:, -1])] == 50.0)
 
 
+def test_without_odometry_the_beams_are_found_from_scans_far_apart() -> None:
+    """A raw LMS-200 capture (no odometry) of the simulated corridor whose edge beams read the
+    robot: found. The clean corridor keeps every beam, though the wall beside a robot that
+    drives straight along it reads the same in 0.88 of the pairs (under APART_AGREE: judged
+    at 0.85 it would go), and a robot that stood still tells nothing."""
+    clean = replace(simulate("corridor", seed=0).dataset, odometry=None)
+    seen = seeing_the_robot(clean, EDGE, 0)
+    assert np.array_equal(fixed_beams(seen.ranges, None), np.r_[0:EDGE, 181 - EDGE : 181])
+    assert len(fixed_beams(clean.ranges, None)) == 0
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(beams, "APART_AGREE", 0.85)
+        assert len(fixed_beams(clean.ranges, None)) > 0
+    rng = np.random.default_rng(0)
+    still = np.repeat(seen.ranges[:1], 600, axis=0) + rng.normal(0, 0.005, (600, 181))
+    assert len(fixed_beams(still.astype(np.float32), None)) == 0
+
+
+@pytest.mark.parametrize(
+    "source", ["seattle", "ccny_scan_tools_bags/laser_scan_sparsifier/demo.bag"]
+)
+def test_real_without_odometry_no_beam_reads_the_robot(real: Path, source: str) -> None:
+    """Read without odometry, the real logs nearest to the rule: seattle's near beams read
+    the same in up to 0.11 of the pairs far apart, the bag's (a robot that moved 6 cm) 0.69,
+    against 0.95."""
+    if source == "seattle":
+        ds = drifted_carmen(real, source, seed=0)
+    else:
+        importer, paths = importers.resolve("auto", [real / source])
+        ds = importer.read(paths, importers.read_options(importer, None))
+        assert ds.odometry is None
+    assert len(fixed_beams(ds.ranges, None)) == 0
+
+
 def test_beam_spans() -> None:
     assert beam_spans([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
     assert beam_spans([]) == ""
@@ -91,6 +127,23 @@ def test_the_bench_maps_a_world_seeing_the_robot(tmp_path: Path) -> None:
     assert list(table["world"]) == ["corridor", "building"]
     assert (table["left_out"] == 40).all() and (table["clean_left_out"] == 0).all()
     assert (table["toolkit_map"] < 0.5).all() and (table["every_beam"] > 1.0).all()
+
+
+def test_the_bench_maps_a_world_seeing_the_robot_without_odometry(tmp_path: Path) -> None:
+    """`python -m bench.robot_in_view --no-odometry`: logs as raw LMS-200 captures, the mapper's
+    constant velocity held still by the robot's beams (16-32 m) until they are left out; the
+    map then as the narrower laser's (`narrow`), to the bit."""
+    out = tmp_path / "robot_in_view.csv"
+    subprocess.run(
+        [sys.executable, "-m", "bench.robot_in_view", "--worlds", "2", "--edge", "20",
+         "--no-kiss", "--no-odometry", "--out", str(out)],
+        cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    table = pd.read_csv(out)
+    assert list(table["world"]) == ["corridor", "building"] and "odometry" not in table
+    assert (table["left_out"] == 40).all() and (table["clean_left_out"] == 0).all()
+    assert (table["toolkit_map"] < 0.3).all() and (table["every_beam"] > 5.0).all()
+    assert (table["toolkit_map"] == table["narrow"]).all()
 
 
 def test_ranges_in_millimetres_are_said_to_be_out_of_reach(cli: Cli, tmp_path: Path) -> None:

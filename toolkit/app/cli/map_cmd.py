@@ -186,7 +186,7 @@ def map_command(
         from toolkit.beams import beam_spans  # on use: numpy and the dataset's module
 
         spans = beam_spans(metrics["fixed_beams"])
-        line += f", beams {spans} left out (the same range through every turn)"
+        line += f", beams {spans} left out (the same range while the rest of the scan changed)"
     if metrics.get("laser_mounting"):
         line += (
             f", the laser read as mounted {metrics['laser_mounting']['read_as']}: the scans and"
