@@ -162,12 +162,17 @@ def sequential(
     else:
         rest = 0
     heading = HeadingMap(ds.laser, config.heading_map) if config.heading_map > 0 else None
-    matcher = MotionMatcher(ds.laser, config, None if rest else velocity, heading=heading)
+    # the velocity is a median of scan steps: per the log's usual interval, which the first
+    # one after it need not be (a scan lost there)
+    interval = float(np.median(np.diff(ds.t))) if ds.n_scans > 1 else 0.0
+    matcher = MotionMatcher(
+        ds.laser, config, None if rest else velocity, heading=heading, interval=interval
+    )
     poses = np.zeros((ds.n_scans, 3))
     matches = sc.PairMatches.empty(max(ds.n_scans - 1, 0))
     for k in range(ds.n_scans):
         if k == rest and k > 0 and velocity is not None:
-            matcher.set_velocity(velocity)
+            matcher.set_velocity(velocity, interval)
         poses[k] = matcher.push_predicted(ds.ranges[k], float(ds.t[k]))
         if k > 0:  # the pair just matched: its pose, covariance and diagnostics
             sigma, n_used, degenerate, agreement = matcher.stats

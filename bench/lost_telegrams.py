@@ -1,0 +1,110 @@
+"""Maps of LMS-200 captures without odometry whose serial line lost telegrams.
+
+    python -m bench.lost_telegrams --worlds 466-473            # the simulator, KISS-ICP beside
+    python -m bench.lost_telegrams --worlds 0-3 --no-kiss --errors 0,8e-5
+
+The simulator's corridor (2,000 scans) and building (2,000 and its own 4,000 scans), world =
+seed, written as raw LMS-200 captures without odometry whose line flipped a share of its bits
+(`--errors`, the writer's `bit_error_rate`; 0: a clean line), and imported as a user would:
+the importer skips the damaged telegrams and counts them, and their times (the capture's side
+file) leave intervals of two scans or more where they were. Per run: the share of the scans
+lost, the longest interval (in scans), `toolkit map` (`toolkit.mapping.map_run`) and with
+`--kiss` KISS-ICP with its constant velocity (best of voxel 0.1 / 0.3 m; it predicts each
+scan's motion as the last one's, whatever the interval). docs/maps.md, "Methods".
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+import importers
+from bench.bench_slam import kiss_best, print_row
+from toolkit.app.simulation import write_simulation
+from toolkit.dataset import Dataset, load
+from toolkit.mapping import map_run
+from toolkit.metrics import evaluate
+from toolkit.poses import truth_poses
+from toolkit.sim import Simulation, simulate
+from toolkit.typed import int_ranges
+
+#: the simulated logs: scenario and scan count (None: its own)
+LOGS = (("corridor", 2000), ("building", 2000), ("building", None))
+
+
+def simulations(worlds: tuple[int, ...]) -> Iterator[Simulation]:
+    """Each log of LOGS on each world, without odometry."""
+    for scenario, scans in LOGS:
+        for seed in worlds:
+            sim = simulate(scenario, seed=seed, **({"scans": scans} if scans else {}))
+            yield replace(sim, dataset=replace(sim.dataset, odometry=None))
+
+
+def captured(sim: Simulation, errors: float, work: Path) -> Dataset:
+    """`sim` written as an LMS-200 capture whose line flips `errors` of its bits, imported;
+    the simulation's truth beside it (a capture holds none)."""
+    write_simulation(sim, work / "capture", "lms200", bit_error_rate=errors, seed=sim.seed)
+    sources = [p for p in (work / "capture").iterdir() if p.suffix == ".lms"]
+    ds = load(importers.import_log("lms200", sources, work / "imported"))
+    return replace(ds, groundtruth=sim.dataset.groundtruth)
+
+
+def simulated(worlds: tuple[int, ...], errors: tuple[float, ...], kiss: bool) -> pd.DataFrame:
+    rows = []
+    for sim in simulations(worlds):
+        for rate in errors:
+            with tempfile.TemporaryDirectory() as tmp:
+                ds = captured(sim, rate, Path(tmp))
+                run = map_run(ds, Path(tmp) / "run", outputs=("metrics.json",))
+            truth = truth_poses(ds)
+            assert truth is not None
+            intervals = np.diff(ds.t) / np.median(np.diff(ds.t))
+            row: dict[str, Any] = {
+                "world": sim.scenario,
+                "scans": sim.dataset.n_scans,
+                "seed": sim.seed,
+                "bit_errors_per_million": round(rate * 1e6, 3),
+                "lost": 1.0 - ds.n_scans / sim.dataset.n_scans,
+                "longest": float(intervals.max()),
+                "toolkit_map": run.metrics["ate"]["rmse"],
+            }
+            if kiss:
+                row["kiss"] = float(evaluate(kiss_best(ds)[0], truth)["ate"]["rmse"])
+            rows.append(row)
+            print_row(row)
+    return pd.DataFrame(rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--worlds", type=int_ranges, default="466-473")
+    parser.add_argument(
+        "--errors",
+        type=lambda text: tuple(float(x) for x in text.split(",")),
+        default=(0.0, 3e-5, 8e-5),
+        help="bit error rates of the line, comma-separated",
+    )
+    parser.add_argument("--no-kiss", dest="kiss", action="store_false", help="no KISS-ICP")
+    parser.add_argument("--out", type=Path, default=Path("out/lost_telegrams.csv"))
+    args = parser.parse_args()
+    table = simulated(args.worlds, args.errors, args.kiss)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(args.out, index=False)
+    numbers = [c for c in ("lost", "longest", "toolkit_map", "kiss") if c in table]
+    by = ["world", "scans", "bit_errors_per_million"]
+    summary = table.groupby(by)[numbers].median().round(3)
+    summary["within_0.5"] = table.groupby(by)["toolkit_map"].apply(
+        lambda ate: f"{int((ate <= 0.5).sum())}/{len(ate)}"
+    )
+    print(summary.to_string())
+
+
+if __name__ == "__main__":
+    main()
