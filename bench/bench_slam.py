@@ -37,6 +37,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import tempfile
 import time
 from collections.abc import Callable, Container, Iterator
 from dataclasses import replace
@@ -49,6 +50,7 @@ import pandas as pd
 from bench import peers
 from toolkit import se2
 from toolkit.dataset import Dataset
+from toolkit.mapping import map_run
 from toolkit.metrics import evaluate, relation_error, shared_error, truth_relations
 from toolkit.poses import REAL_LOG_DRIFT, build, odometry_poses, truth_poses, with_drift
 
@@ -95,6 +97,18 @@ def sim_worlds(
             truth, odometry = truth_poses(ds), odometry_poses(ds)
             assert truth is not None and odometry is not None
             yield world, seed, ds, truth, odometry
+
+
+def ate(poses: np.ndarray, truth: np.ndarray) -> float:
+    """The ATE (RMS after SE(2) alignment) of `poses` against `truth`, in m."""
+    return float(evaluate(poses, truth)["ate"]["rmse"])
+
+
+def map_metrics(ds: Dataset) -> dict[str, Any]:
+    """`toolkit map`'s metrics.json for `ds` (`toolkit.mapping.map_run`, the run's other
+    outputs not written): what the fault benches read its ATE and checks from."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return map_run(ds, Path(tmp) / "run", outputs=("metrics.json",)).metrics
 
 
 def print_row(row: dict[str, Any]) -> None:

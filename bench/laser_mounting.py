@@ -17,7 +17,6 @@ the fault). docs/maps.md, "A laser mounted otherwise".
 from __future__ import annotations
 
 import argparse
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -25,10 +24,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import drifted_both_ways, kiss_best, print_row, sim_worlds
+from bench.bench_slam import ate, drifted_both_ways, kiss_best, map_metrics, print_row, sim_worlds
 from toolkit.dataset import Dataset
-from toolkit.mapping import map_run
-from toolkit.metrics import evaluate
 from toolkit.mounting import mounted, mounting
 from toolkit.slam.run import slam_trajectory
 from toolkit.typed import int_ranges
@@ -48,10 +45,9 @@ FAULTS = ("as logged", "upside down", "turned round")
 
 def mapped(ds: Dataset) -> dict[str, Any]:
     """`toolkit map`'s ATE and the mounting it read."""
-    with tempfile.TemporaryDirectory() as tmp:
-        run = map_run(ds, Path(tmp) / "run", outputs=("metrics.json",))
-    read = run.metrics.get("laser_mounting", {}).get("read_as", "")
-    return {"ate": run.metrics["ate"]["rmse"], "read_as": read}
+    metrics = map_metrics(ds)
+    read = metrics.get("laser_mounting", {}).get("read_as", "")
+    return {"ate": metrics["ate"]["rmse"], "read_as": read}
 
 
 def simulated(worlds: tuple[int, ...], kiss: bool) -> pd.DataFrame:
@@ -61,10 +57,10 @@ def simulated(worlds: tuple[int, ...], kiss: bool) -> pd.DataFrame:
             log = faulted(ds, fault)
             run = mapped(log)
             row: dict[str, Any] = {"world": world, "seed": seed, "fault": fault}
-            row["as_said"] = float(evaluate(slam_trajectory(log)[0].poses, truth)["ate"]["rmse"])
+            row["as_said"] = ate(slam_trajectory(log)[0].poses, truth)
             row |= {"toolkit_map": run["ate"], "read_as": run["read_as"]}
             if kiss:
-                row["kiss"] = float(evaluate(kiss_best(log)[0], truth)["ate"]["rmse"])
+                row["kiss"] = ate(kiss_best(log)[0], truth)
             rows.append(row)
             print_row(row)
     return pd.DataFrame(rows)

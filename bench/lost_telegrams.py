@@ -26,11 +26,9 @@ import numpy as np
 import pandas as pd
 
 import importers
-from bench.bench_slam import kiss_best, print_row
+from bench.bench_slam import ate, kiss_best, map_metrics, print_row
 from toolkit.app.simulation import write_simulation
 from toolkit.dataset import Dataset, load
-from toolkit.mapping import map_run
-from toolkit.metrics import evaluate
 from toolkit.poses import truth_poses
 from toolkit.sim import Simulation, simulate
 from toolkit.typed import int_ranges
@@ -62,7 +60,7 @@ def simulated(worlds: tuple[int, ...], errors: tuple[float, ...], kiss: bool) ->
         for rate in errors:
             with tempfile.TemporaryDirectory() as tmp:
                 ds = captured(sim, rate, Path(tmp))
-                run = map_run(ds, Path(tmp) / "run", outputs=("metrics.json",))
+                metrics = map_metrics(ds)
             truth = truth_poses(ds)
             assert truth is not None
             intervals = np.diff(ds.t) / np.median(np.diff(ds.t))
@@ -73,10 +71,10 @@ def simulated(worlds: tuple[int, ...], errors: tuple[float, ...], kiss: bool) ->
                 "bit_errors_per_million": round(rate * 1e6, 3),
                 "lost": 1.0 - ds.n_scans / sim.dataset.n_scans,
                 "longest": float(intervals.max()),
-                "toolkit_map": run.metrics["ate"]["rmse"],
+                "toolkit_map": metrics["ate"]["rmse"],
             }
             if kiss:
-                row["kiss"] = float(evaluate(kiss_best(ds)[0], truth)["ate"]["rmse"])
+                row["kiss"] = ate(kiss_best(ds)[0], truth)
             rows.append(row)
             print_row(row)
     return pd.DataFrame(rows)

@@ -23,7 +23,6 @@ still".
 from __future__ import annotations
 
 import argparse
-import tempfile
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -32,11 +31,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.bench_slam import kiss_best, print_row, sim_worlds
+from bench.bench_slam import ate, kiss_best, map_metrics, print_row, sim_worlds
 from toolkit import se2
 from toolkit.dataset import Dataset, PoseStream
-from toolkit.mapping import map_run
-from toolkit.metrics import evaluate
 from toolkit.slam.run import slam_trajectory
 from toolkit.typed import int_ranges
 
@@ -65,10 +62,9 @@ CASES: dict[str, Callable[[int], tuple[int, int]]] = {
 
 def mapped(ds: Dataset) -> dict[str, Any]:
     """`toolkit map`'s ATE and the stalls it mended."""
-    with tempfile.TemporaryDirectory() as tmp:
-        run = map_run(ds, Path(tmp) / "run", outputs=("metrics.json",))
-    stalls = run.metrics.get("odometry_stalls", [])
-    return {"ate": run.metrics["ate"]["rmse"], "stalls": [(s["first"], s["last"]) for s in stalls]}
+    metrics = map_metrics(ds)
+    stalls = metrics.get("odometry_stalls", [])
+    return {"ate": metrics["ate"]["rmse"], "stalls": [(s["first"], s["last"]) for s in stalls]}
 
 
 def simulated(
@@ -76,25 +72,22 @@ def simulated(
 ) -> pd.DataFrame:
     rows = []
     for world, seed, ds, truth, odometry in sim_worlds(worlds, scans):
-
-        def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
-            return float(evaluate(poses, truth)["ate"]["rmse"])
-
         clean = mapped(ds)
         blind = replace(ds, odometry=None)
         base = {"world": world, "seed": seed, "scans": ds.n_scans, "clean": clean["ate"]}
         base |= {"clean_found": len(clean["stalls"])}
-        base["no_odometry"] = ate(slam_trajectory(blind)[0].poses)
+        base["no_odometry"] = ate(slam_trajectory(blind)[0].poses, truth)
         for case in cases:
             first, last = CASES[case](ds.n_scans)
             wheels = stalled(odometry, first, last)
             log = replace(ds, odometry=PoseStream(ds.t, wheels))
             run = mapped(log)
             row = base | {"case": case, "first": first, "last": last}
-            row |= {"odometry": ate(wheels), "as_logged": ate(slam_trajectory(log)[0].poses)}
+            row["odometry"] = ate(wheels, truth)
+            row["as_logged"] = ate(slam_trajectory(log)[0].poses, truth)
             row |= {"toolkit_map": run["ate"], "found": str(run["stalls"])}
             if kiss:
-                row["kiss"] = ate(kiss_best(log)[0])
+                row["kiss"] = ate(kiss_best(log)[0], truth)
             rows.append(row)
             print_row(row)
     return pd.DataFrame(rows)

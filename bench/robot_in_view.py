@@ -23,7 +23,6 @@ expected either way). docs/maps.md, "Beams that see the robot".
 from __future__ import annotations
 
 import argparse
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -32,12 +31,19 @@ import numpy as np
 import pandas as pd
 
 import importers
-from bench.bench_slam import REAL, drifted_both_ways, kiss_best, print_row, real_logs, sim_worlds
+from bench.bench_slam import (
+    REAL,
+    ate,
+    drifted_both_ways,
+    kiss_best,
+    map_metrics,
+    print_row,
+    real_logs,
+    sim_worlds,
+)
 from importers.base import ImportOptions
 from toolkit.beams import fixed_beams, without_beams
 from toolkit.dataset import Dataset
-from toolkit.mapping import map_run
-from toolkit.metrics import evaluate
 from toolkit.slam.run import slam_trajectory
 from toolkit.typed import int_ranges
 
@@ -53,9 +59,8 @@ def seeing_the_robot(ds: Dataset, edge: int, seed: int) -> Dataset:
 
 def mapped(ds: Dataset) -> dict[str, Any]:
     """`toolkit map`'s ATE and the beams it left out."""
-    with tempfile.TemporaryDirectory() as tmp:
-        run = map_run(ds, Path(tmp) / "run", outputs=("metrics.json",))
-    return {"ate": run.metrics["ate"]["rmse"], "left_out": len(run.metrics.get("fixed_beams", []))}
+    metrics = map_metrics(ds)
+    return {"ate": metrics["ate"]["rmse"], "left_out": len(metrics.get("fixed_beams", []))}
 
 
 def simulated(
@@ -64,27 +69,23 @@ def simulated(
     rows = []
     for world, seed, log, truth, odometry in sim_worlds(worlds, scans=scans):
         ds = log if with_odometry else replace(log, odometry=None)
-
-        def ate(poses: np.ndarray, truth: np.ndarray = truth) -> float:
-            return float(evaluate(poses, truth)["ate"]["rmse"])
-
         clean = mapped(ds)
         base: dict[str, Any] = {"world": world, "seed": seed}
         if with_odometry:
-            base["odometry"] = ate(odometry)
+            base["odometry"] = ate(odometry, truth)
         base |= {"clean": clean["ate"], "clean_left_out": clean["left_out"]}
         if kiss:
-            base["kiss_clean"] = ate(kiss_best(ds)[0])
+            base["kiss_clean"] = ate(kiss_best(ds)[0], truth)
         for edge in edges:
             seen = seeing_the_robot(ds, edge, seed)
             every, _ = slam_trajectory(seen)
             run = mapped(seen)
             beams = np.r_[0:edge, ds.n_beams - edge : ds.n_beams]
-            row = base | {"edge": edge, "every_beam": ate(every.poses)}
+            row = base | {"edge": edge, "every_beam": ate(every.poses, truth)}
             row |= {"toolkit_map": run["ate"], "left_out": run["left_out"]}
             row["narrow"] = mapped(without_beams(ds, beams))["ate"]
             if kiss:
-                row["kiss"] = ate(kiss_best(seen)[0])
+                row["kiss"] = ate(kiss_best(seen)[0], truth)
             rows.append(row)
             print_row(row)
     return pd.DataFrame(rows)

@@ -68,7 +68,7 @@ def _apart_pairs(scans: int, part: int) -> tuple[np.ndarray, np.ndarray]:
     """Scan pairs (i, i + scans // part) of a log of `scans` scans; at most MAX_PAIRS, evenly
     spread."""
     gap = scans // part
-    i = np.arange(max(scans - gap, 0)) if gap > 0 else np.empty(0, dtype=np.int64)
+    i = np.arange(scans - gap if gap > 0 else 0)
     if len(i) > MAX_PAIRS:
         i = i[np.linspace(0, len(i) - 1, MAX_PAIRS).astype(np.int64)]
     return i, i + gap

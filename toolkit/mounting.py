@@ -76,16 +76,10 @@ class Mounting:
 
     def describe(self) -> str:
         """What the run says: the laser read as mounted how, on what evidence."""
-        parts = []
-        if self.backwards.decided:
-            parts.append(
-                f"turned round ({self.backwards.share:.0%} of {self.backwards.pairs} pairs)"
-            )
-        if self.upside_down.decided:
-            parts.append(
-                f"upside down ({self.upside_down.share:.0%} of {self.upside_down.pairs} pairs)"
-            )
-        return " and ".join(parts)
+        votes = (("turned round", self.backwards), ("upside down", self.upside_down))
+        return " and ".join(
+            f"{how} ({vote.share:.0%} of {vote.pairs} pairs)" for how, vote in votes if vote.decided
+        )
 
     def to_dict(self) -> dict[str, dict[str, float | int]]:
         return {"backwards": self.backwards.to_dict(), "upside_down": self.upside_down.to_dict()}
@@ -128,17 +122,15 @@ def mounting(ranges: np.ndarray, odometry: np.ndarray, laser: LaserGeometry) -> 
     pairs = step_pairs(odometry, PAIRS)
     if len(pairs) == 0:
         return Mounting(Vote(0, 0.0), Vote(0, 0.0))
-    scans = np.empty((2 * len(pairs), ranges.shape[1]), np.float32)
-    scans[0::2], scans[1::2] = ranges[pairs[:, 0]], ranges[pairs[:, 1]]
+    firsts, seconds = ranges[pairs[:, 0]], ranges[pairs[:, 1]]
     steps = se2.between(odometry[pairs[:, 0]], odometry[pairs[:, 1]])
     fits: dict[tuple[bool, bool], np.ndarray] = {}
     for turned in (False, True):
         for over in (False, True):
             geometry = mounted(laser, turned, over)
-            seeds = np.zeros((2 * len(pairs) - 1, 3))
-            seeds[0::2] = se2.laser_motion(steps, geometry)
-            matched = sc.match_pairs(scans, seeds, geometry, VOTE)  # each against the one before
-            fits[turned, over] = matched.agreement[0::2]  # the pairs' (not between)
+            seeds = se2.laser_motion(steps, geometry)
+            matched = sc.match_scan_pairs(firsts, seconds, seeds, geometry, VOTE)
+            fits[turned, over] = matched.agreement
     level = np.maximum(fits[False, False], fits[False, True])
     round_ = np.maximum(fits[True, False], fits[True, True])
     backwards = _vote(level, round_)

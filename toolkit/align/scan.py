@@ -698,13 +698,49 @@ def match_pairs(
     parallel, in chunks of `chunk` pairs so the working memory stays bounded (and the result does
     not depend on `chunk`); `progress(m)` is called after each chunk of m pairs.
     """
+    ranges = np.ascontiguousarray(ranges, dtype=np.float32)
+    n = max(len(ranges) - 1, 0)
+    refs = pair_refs(ref, len(ranges))
+    if np.shape(seeds) != (n, 3):
+        raise ValueError(f"seeds {np.shape(seeds)} do not match {n} scan pairs")
+    return _matched(ranges, refs[1:], 1, seeds, laser, config, chunk, progress)
+
+
+def match_scan_pairs(
+    refs: np.ndarray,
+    scans: np.ndarray,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    config: MatchConfig | None = None,
+) -> PairMatches:
+    """Match each scan of `scans` (P x B) against the one of `refs` (P x B) in the same row,
+    `seeds[k]` the pose of laser `scans[k]` in the frame of laser `refs[k]`: pairs that are
+    not consecutive scans of one log (`match_pairs` matches every scan of its array)."""
+    if np.shape(refs) != np.shape(scans):
+        raise ValueError(f"refs {np.shape(refs)} and scans {np.shape(scans)} differ")
+    if np.shape(seeds) != (len(scans), 3):
+        raise ValueError(f"seeds {np.shape(seeds)} do not match {len(scans)} scan pairs")
+    ranges = np.concatenate([refs, scans]).astype(np.float32, copy=False)
+    count = len(scans)
+    return _matched(ranges, np.arange(count, dtype=np.int64), count, seeds, laser, config)
+
+
+def _matched(
+    ranges: np.ndarray,
+    refs: np.ndarray,
+    start: int,
+    seeds: np.ndarray,
+    laser: LaserGeometry,
+    config: MatchConfig | None,
+    chunk: int = 65_536,
+    progress: Callable[[int], object] | None = None,
+) -> PairMatches:
+    """Pair k: scan `start + k` of `ranges` against scan `refs[k]`, by `seeds[k]`; in chunks
+    of `chunk` pairs, `progress(m)` after each."""
     config = config or MatchConfig()
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
     seeds = np.ascontiguousarray(seeds, dtype=np.float64)
-    n = max(len(ranges) - 1, 0)
-    refs = pair_refs(ref, len(ranges))
-    if seeds.shape != (n, 3):
-        raise ValueError(f"seeds {seeds.shape} do not match {n} scan pairs")
+    n = len(seeds)
     if ranges.shape[1:] != (laser.beams,):
         raise ValueError(f"ranges have {ranges.shape[1:]} beams, the laser {laser.beams}")
     out = PairMatches.empty(n)
@@ -716,8 +752,8 @@ def match_pairs(
             hi = min(lo + chunk, n)
             _match_all(
                 ranges,
-                refs[lo + 1 : hi + 1],
-                lo,
+                refs[lo:hi],
+                start + lo - 1,
                 cos_a,
                 sin_a,
                 float(laser.angle_min),
