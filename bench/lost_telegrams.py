@@ -1,13 +1,17 @@
-"""Maps of LMS-200 captures without odometry whose serial line lost telegrams.
+"""Maps of LMS-200 captures without odometry whose serial line lost telegrams, or whose
+host's clock jitters.
 
     python -m bench.lost_telegrams --worlds 466-473            # the simulator, KISS-ICP beside
     python -m bench.lost_telegrams --worlds 0-3 --no-kiss --errors 0,8e-5
+    python -m bench.lost_telegrams --worlds 482-489 --errors 0,8e-5 --jitter 0,0.15
 
 The simulator's corridor (2,000 scans) and building (2,000 and its own 4,000 scans), world =
 seed, written as raw LMS-200 captures without odometry whose line flipped a share of its bits
 (`--errors`, the writer's `bit_error_rate`; 0: a clean line), and imported as a user would:
 the importer skips the damaged telegrams and counts them, and their times (the capture's side
-file) leave intervals of two scans or more where they were. Per run: the share of the scans
+file) leave intervals of two scans or more where they were. `--jitter`: the side file's times
+spread around the scans' (the writer's `clock_jitter`, sd in scan periods; the Mines URG logs'
+host spreads about 0.15: 5th-95th percentile of their intervals 0.69-1.39 periods). Per run: the share of the scans
 lost, the longest interval (in scans), `toolkit map` (`toolkit.mapping.map_run`) and with
 `--kiss` KISS-ICP with its constant velocity (best of voxel 0.1 / 0.3 m; it predicts each
 scan's motion as the last one's, whatever the interval). docs/maps.md, "Methods".
@@ -16,6 +20,7 @@ scan's motion as the last one's, whatever the interval). docs/maps.md, "Methods"
 from __future__ import annotations
 
 import argparse
+import itertools
 import tempfile
 from collections.abc import Iterator
 from dataclasses import replace
@@ -45,21 +50,28 @@ def simulations(worlds: tuple[int, ...]) -> Iterator[Simulation]:
             yield replace(sim, dataset=replace(sim.dataset, odometry=None))
 
 
-def captured(sim: Simulation, errors: float, work: Path) -> Dataset:
-    """`sim` written as an LMS-200 capture whose line flips `errors` of its bits, imported;
-    the simulation's truth beside it (a capture holds none)."""
-    write_simulation(sim, work / "capture", "lms200", bit_error_rate=errors, seed=sim.seed)
+def captured(sim: Simulation, errors: float, work: Path, jitter: float = 0.0) -> Dataset:
+    """`sim` written as an LMS-200 capture whose line flips `errors` of its bits and whose
+    host's times spread by `jitter` scan periods (sd), imported; the simulation's truth beside
+    it (a capture holds none)."""
+    period = float(np.median(np.diff(sim.dataset.t)))
+    write_simulation(
+        sim, work / "capture", "lms200", bit_error_rate=errors, clock_jitter=jitter * period,
+        seed=sim.seed,
+    )  # fmt: skip
     sources = [p for p in (work / "capture").iterdir() if p.suffix == ".lms"]
     ds = load(importers.import_log("lms200", sources, work / "imported"))
     return replace(ds, groundtruth=sim.dataset.groundtruth)
 
 
-def simulated(worlds: tuple[int, ...], errors: tuple[float, ...], kiss: bool) -> pd.DataFrame:
+def simulated(
+    worlds: tuple[int, ...], errors: tuple[float, ...], jitters: tuple[float, ...], kiss: bool
+) -> pd.DataFrame:
     rows = []
     for sim in simulations(worlds):
-        for rate in errors:
+        for rate, jitter in itertools.product(errors, jitters):
             with tempfile.TemporaryDirectory() as tmp:
-                ds = captured(sim, rate, Path(tmp))
+                ds = captured(sim, rate, Path(tmp), jitter)
                 metrics = map_metrics(ds)
             truth = truth_poses(ds)
             assert truth is not None
@@ -69,6 +81,7 @@ def simulated(worlds: tuple[int, ...], errors: tuple[float, ...], kiss: bool) ->
                 "scans": sim.dataset.n_scans,
                 "seed": sim.seed,
                 "bit_errors_per_million": round(rate * 1e6, 3),
+                "clock_jitter": jitter,
                 "lost": 1.0 - ds.n_scans / sim.dataset.n_scans,
                 "longest": float(intervals.max()),
                 "toolkit_map": metrics["ate"]["rmse"],
@@ -89,14 +102,20 @@ def main() -> None:
         default=(0.0, 3e-5, 8e-5),
         help="bit error rates of the line, comma-separated",
     )
+    parser.add_argument(
+        "--jitter",
+        type=lambda text: tuple(float(x) for x in text.split(",")),
+        default=(0.0,),
+        help="spreads (sd, scan periods) of the host's clock, comma-separated",
+    )
     parser.add_argument("--no-kiss", dest="kiss", action="store_false", help="no KISS-ICP")
     parser.add_argument("--out", type=Path, default=Path("out/lost_telegrams.csv"))
     args = parser.parse_args()
-    table = simulated(args.worlds, args.errors, args.kiss)
+    table = simulated(args.worlds, args.errors, args.jitter, args.kiss)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False)
     numbers = [c for c in ("lost", "longest", "toolkit_map", "kiss") if c in table]
-    by = ["world", "scans", "bit_errors_per_million"]
+    by = ["world", "scans", "bit_errors_per_million", "clock_jitter"]
     summary = table.groupby(by)[numbers].median().round(3)
     summary["within_0.5"] = table.groupby(by)["toolkit_map"].apply(
         lambda ate: f"{int((ate <= 0.5).sum())}/{len(ate)}"

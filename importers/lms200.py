@@ -385,6 +385,7 @@ class LMS200WriteOptions(FormatOptions):
     units: Literal["cm", "mm"] = option("mm", "cm (80 m, 1 cm) or mm (8 m, 1 mm) mode")
     noise_bytes: float = option(0.0, "mean random bytes between telegrams (Poisson)")
     bit_error_rate: float = option(0.0, "chance of each bit of the stream flipping")
+    clock_jitter: float = option(0.0, "s: spread (sd) of the host's times around the scans'")
     truncate_last: bool = option(False, "cut the last telegram short")
     seed: int = option(0, "seed of the damage")
     start_mid_frame: bool = option(False, "begin with the tail of a telegram")
@@ -502,7 +503,8 @@ class LMS200(Importer[LMS200Options, LMS200WriteOptions]):
         o = options or LMS200WriteOptions()
         return write(
             ds, out, baud=o.baud, units=o.units, noise_bytes=o.noise_bytes,
-            bit_error_rate=o.bit_error_rate, truncate_last=o.truncate_last, seed=o.seed,
+            bit_error_rate=o.bit_error_rate, clock_jitter=o.clock_jitter,
+            truncate_last=o.truncate_last, seed=o.seed,
             start_mid_frame=o.start_mid_frame, name=o.name,
         )  # fmt: skip
 
@@ -659,6 +661,7 @@ def write(
     units: str = "mm",
     noise_bytes: float = 0.0,
     bit_error_rate: float = 0.0,
+    clock_jitter: float = 0.0,
     truncate_last: bool = False,
     seed: int = 0,
     start_mid_frame: bool = False,
@@ -672,18 +675,23 @@ def write(
     (the side file: STX offset and time of every B0 telegram) and ``<name>.truth.json``
     (``intact``: indices of the scans whose telegrams were written undamaged). `noise_bytes`:
     mean number of random bytes (Poisson) between telegrams; `bit_error_rate`: probability of
-    each bit of the stream flipping; `truncate_last`: cut the last telegram short;
+    each bit of the stream flipping; `clock_jitter`: the spread (sd, s) of the side file's times
+    around the scans' (a host that stamps each read() late by a varying delay: normal, kept in
+    order); `truncate_last`: cut the last telegram short;
     `start_mid_frame`: begin with the tail of a telegram.
     """
     if opts:
         known = (
-            "baud, units, noise_bytes, bit_error_rate, truncate_last, seed, start_mid_frame, name"
+            "baud, units, noise_bytes, bit_error_rate, clock_jitter, truncate_last, seed, "
+            "start_mid_frame, name"
         )
         raise ToolkitError(f"lms200 writer: unknown option(s) {', '.join(sorted(opts))}; known: {known}")  # fmt: skip
     if units not in ("cm", "mm"):
         raise ToolkitError(f"lms200 writer: units must be cm or mm, not {units!r}")
-    if not noise_bytes >= 0 or not 0 <= bit_error_rate <= 1:
-        raise ToolkitError("lms200 writer: noise_bytes must be >= 0, bit_error_rate in [0, 1]")
+    if not noise_bytes >= 0 or not clock_jitter >= 0 or not 0 <= bit_error_rate <= 1:
+        raise ToolkitError(
+            "lms200 writer: noise_bytes and clock_jitter must be >= 0, bit_error_rate in [0, 1]"
+        )
     count = _variant_of(ds)
     rng = np.random.default_rng(seed)
     unit_bits = 0 if units == "cm" else 1
@@ -742,6 +750,10 @@ def write(
         stream = stream[:total]
         damaged[-1] = True
 
+    stamps = np.asarray(ds.t, np.float64)
+    if clock_jitter > 0:  # drawn after the damage: a clock's jitter leaves the stream as it was
+        stamps = np.maximum.accumulate(stamps + rng.normal(0.0, clock_jitter, scans))
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     capture = out / f"{name}.lms"
@@ -751,7 +763,7 @@ def write(
         stream.tofile(tmp)
     with atomic_file(times) as tmp, open(tmp, "w") as f:
         f.write("# OFFSET T: byte offset of each measured-values telegram's STX, time (s)\n")
-        np.savetxt(f, np.column_stack([frame_starts, ds.t]), fmt=["%d", "%.17g"])
+        np.savetxt(f, np.column_stack([frame_starts, stamps]), fmt=["%d", "%.17g"])
     info = {
         "scans": scans,
         "intact": np.flatnonzero(~damaged).tolist(),
@@ -761,6 +773,7 @@ def write(
         "units": units,
         "noise_bytes": noise_bytes,
         "bit_error_rate": bit_error_rate,
+        "clock_jitter": clock_jitter,
         "truncate_last": truncate_last,
         "start_mid_frame": start_mid_frame,
         "seed": seed,

@@ -268,6 +268,25 @@ def test_damaged_capture_imports_exactly_its_intact_frames(tmp_path: Path, seed:
     assert any("bytes outside intact telegrams skipped" in n for n in report["notes"])
 
 
+def test_a_jittered_host_clock_changes_the_side_file_alone(tmp_path: Path) -> None:
+    """`clock_jitter`: the side file's times spread around the scans' by about that sd and
+    stay in order; the stream is the one written without it, damage included."""
+    ds = _dataset(scans=400, beams=181)
+    period = 1 / 75.0
+    plain, _, _ = write(ds, tmp_path / "plain", bit_error_rate=2e-5, seed=3)
+    capture, times, truth = write(
+        ds, tmp_path / "jitter", bit_error_rate=2e-5, clock_jitter=0.15 * period, seed=3
+    )
+    assert capture.read_bytes() == plain.read_bytes()
+    stamps = np.loadtxt(times)[:, 1]
+    assert np.all(np.diff(stamps) >= 0)
+    assert 0.12 * period < np.std(stamps - ds.t) < 0.18 * period
+    intact = np.array(json.loads(truth.read_text())["intact"])
+    np.testing.assert_array_equal(_read(capture).t, stamps[intact])
+    with pytest.raises(ToolkitError, match="clock_jitter"):
+        write(ds, tmp_path / "bad", clock_jitter=-1.0)
+
+
 def test_time_sources(tmp_path: Path) -> None:
     ds = _dataset(scans=50, beams=181)
     capture, times, truth_file = write(ds, tmp_path, noise_bytes=4.0, bit_error_rate=5e-5, seed=4)

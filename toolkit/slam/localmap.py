@@ -61,7 +61,7 @@ from toolkit.align import scan as sc
 from toolkit.dataset import Dataset, PoseStream
 from toolkit.poses import Method, TrajectoryResult, build, odometry_poses
 from toolkit.slam.heading import HeadingMap
-from toolkit.slam.motion import PROBE_SHIFT, MotionMatcher
+from toolkit.slam.motion import PROBE_SHIFT, MotionMatcher, on_slots
 
 STREAM_STEP = 256  # scans the streaming matcher runs between two progress calls
 START_SCANS = 300  # scans of the first pass that gives the start velocity
@@ -107,6 +107,7 @@ def start_velocity(
     if m < 8:
         return None
     longest = max(m, min(START_MAX, total)) if START_STRONG > 0 else m
+    times = on_slots(ds.t)
     first = MotionMatcher(
         ds.laser,
         config,
@@ -119,7 +120,7 @@ def start_velocity(
     poses = np.empty((longest, 3))
     seen = np.zeros(longest)  # scan i's forward response (measured from the pass's third scan)
     for i in range(longest):
-        poses[i] = first.push_predicted(ds.ranges[begin + i], float(ds.t[begin + i]))
+        poses[i] = first.push_predicted(ds.ranges[begin + i], float(times[begin + i]))
         seen[i] = first.response if i >= 2 else 0.0
         if i + 1 == m:  # the pass's end: its second half's squared responses (responses
             # are 0..1; a partly observed scan's motion is partly the prediction)
@@ -162,9 +163,11 @@ def sequential(
     else:
         rest = 0
     heading = HeadingMap(ds.laser, config.heading_map) if config.heading_map > 0 else None
-    # the velocity is a median of scan steps: per the log's usual interval, which the first
-    # one after it need not be (a scan lost there)
-    interval = float(np.median(np.diff(ds.t))) if ds.n_scans > 1 else 0.0
+    # the motion model reads the times on the scanner's slots; the velocity is a median of
+    # scan steps: per the log's usual interval, which the first one after it need not be (a
+    # scan lost there)
+    times = on_slots(ds.t)
+    interval = float(np.median(np.diff(times))) if ds.n_scans > 1 else 0.0
     matcher = MotionMatcher(
         ds.laser, config, None if rest else velocity, heading=heading, interval=interval
     )
@@ -173,7 +176,7 @@ def sequential(
     for k in range(ds.n_scans):
         if k == rest and k > 0 and velocity is not None:
             matcher.set_velocity(velocity, interval)
-        poses[k] = matcher.push_predicted(ds.ranges[k], float(ds.t[k]))
+        poses[k] = matcher.push_predicted(ds.ranges[k], float(times[k]))
         if k > 0:  # the pair just matched: its pose, covariance and diagnostics
             sigma, n_used, degenerate, agreement = matcher.stats
             matches.pose[k - 1] = matcher.pose

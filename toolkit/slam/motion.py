@@ -32,9 +32,30 @@ GAP_MOST = 10.0  # the prediction carries the velocity over at most this many of
 # intervals (a capture that lost scans: three tenths lost at random leave gaps of up to
 # seven; the simulated corridor so, 2,000 scans, worlds 0-15, mapped 0.64 m off with 3, 0.17
 # m with 10)
-JITTER = math.log(1.25)  # intervals within 25% of the velocity's are the same interval (a
-# driver's clock, float32 times: the simulator's vary by 0.8%); beyond it (a scan dropped
-# doubles it) the velocity is rescaled to the scan's (`MotionMatcher._per_interval`)
+JITTER = math.log(1.25)  # intervals within 25% of the velocity's are the same interval;
+# beyond it (a scan dropped doubles it) the velocity is rescaled to the scan's
+# (`MotionMatcher._per_interval`). A log's times are on the scanner's slots (`on_slots`), so
+# this tells one period from two; it also holds for times given as they were stamped
+
+
+def on_slots(t: np.ndarray) -> np.ndarray:
+    """The scan times the motion model reads: each interval rounded to whole periods of the
+    scanner (the median interval), at least one, from the first scan's time. A host that
+    stamps scans as it reads them spreads a fixed rate: the Mines URG logs' intervals span
+    0.69-1.39 of their 98 ms, and beyond `JITTER` each read as a change of speed (exp1,
+    without odometry, 1.23 m off its map with odometry); a lost scan stays two periods.
+    A single scan, or times whose median interval is not positive, are returned as they are."""
+    t = np.asarray(t, np.float64)
+    if len(t) < 2:
+        return t
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    if not period > 0:
+        return t
+    slots = np.maximum(1.0, np.rint(dt / period))
+    times: np.ndarray = t[0] + period * np.r_[0.0, np.cumsum(slots)]
+    return times
+
 
 RESUME_TURN = 0.1  # rad/s: a velocity turning faster than this is a turn; once it turns
 # slower again, its forward part resumes at least the median of ...
@@ -56,7 +77,9 @@ class MotionMatcher(sc.StreamMatcher):
     (`MatchConfig.heading_map`), the keyframe kept with the fitted pose, before the velocity
     takes the motion. `resume`: once a turn ends, the forward part is at least the speed
     before it (`_resume`; a vehicle's, not a swaying hand-held scanner's). `interval`: the
-    seconds `step` is per (0: the first scan interval's; `_per_interval`)."""
+    seconds `step` is per (0: the first scan interval's; `_per_interval`). The times given to
+    `push_predicted` are taken as they are; a log's are put on the scanner's slots first
+    (`on_slots`, as `toolkit.slam.localmap.sequential` does)."""
 
     def __init__(
         self,
