@@ -5,6 +5,8 @@ bag without odometry, imported and mapped (constant velocity, `toolkit.slam.loca
 
 from __future__ import annotations
 
+import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,6 +17,7 @@ import pytest
 import importers
 import toolkit
 from bench.lost_telegrams import captured
+from tests.conftest import Cli
 from toolkit.align.scan import MatchConfig
 from toolkit.app.simulation import write_simulation
 from toolkit.dataset import load
@@ -29,7 +32,7 @@ from toolkit.slam.localmap import (
     start_velocity,
     weighted_median,
 )
-from toolkit.slam.motion import on_slots
+from toolkit.slam.motion import jitters, on_slots, scan_clock
 from toolkit.slam.run import slam_trajectory
 
 
@@ -111,32 +114,41 @@ def test_a_capture_that_lost_telegrams_keeps_its_velocity_per_interval(tmp_path:
     assert evaluate(slam_trajectory(ds)[0].poses, truth)["ate"]["rmse"] <= 0.3
 
 
-def test_a_host_clock_that_jitters_is_read_at_the_scanners_rate(tmp_path: Path) -> None:
+def test_a_host_clock_that_jitters_is_read_at_the_scanners_rate(cli: Cli, tmp_path: Path) -> None:
     """The building (world 0, 4,000 scans) as an LMS-200 capture whose host stamped each scan
     late by a varying delay (sd 0.15 of the period, as the Mines URG logs' host): each
     interval read as it was stamped, the velocity was rescaled at every one beyond a quarter
-    and mapped 0.48 m off (0.10 m with the scans' own times). On the scanner's slots: 0.07 m.
-    """
+    and mapped 0.48 m off (0.10 m with the scans' own times). On the scanner's slots: 0.07 m,
+    and `toolkit map` says how it read the times."""
     sim = simulate("building", seed=0)
     ds = captured(replace(sim, dataset=replace(sim.dataset, odometry=None)), 0.0, tmp_path, 0.15)
     intervals = np.diff(ds.t) / np.median(np.diff(ds.t))
     assert np.mean(np.abs(np.log(intervals)) > np.log(1.25)) > 0.2
-    truth = truth_poses(ds)
-    assert truth is not None
-    assert evaluate(slam_trajectory(ds)[0].poses, truth)["ate"]["rmse"] <= 0.2
+    toolkit.save(ds, tmp_path / "ds")
+    code, out, err = cli("map", tmp_path / "ds", "--out", tmp_path / "run")
+    assert code == 0, err
+    assert re.search(
+        r"scan times read as whole periods of 65 ms \(stamped 0\.[67]\d-1\.[34]\d", out
+    )
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["scan_clock"]["lost"] == 0  # rounded from the stamp before: 32
+    assert metrics["ate"]["rmse"] <= 0.2
 
 
 def test_on_slots_reads_a_jittered_clock_as_whole_periods() -> None:
-    """Stamps 0.1 s apart, each late by up to 35 ms, one scan lost: whole periods, the lost
-    scan's two; times that do not increase are returned as they are."""
+    """Stamps 0.1 s apart, each late by up to 35 ms, one scan lost: whole periods of about
+    0.1 s, the lost scan's two; times that do not increase are returned as they are."""
     late = np.random.default_rng(0).uniform(0.0, 0.035, 50)
     t = 5.0 + 0.1 * np.delete(np.arange(51), 20) + late
+    clock = scan_clock(t)
+    assert abs(clock["period"] - 0.1) < 0.002 and clock["lost"] == 1 and jitters(clock)
     slots = on_slots(t)
-    period = float(np.median(np.diff(t)))
-    np.testing.assert_allclose(np.diff(slots) / period, np.where(np.arange(49) == 19, 2, 1))
+    expected = np.where(np.arange(49) == 19, 2, 1)
+    np.testing.assert_allclose(np.diff(slots) / clock["period"], expected, rtol=1e-9)
     assert slots[0] == t[0]
     np.testing.assert_array_equal(on_slots(np.full(4, 3.0)), np.full(4, 3.0))
     np.testing.assert_array_equal(on_slots(np.array([1.0])), [1.0])
+    assert not jitters(scan_clock(np.arange(50) * 0.1)) and scan_clock(np.full(4, 3.0)) == {}
 
 
 @pytest.mark.parametrize(("share", "within"), [(0.1, 0.3), (0.3, 0.5)])

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,23 +38,78 @@ JITTER = math.log(1.25)  # intervals within 25% of the velocity's are the same i
 # this tells one period from two; it also holds for times given as they were stamped
 
 
+CLOCK_GAIN = 0.05  # share of each stamp's lag behind its slot taken into the clock's
+# offset (`slot_numbers`): jitter averaged over some 20 scans, a period a little off the
+# median followed
+
+
 def on_slots(t: np.ndarray) -> np.ndarray:
-    """The scan times the motion model reads: each interval rounded to whole periods of the
-    scanner (the median interval), at least one, from the first scan's time. A host that
-    stamps scans as it reads them spreads a fixed rate: the Mines URG logs' intervals span
-    0.69-1.39 of their 98 ms, and beyond `JITTER` each read as a change of speed (exp1,
-    without odometry, 1.23 m off its map with odometry); a lost scan stays two periods.
+    """The scan times the motion model reads: each scan on its slot of the scanner's period
+    (the median interval; `slot_numbers`), from the first scan's time. A host that stamps
+    scans as it reads them spreads a fixed rate: the Mines URG logs' intervals span 0.69-1.39
+    of their 98 ms, and beyond `JITTER` each read as a change of speed (exp1, without
+    odometry, 1.23 m off its map with odometry); a lost scan leaves its slot empty.
     A single scan, or times whose median interval is not positive, are returned as they are."""
     t = np.asarray(t, np.float64)
-    if len(t) < 2:
+    period = _period(t)
+    if period is None:
         return t
+    times: np.ndarray = t[0] + period * slot_numbers(t, period)
+    return times
+
+
+def slot_numbers(t: np.ndarray, period: float) -> np.ndarray:
+    """Each scan's slot of `period` s since the first scan's, later than the scan before's:
+    the nearest to its time less the clock's offset, the stamps' lag behind their slots
+    followed by `CLOCK_GAIN`. Against its own slot, not the last stamp's, a stamp late by
+    half a period is one scan's error; rounded from the stamp before, two stamps late and on
+    time read as two periods and one (the building as a capture whose host jitters by 0.15 of
+    a period: 32 slots gained in 4,000 scans, none so)."""
+    slots = np.zeros(len(t))
+    slot, offset = 0.0, 0.0
+    for i, lag in enumerate(((t[1:] - t[0]) / period).tolist(), start=1):
+        slot = max(slot + 1.0, float(round(lag - offset)))
+        offset += CLOCK_GAIN * (lag - slot - offset)
+        slots[i] = slot
+    return slots
+
+
+def scan_clock(t: np.ndarray) -> dict[str, Any]:
+    """What `on_slots` reads in a log's times: the scanner's `period` (s), the 5th and 95th
+    percentiles of the intervals in periods (`spread`; a host's jitter) and the scans `lost`
+    (the empty slots); empty where it leaves the times as they are."""
+    t = np.asarray(t, np.float64)
+    period = _period(t)
+    if period is None:
+        return {}
+    low, high = np.percentile(np.diff(t) / period, [5, 95])
+    lost = int(slot_numbers(t, period)[-1]) - (len(t) - 1)
+    return {"period": period, "spread": [round(float(low), 3), round(float(high), 3)], "lost": lost}
+
+
+def jitters(clock: dict[str, Any]) -> bool:
+    """Whether `scan_clock`'s intervals spread beyond `JITTER` (5th or 95th percentile)."""
+    return bool(clock) and max(abs(math.log(r)) for r in clock["spread"] if r > 0) > JITTER
+
+
+def _period(t: np.ndarray) -> float | None:
+    """The scanner's period: the median of the intervals within half a period of it (from
+    the median interval, three times), then the slope of the times over their slots; None
+    for one scan or a median interval of 0. Over every interval, the median of a capture
+    that lost a fifth of its scans and whose host jitters by 0.15 of a period is 7% long,
+    and its slots fell behind by a third of the scans lost."""
+    if len(t) < 2:
+        return None
     dt = np.diff(t)
     period = float(np.median(dt))
     if not period > 0:
-        return t
-    slots = np.maximum(1.0, np.rint(dt / period))
-    times: np.ndarray = t[0] + period * np.r_[0.0, np.cumsum(slots)]
-    return times
+        return None
+    for _ in range(3):
+        period = float(np.median(dt[(dt > 0.5 * period) & (dt < 1.5 * period)]))
+    slots = slot_numbers(t, period)
+    if slots[-1] > 0:
+        period = float(np.polyfit(slots, t, 1)[0])
+    return period
 
 
 RESUME_TURN = 0.1  # rad/s: a velocity turning faster than this is a turn; once it turns

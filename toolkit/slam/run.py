@@ -30,6 +30,7 @@ from toolkit.poses import TrajectoryResult, build, odometry_poses, truth_poses
 from toolkit.slam import graph as pg
 from toolkit.slam.localmap import sequential
 from toolkit.slam.loops import Loop, is_false_loop
+from toolkit.slam.motion import scan_clock
 from toolkit.slam.pipeline import (
     SlamConfig,
     SlamResult,
@@ -99,6 +100,8 @@ class SlamRun:
             "graph": {"nodes": len(self.keys), "edges": len(self.edges)},
             "seconds": {**self.timings, "total": sum(self.timings.values())},
         }
+        if odometry_poses(ds) is None:  # the times the constant velocity read
+            out["scan_clock"] = scan_clock(ds.t)
         truth = truth_poses(ds)
         if truth is not None:
             out["false_loops"] = sum(is_false_loop(lp, truth) for lp in accepted)

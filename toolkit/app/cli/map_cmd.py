@@ -192,6 +192,16 @@ def map_command(
             f", the laser read as mounted {metrics['laser_mounting']['read_as']}: the scans and"
             " the odometry agree only so"
         )
+    clock = metrics.get("scan_clock")
+    if clock:
+        from toolkit.slam.motion import jitters  # on use: the mapper has loaded it
+
+        if clock["lost"] or jitters(clock):
+            low, high = clock["spread"]
+            line += (
+                f", scan times read as whole periods of {clock['period'] * 1e3:.0f} ms"
+                f" (stamped {low:.2f}-{high:.2f} of one, {clock['lost']} scans lost)"
+            )
     for stall in metrics.get("odometry_stalls", []):
         line += (
             f", odometry still over scans {stall['first']}-{stall['last']} while the scans "
