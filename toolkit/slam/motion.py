@@ -10,6 +10,7 @@ import math
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
+import numba as nb
 import numpy as np
 
 from toolkit import se2
@@ -65,11 +66,17 @@ def slot_numbers(t: np.ndarray, period: float) -> np.ndarray:
     half a period is one scan's error; rounded from the stamp before, two stamps late and on
     time read as two periods and one (the building as a capture whose host jitters by 0.15 of
     a period: 32 slots gained in 4,000 scans, none so)."""
-    slots = np.zeros(len(t))
+    slots: np.ndarray = _slot_numbers((t - t[0]) / period, CLOCK_GAIN)
+    return slots
+
+
+@nb.njit(cache=True, nogil=True)
+def _slot_numbers(lags: np.ndarray, gain: float) -> np.ndarray:
+    slots = np.zeros(len(lags))
     slot, offset = 0.0, 0.0
-    for i, lag in enumerate(((t[1:] - t[0]) / period).tolist(), start=1):
-        slot = max(slot + 1.0, float(round(lag - offset)))
-        offset += CLOCK_GAIN * (lag - slot - offset)
+    for i in range(1, len(lags)):
+        slot = max(slot + 1.0, float(np.rint(lags[i] - offset)))
+        offset += gain * (lags[i] - slot - offset)
         slots[i] = slot
     return slots
 
