@@ -46,7 +46,7 @@ CLOCK_GAIN = 0.05  # share of each stamp's lag behind its slot taken into the cl
 
 def on_slots(t: np.ndarray) -> np.ndarray:
     """The scan times the motion model reads: each scan on its slot of the scanner's period
-    (the median interval; `slot_numbers`), from the first scan's time. A host that stamps
+    (`_period`, `slot_numbers`), from the first scan's time. A host that stamps
     scans as it reads them spreads a fixed rate: the Mines URG logs' intervals span 0.69-1.39
     of their 98 ms, and beyond `JITTER` each read as a change of speed (exp1, without
     odometry, 1.23 m off its map with odometry); a lost scan leaves its slot empty.
@@ -112,11 +112,12 @@ def _period(t: np.ndarray) -> float | None:
     if not period > 0:
         return None
     for _ in range(3):
-        period = float(np.median(dt[(dt > 0.5 * period) & (dt < 1.5 * period)]))
-    slots = slot_numbers(t, period)
-    if slots[-1] > 0:
-        period = float(np.polyfit(slots, t, 1)[0])
-    return period
+        near = dt[(dt > 0.5 * period) & (dt < 1.5 * period)]
+        if len(near) == 0:
+            break
+        period = float(np.median(near))
+    slope = float(np.polyfit(slot_numbers(t, period), t, 1)[0])
+    return slope if slope > 0 else period
 
 
 RESUME_TURN = 0.1  # rad/s: a velocity turning faster than this is a turn; once it turns
