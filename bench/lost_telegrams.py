@@ -93,18 +93,23 @@ def simulated(
     return pd.DataFrame(rows)
 
 
+def _floats(text: str) -> tuple[float, ...]:
+    """Comma-separated numbers."""
+    return tuple(float(x) for x in text.split(","))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--worlds", type=int_ranges, default="466-473")
     parser.add_argument(
         "--errors",
-        type=lambda text: tuple(float(x) for x in text.split(",")),
+        type=_floats,
         default=(0.0, 3e-5, 8e-5),
         help="bit error rates of the line, comma-separated",
     )
     parser.add_argument(
         "--jitter",
-        type=lambda text: tuple(float(x) for x in text.split(",")),
+        type=_floats,
         default=(0.0,),
         help="spreads (sd, scan periods) of the host's clock, comma-separated",
     )

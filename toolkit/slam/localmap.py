@@ -92,7 +92,11 @@ def standing(ranges: np.ndarray, chunk: int = 1024) -> int:
 
 
 def start_velocity(
-    ds: Dataset, config: sc.MatchConfig | None = None, scans: int = START_SCANS, begin: int = 0
+    ds: Dataset,
+    config: sc.MatchConfig | None = None,
+    scans: int = START_SCANS,
+    begin: int = 0,
+    times: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """The motion per scan (robot frame) to start a log without odometry with: the median
     motion over the second half of a first, unfiltered pass over `scans` scans from scan
@@ -101,13 +105,14 @@ def start_velocity(
     and the matched motion is the prediction's); None when there are fewer than 8 scans.
     A pass whose second half never observes the forward motion (a corridor bare for its
     first `scans` scans: its steps have random-walked to any speed, often to rest) goes on,
-    `scans` more at a time, up to `START_MAX`, until it does."""
+    `scans` more at a time, up to `START_MAX`, until it does. `times`: the log's times on
+    the scanner's slots (None: `on_slots` of them)."""
     total = ds.n_scans - begin
     m = min(scans, total)
     if m < 8:
         return None
     longest = max(m, min(START_MAX, total)) if START_STRONG > 0 else m
-    times = on_slots(ds.t)
+    times = on_slots(ds.t) if times is None else times
     first = MotionMatcher(
         ds.laser,
         config,
@@ -156,17 +161,16 @@ def sequential(
         return build(ds, "gaussian", config, progress=progress)
     config = config or sc.MatchConfig()
     t0 = time.perf_counter()
+    times = on_slots(ds.t)  # the motion model reads the times on the scanner's slots
     if velocity is None:
         rest = standing(ds.ranges)  # the start velocity from where the robot starts moving
         rest = rest if rest > 1 else 0  # the first scan alone is no rest
-        velocity = start_velocity(ds, config, begin=rest)
+        velocity = start_velocity(ds, config, begin=rest, times=times)
     else:
         rest = 0
     heading = HeadingMap(ds.laser, config.heading_map) if config.heading_map > 0 else None
-    # the motion model reads the times on the scanner's slots; the velocity is a median of
-    # scan steps: per the log's usual interval, which the first one after it need not be (a
-    # scan lost there)
-    times = on_slots(ds.t)
+    # the velocity is a median of scan steps: per the log's usual interval, which the first
+    # one after it need not be (a scan lost there)
     interval = float(np.median(np.diff(times))) if ds.n_scans > 1 else 0.0
     matcher = MotionMatcher(
         ds.laser, config, None if rest else velocity, heading=heading, interval=interval

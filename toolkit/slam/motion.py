@@ -46,16 +46,17 @@ CLOCK_GAIN = 0.05  # share of each stamp's lag behind its slot taken into the cl
 
 def on_slots(t: np.ndarray) -> np.ndarray:
     """The scan times the motion model reads: each scan on its slot of the scanner's period
-    (`_period`, `slot_numbers`), from the first scan's time. A host that stamps
+    (`_clock`), from the first scan's time. A host that stamps
     scans as it reads them spreads a fixed rate: the Mines URG logs' intervals span 0.69-1.39
     of their 98 ms, and beyond `JITTER` each read as a change of speed (exp1, without
     odometry, 1.23 m off its map with odometry); a lost scan leaves its slot empty.
     A single scan, or times whose median interval is not positive, are returned as they are."""
     t = np.asarray(t, np.float64)
-    period = _period(t)
-    if period is None:
+    clock = _clock(t)
+    if clock is None:
         return t
-    times: np.ndarray = t[0] + period * slot_numbers(t, period)
+    period, slots = clock
+    times: np.ndarray = t[0] + period * slots
     return times
 
 
@@ -86,11 +87,12 @@ def scan_clock(t: np.ndarray) -> dict[str, Any]:
     percentiles of the intervals in periods (`spread`; a host's jitter) and the scans `lost`
     (the empty slots); empty where it leaves the times as they are."""
     t = np.asarray(t, np.float64)
-    period = _period(t)
-    if period is None:
+    clock = _clock(t)
+    if clock is None:
         return {}
+    period, slots = clock
     low, high = np.percentile(np.diff(t) / period, [5, 95])
-    lost = int(slot_numbers(t, period)[-1]) - (len(t) - 1)
+    lost = int(slots[-1]) - (len(t) - 1)
     return {"period": period, "spread": [round(float(low), 3), round(float(high), 3)], "lost": lost}
 
 
@@ -99,12 +101,13 @@ def jitters(clock: dict[str, Any]) -> bool:
     return bool(clock) and max(abs(math.log(r)) for r in clock["spread"] if r > 0) > JITTER
 
 
-def _period(t: np.ndarray) -> float | None:
-    """The scanner's period: the median of the intervals within half a period of it (from
-    the median interval, three times), then the slope of the times over their slots; None
-    for one scan or a median interval of 0. Over every interval, the median of a capture
-    that lost a fifth of its scans and whose host jitters by 0.15 of a period is 7% long,
-    and its slots fell behind by a third of the scans lost."""
+def _clock(t: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """The scanner's period and each scan's slot of it (`slot_numbers`). The period: the
+    median of the intervals within half a period of it (from the median interval, three
+    times), then the slope of the times over their slots; None for one scan or a median
+    interval of 0. Over every interval, the median of a capture that lost a fifth of its scans
+    and whose host jitters by 0.15 of a period is 7% long, and its slots fell behind by a
+    third of the scans lost."""
     if len(t) < 2:
         return None
     dt = np.diff(t)
@@ -117,7 +120,8 @@ def _period(t: np.ndarray) -> float | None:
             break
         period = float(np.median(near))
     slope = float(np.polyfit(slot_numbers(t, period), t, 1)[0])
-    return slope if slope > 0 else period
+    period = slope if slope > 0 else period
+    return period, slot_numbers(t, period)
 
 
 RESUME_TURN = 0.1  # rad/s: a velocity turning faster than this is a turn; once it turns
