@@ -4,6 +4,7 @@ host's clock jitters.
     python -m bench.lost_telegrams --worlds 466-473            # the simulator, KISS-ICP beside
     python -m bench.lost_telegrams --worlds 0-3 --no-kiss --errors 0,8e-5
     python -m bench.lost_telegrams --worlds 482-489 --errors 0,8e-5 --jitter 0,0.15
+    python -m bench.lost_telegrams --worlds 498-505 --errors 0 --jitter 0,0.15 --formats rosbag
 
 The simulator's corridor (2,000 scans) and building (2,000 and its own 4,000 scans), world =
 seed, written as raw LMS-200 captures without odometry whose line flipped a share of its bits
@@ -11,7 +12,9 @@ seed, written as raw LMS-200 captures without odometry whose line flipped a shar
 the importer skips the damaged telegrams and counts them, and their times (the capture's side
 file) leave intervals of two scans or more where they were. `--jitter`: the side file's times
 spread around the scans' (the writer's `clock_jitter`, sd in scan periods; the Mines URG logs'
-host spreads about 0.15: 5th-95th percentile of their intervals 0.69-1.39 periods). Per run: the share of the scans
+host spreads about 0.15: 5th-95th percentile of their intervals 0.69-1.39 periods).
+`--formats rosbag`: the logs written as ROS bags without odometry instead, the scans' header
+stamps spread the same way (the bag writer's `clock_jitter`). Per run: the share of the scans
 lost, the longest interval (in scans), `toolkit map` (`toolkit.mapping.map_run`) and with
 `--kiss` KISS-ICP with its constant velocity (best of voxel 0.1 / 0.3 m; it predicts each
 scan's motion as the last one's, whatever the interval). docs/maps.md, "Methods".
@@ -50,34 +53,45 @@ def simulations(worlds: tuple[int, ...]) -> Iterator[Simulation]:
             yield replace(sim, dataset=replace(sim.dataset, odometry=None))
 
 
-def captured(sim: Simulation, errors: float, work: Path, jitter: float = 0.0) -> Dataset:
-    """`sim` written as an LMS-200 capture whose line flips `errors` of its bits and whose
-    host's times spread by `jitter` scan periods (sd), imported; the simulation's truth beside
-    it (a capture holds none)."""
+def captured(
+    sim: Simulation, errors: float, work: Path, jitter: float = 0.0, fmt: str = "lms200"
+) -> Dataset:
+    """`sim` written as an LMS-200 capture whose line flips `errors` of its bits, or as a ROS
+    bag (`fmt` rosbag; `errors` 0), whose host's times spread by `jitter` scan periods (sd),
+    imported; the simulation's truth beside it (a capture holds none)."""
     period = float(np.median(np.diff(sim.dataset.t)))
+    if errors and fmt != "lms200":
+        raise ValueError(f"{fmt} has no serial line to damage")
+    damage = {"bit_error_rate": errors} if fmt == "lms200" else {}
     write_simulation(
-        sim, work / "capture", "lms200", bit_error_rate=errors, clock_jitter=jitter * period,
-        seed=sim.seed,
-    )  # fmt: skip
-    sources = [p for p in (work / "capture").iterdir() if p.suffix == ".lms"]
-    ds = load(importers.import_log("lms200", sources, work / "imported"))
+        sim, work / "capture", fmt, False, clock_jitter=jitter * period, seed=sim.seed, **damage
+    )
+    sources = [p for p in (work / "capture").iterdir() if p.suffix in {".lms", ".bag"}]
+    ds = load(importers.import_log(fmt, sources, work / "imported"))
     return replace(ds, groundtruth=sim.dataset.groundtruth)
 
 
 def simulated(
-    worlds: tuple[int, ...], errors: tuple[float, ...], jitters: tuple[float, ...], kiss: bool
+    worlds: tuple[int, ...],
+    errors: tuple[float, ...],
+    jitters: tuple[float, ...],
+    kiss: bool,
+    formats: tuple[str, ...] = ("lms200",),
 ) -> pd.DataFrame:
     rows = []
     for sim in simulations(worlds):
-        for rate, jitter in itertools.product(errors, jitters):
+        for fmt, rate, jitter in itertools.product(formats, errors, jitters):
+            if rate and fmt != "lms200":
+                continue  # a bag has no serial line
             with tempfile.TemporaryDirectory() as tmp:
-                ds = captured(sim, rate, Path(tmp), jitter)
+                ds = captured(sim, rate, Path(tmp), jitter, fmt)
                 metrics = map_metrics(ds)
             truth = truth_poses(ds)
             assert truth is not None
             intervals = np.diff(ds.t) / np.median(np.diff(ds.t))
             row: dict[str, Any] = {
                 "world": sim.scenario,
+                "format": fmt,
                 "scans": sim.dataset.n_scans,
                 "seed": sim.seed,
                 "bit_errors_per_million": round(rate * 1e6, 3),
@@ -113,14 +127,20 @@ def main() -> None:
         default=(0.0,),
         help="spreads (sd, scan periods) of the host's clock, comma-separated",
     )
+    parser.add_argument(
+        "--formats",
+        type=lambda text: tuple(text.split(",")),
+        default=("lms200",),
+        help="lms200 and/or rosbag (a bag without odometry: no line damage), comma-separated",
+    )
     parser.add_argument("--no-kiss", dest="kiss", action="store_false", help="no KISS-ICP")
     parser.add_argument("--out", type=Path, default=Path("out/lost_telegrams.csv"))
     args = parser.parse_args()
-    table = simulated(args.worlds, args.errors, args.jitter, args.kiss)
+    table = simulated(args.worlds, args.errors, args.jitter, args.kiss, args.formats)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False)
     numbers = [c for c in ("lost", "longest", "toolkit_map", "kiss") if c in table]
-    by = ["world", "scans", "bit_errors_per_million", "clock_jitter"]
+    by = ["world", "format", "scans", "bit_errors_per_million", "clock_jitter"]
     summary = table.groupby(by)[numbers].median().round(3)
     summary["within_0.5"] = table.groupby(by)["toolkit_map"].apply(
         lambda ate: f"{int((ate <= 0.5).sum())}/{len(ate)}"

@@ -145,6 +145,8 @@ class RosbagWriteOptions(FormatOptions):
     upside_down: bool = option(
         False, "the laser mounted upside down (the tf turns it over; the scans as it sees them)"
     )
+    clock_jitter: float = option(0.0, "s: spread (sd) of the scans' stamps around their times")
+    seed: int = option(0, "seed of the clock's jitter")
 
 
 @register
@@ -182,7 +184,7 @@ class RosbagImporter(Importer[RosbagOptions, RosbagWriteOptions]):
             write_bag(
                 ds, Path(out), version=o.version, scan_topic=o.scan_topic,
                 odom_topic=o.odom_topic, gt_topic=o.gt_topic, frame_id=o.frame_id, name=o.name,
-                upside_down=o.upside_down,
+                upside_down=o.upside_down, clock_jitter=o.clock_jitter, seed=o.seed,
             )
         ]  # fmt: skip
 

@@ -115,17 +115,30 @@ def write_bag(
     frame_id: str = "laser",
     name: str = "log",
     upside_down: bool = False,
+    clock_jitter: float = 0.0,
+    seed: int = 0,
 ) -> Path:
     """Write the bag under directory `out`, atomically; returns its path. `upside_down`: the
     laser as one mounted turned over records it (`_Messages.mounting`; each scan's beams in
-    the opposite order, from the mirrored last angle), which the reader turns back."""
+    the opposite order, from the mirrored last angle), which the reader turns back.
+    `clock_jitter`: the spread (sd, s) of the scans' stamps (header and bag time) around their
+    times, kept in order, as a host that stamps each scan when it reads it (drawn from `seed`);
+    the odometry and the ground truth keep theirs."""
     if version not in VERSIONS:
         raise ToolkitError(f"rosbag version {version!r}: expected one of {', '.join(VERSIONS)}")
+    if not clock_jitter >= 0:
+        raise ToolkitError(f"rosbag writer: clock_jitter must be >= 0, not {clock_jitter}")
     ros1 = version == "ros1"
     final = out / (f"{name}.bag" if ros1 else name)
     with atomic_path(final) as path:
         msgs = _Messages(_typestore(ros1), ros1)
-        streams = _streams(ds, msgs, scan_topic, odom_topic, gt_topic, frame_id, upside_down)
+        stamps = np.asarray(ds.t, np.float64)
+        if clock_jitter > 0:
+            noise = np.random.default_rng(seed).normal(0.0, clock_jitter, ds.n_scans)
+            stamps = np.maximum.accumulate(stamps + noise)
+        streams = _streams(
+            ds, msgs, scan_topic, odom_topic, gt_topic, frame_id, upside_down, stamps
+        )
         if ros1:
             with Writer1(path) as w1:
                 conns1 = {
@@ -168,7 +181,9 @@ def _streams(
     gt_topic: str,
     frame: str,
     upside_down: bool = False,
+    stamps: np.ndarray | None = None,
 ) -> _Streams:
+    """The bag's messages; `stamps`: the scans' (default their times)."""
     ty = msgs.types
     streams = _Streams()
     laser = ds.laser
@@ -179,14 +194,16 @@ def _streams(
         angle_min = -(laser.angle_min + laser.angle_increment * (laser.beams - 1))
     dt = float(np.median(np.diff(ds.t))) if ds.n_scans > 1 else 0.0
     empty = np.zeros(0, np.float32)
+    scan_times = np.asarray(ds.t if stamps is None else stamps, np.float64)
     if ds.n_scans:
+        first = float(min(ds.t[0], scan_times[0]))
         streams.add(
             "/tf_static",
             TFMESSAGE,
-            float(ds.t[0]),
-            msgs.serialize(msgs.mounting(float(ds.t[0]), frame, laser, upside_down), TFMESSAGE),
+            first,
+            msgs.serialize(msgs.mounting(first, frame, laser, upside_down), TFMESSAGE),
         )
-    for i, t in enumerate(ds.t.tolist()):
+    for i, t in enumerate(scan_times.tolist()):
         msg = ty["sensor_msgs/msg/LaserScan"](
             header=msgs.header(t, frame, i),
             angle_min=angle_min,

@@ -66,6 +66,26 @@ def test_round_trip_through_each_bag_kind(tmp_path: Path, version: str) -> None:
     assert meta["invalid_readings"] == int(np.isnan(ds.ranges).sum())
 
 
+@pytest.mark.parametrize("version", ["ros1", "mcap"])
+def test_a_jittered_host_clock_moves_the_scans_stamps_alone(tmp_path: Path, version: str) -> None:
+    """`clock_jitter`: the scans' header stamps spread around their times by about that sd and
+    stay in order; the ranges, the odometry and the ground truth are the ones written without
+    it, and the same seed writes the same stamps."""
+    ds = _dataset(scans=400)
+    options = RosbagWriteOptions(version=version, clock_jitter=0.015, seed=3)
+    back, again = (
+        ROSBAG.read(ROSBAG.write(ds, tmp_path / name, options), RosbagOptions())
+        for name in ("one", "two")
+    )
+    assert np.all(np.diff(back.t) >= 0) and 0.012 < np.std(back.t - ds.t) < 0.018
+    np.testing.assert_array_equal(back.t, again.t)
+    np.testing.assert_array_equal(back.ranges, ds.ranges)
+    assert back.odometry is not None and ds.odometry is not None
+    np.testing.assert_allclose(back.odometry.to_numpy(), ds.odometry.to_numpy(), atol=1e-9)
+    with pytest.raises(ToolkitError, match="clock_jitter"):
+        ROSBAG.write(ds, tmp_path / "bad", RosbagWriteOptions(clock_jitter=-0.01))
+
+
 @pytest.mark.parametrize("version", ["ros1", "ros2"])
 def test_single_scan_bag(tmp_path: Path, version: str) -> None:
     ranges = np.array([[1.0, 0.0, np.nan, 3.5]], np.float32)
