@@ -198,9 +198,10 @@ def map_command(
 
         if clock["lost"] or jitters(clock):
             low, high = clock["spread"]
+            lost = f"{clock['lost']} scan{'' if clock['lost'] == 1 else 's'} lost"
             line += (
                 f", scan times read as whole periods of {clock['period'] * 1e3:.0f} ms"
-                f" (stamped {low:.2f}-{high:.2f} of one, {clock['lost']} scans lost)"
+                f" (stamped {low:.2f}-{high:.2f} of one, {lost})"
             )
     for stall in metrics.get("odometry_stalls", []):
         line += (
