@@ -62,9 +62,9 @@ def captured(
     period = float(np.median(np.diff(sim.dataset.t)))
     if errors and fmt != "lms200":
         raise ValueError(f"{fmt} has no serial line to damage")
-    damage = {"bit_error_rate": errors} if fmt == "lms200" else {}
+    damage: dict[str, Any] = {"bit_error_rate": errors} if fmt == "lms200" else {}
     write_simulation(
-        sim, work / "capture", fmt, False, clock_jitter=jitter * period, seed=sim.seed, **damage
+        sim, work / "capture", fmt, clock_jitter=jitter * period, seed=sim.seed, **damage
     )
     sources = [p for p in (work / "capture").iterdir() if p.suffix in {".lms", ".bag"}]
     ds = load(importers.import_log(fmt, sources, work / "imported"))
