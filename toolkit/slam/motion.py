@@ -74,7 +74,7 @@ def slot_numbers(t: np.ndarray, period: float) -> np.ndarray:
     them. Each stamp rounded alone, a stamp late by more than half a period took the next
     scan's slot and every scan after it moved one on: jittered by a third of a period, the
     simulated corridor and building read 73-93 of 2,000 scans as lost where none was, and
-    captures that lost a fifth of their scans 3-7% off in their period; so, 0-3 and 0.1%."""
+    captures that lost a fifth of their scans 3-7% off in their period; so, 0-3 and 0.15%."""
     lags = (t - t[0]) / period
     phase = np.exp(2j * np.pi * lags)
     sums = np.concatenate([[0], np.cumsum(phase)])
