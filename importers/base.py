@@ -169,6 +169,15 @@ class Importer(ABC, Generic[R, W]):
 _MAGIC = {b"\x1f\x8b": gzip.open, b"BZh": bz2.open, b"\xfd7zXZ": lzma.open}
 
 
+def host_stamps(t: np.ndarray, clock_jitter: float, rng: np.random.Generator) -> np.ndarray:
+    """The scans' times `t` as a host that stamps each scan when it reads it writes them:
+    spread by `clock_jitter` (sd, s, drawn from `rng`) and kept in order; `t` at 0."""
+    stamps = np.asarray(t, np.float64)
+    if clock_jitter > 0:
+        stamps = np.maximum.accumulate(stamps + rng.normal(0.0, clock_jitter, len(stamps)))
+    return stamps
+
+
 def check_readable(path: Path) -> None:
     """Refuse, before opening it, what is neither a regular file nor a directory: reading a
     FIFO blocks until someone writes to it, a device (/dev/zero) never ends."""

@@ -61,6 +61,7 @@ from importers.base import (
     FormatOptions,
     Importer,
     head_bytes,
+    host_stamps,
     open_binary,
     open_text,
     option,
@@ -750,9 +751,8 @@ def write(
         stream = stream[:total]
         damaged[-1] = True
 
-    stamps = np.asarray(ds.t, np.float64)
-    if clock_jitter > 0:  # drawn after the damage: a clock's jitter leaves the stream as it was
-        stamps = np.maximum.accumulate(stamps + rng.normal(0.0, clock_jitter, scans))
+    # drawn after the damage: a clock's jitter leaves the stream as it was
+    stamps = host_stamps(ds.t, clock_jitter, rng)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

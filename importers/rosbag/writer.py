@@ -20,6 +20,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from importers.base import host_stamps
 from toolkit.atomic import atomic_path
 from toolkit.dataset import Dataset, LaserGeometry
 from toolkit.errors import ToolkitError
@@ -132,12 +133,9 @@ def write_bag(
     final = out / (f"{name}.bag" if ros1 else name)
     with atomic_path(final) as path:
         msgs = _Messages(_typestore(ros1), ros1)
-        stamps = np.asarray(ds.t, np.float64)
-        if clock_jitter > 0:
-            noise = np.random.default_rng(seed).normal(0.0, clock_jitter, ds.n_scans)
-            stamps = np.maximum.accumulate(stamps + noise)
+        stamps = host_stamps(ds.t, clock_jitter, np.random.default_rng(seed))
         streams = _streams(
-            ds, msgs, scan_topic, odom_topic, gt_topic, frame_id, upside_down, stamps
+            ds, msgs, stamps, scan_topic, odom_topic, gt_topic, frame_id, upside_down
         )
         if ros1:
             with Writer1(path) as w1:
@@ -176,14 +174,14 @@ class _Streams:
 def _streams(
     ds: Dataset,
     msgs: _Messages,
+    stamps: np.ndarray,
     scan_topic: str,
     odom_topic: str,
     gt_topic: str,
     frame: str,
     upside_down: bool = False,
-    stamps: np.ndarray | None = None,
 ) -> _Streams:
-    """The bag's messages; `stamps`: the scans' (default their times)."""
+    """The bag's messages, the scans stamped `stamps`."""
     ty = msgs.types
     streams = _Streams()
     laser = ds.laser
@@ -194,16 +192,15 @@ def _streams(
         angle_min = -(laser.angle_min + laser.angle_increment * (laser.beams - 1))
     dt = float(np.median(np.diff(ds.t))) if ds.n_scans > 1 else 0.0
     empty = np.zeros(0, np.float32)
-    scan_times = np.asarray(ds.t if stamps is None else stamps, np.float64)
     if ds.n_scans:
-        first = float(min(ds.t[0], scan_times[0]))
+        first = float(min(ds.t[0], stamps[0]))
         streams.add(
             "/tf_static",
             TFMESSAGE,
             first,
             msgs.serialize(msgs.mounting(first, frame, laser, upside_down), TFMESSAGE),
         )
-    for i, t in enumerate(scan_times.tolist()):
+    for i, t in enumerate(stamps.tolist()):
         msg = ty["sensor_msgs/msg/LaserScan"](
             header=msgs.header(t, frame, i),
             angle_min=angle_min,

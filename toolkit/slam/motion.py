@@ -92,8 +92,9 @@ def slot_numbers(t: np.ndarray, period: float) -> np.ndarray:
 @nb.njit(cache=True, nogil=True)
 def _likeliest_slots(near: np.ndarray, weight: float, skip: float) -> np.ndarray:
     """Viterbi over each scan's three candidate slots (the nearest to `near` and one each
-    side, all after the scan before's lowest reachable one): cost `weight` times the squared
-    distance to the candidate, plus `skip` per slot left empty; the slots from the first's."""
+    side, all after the scan before's lowest, so each has a way in): cost `weight` times the
+    squared distance to the candidate, plus `skip` per slot left empty; the slots from the
+    first's."""
     n = len(near)
     cands = np.zeros((n, 3))
     back = np.zeros((n, 3), np.int8)
@@ -103,17 +104,13 @@ def _likeliest_slots(near: np.ndarray, weight: float, skip: float) -> np.ndarray
         cands[0, k] = np.rint(near[0]) + k - 1
         cost[k] = weight * (near[0] - cands[0, k]) ** 2
     for i in range(1, n):
-        lowest = np.inf
-        for j in range(3):
-            if cost[j] < np.inf:
-                lowest = min(lowest, cands[i - 1, j])
-        centre = max(np.rint(near[i]), lowest + 2.0)
+        centre = max(np.rint(near[i]), cands[i - 1, 0] + 2.0)
         for k in range(3):
             slot = centre + k - 1
             cands[i, k] = slot
             best, arg = np.inf, 0
             for j in range(3):
-                if slot > cands[i - 1, j] and cost[j] < np.inf:
+                if slot > cands[i - 1, j]:
                     total = cost[j] + skip * (slot - cands[i - 1, j] - 1.0)
                     if total < best:
                         best, arg = total, j
