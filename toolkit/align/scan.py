@@ -872,6 +872,11 @@ class StreamMatcher:
             self.keyed = True
             return odo.copy()
         pose = self._match(scan, odo, self.pose, self.covariance, self.stats)
+        return self._take(scan, odo, pose)
+
+    def _take(self, scan: np.ndarray, odo: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """The matched scan (its odometry `odo`, robot pose `pose`) kept as the keyframe when
+        the odometry has moved far enough from the last; returns `pose`."""
         cfg = self.config
         self.keyed = se2_jit.is_keyframe(
             odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle

@@ -45,7 +45,12 @@ without odometry only:
   sampled normals gives the fit its false information;
 - after a turn on the spot the forward part resumes at least the speed before it
   (`MotionMatcher._resume`): the turn takes it to about zero, and a bare stretch after it held
-  it there for some 300 scans (the building at 2,000 scans lost 3.2 m after one corner).
+  it there for some 300 scans (the building at 2,000 scans lost 3.2 m after one corner);
+- a fit that moved the robot sideways is fitted again without the slide
+  (`MotionMatcher._unslid`): where the robot turns on the spot, the velocity's turn lags its
+  own, and in a narrow view (the LMS-200's 100-degree modes) the fit from a seed without the
+  turn took a turn about a point ahead for it (the simulated corridor slid 1.1 m sideways
+  through one corner; the velocity learnt the slide).
 
 Measured on the simulator's corridor and building without odometry (docs/maps.md)."""
 
@@ -121,6 +126,7 @@ def start_velocity(
         probe_every=1,
         probe_filters=False,
         resume=False,
+        unslide=False,
     )
     poses = np.empty((longest, 3))
     seen = np.zeros(longest)  # scan i's forward response (measured from the pass's third scan)

@@ -186,6 +186,11 @@ def _clock(t: np.ndarray) -> tuple[float, np.ndarray] | None:
     return period, slots
 
 
+SLIDE_MOST = 0.02  # m: a vehicle's scan whose fit moved it sideways further than this ...
+SLIDE_KEEP = 0.5  # ... is fitted again from the prediction's forward motion and the fitted
+# turn, and that fit kept where it slides less than this share of the first (`_unslid`)
+
+
 RESUME_TURN = 0.1  # rad/s: a velocity turning faster than this is a turn; once it turns
 # slower again, its forward part resumes at least the median of ...
 RESUME_SCANS = 20  # ... the forward parts of the last this many scans before the turn
@@ -205,8 +210,9 @@ class MotionMatcher(sc.StreamMatcher):
     pass). `heading`: each scan's heading is fitted to this local map of the keyframes
     (`MatchConfig.heading_map`), the keyframe kept with the fitted pose, before the velocity
     takes the motion. `resume`: once a turn ends, the forward part is at least the speed
-    before it (`_resume`; a vehicle's, not a swaying hand-held scanner's). `interval`: the
-    seconds `step` is per (0: the first scan interval's; `_per_interval`). The times given to
+    before it (`_resume`; a vehicle's, not a swaying hand-held scanner's). `unslide`: a fit
+    that moved the robot sideways is fitted again without the slide (`_unslid`; a vehicle's
+    too). `interval`: the seconds `step` is per (0: the first scan interval's; `_per_interval`). The times given to
     `push_predicted` are taken as they are; a log's are put on the scanner's slots first
     (`on_slots`, as `toolkit.slam.localmap.sequential` does)."""
 
@@ -222,6 +228,7 @@ class MotionMatcher(sc.StreamMatcher):
         heading: HeadingMap | None = None,
         resume: bool = True,
         interval: float = 0.0,
+        unslide: bool = True,
     ) -> None:
         super().__init__(laser, config)
         self._last = np.zeros(3)
@@ -244,6 +251,40 @@ class MotionMatcher(sc.StreamMatcher):
         self.resume = resume and self.config.probe_axis == "heading"  # a vehicle's turns
         self._straight: deque[float] = deque(maxlen=RESUME_SCANS)  # forward parts before
         self._turning = False
+        self.vehicle = unslide and self.config.probe_axis == "heading"  # fits checked for
+        # a slide sideways (`_unslid`)
+        self.unslid = 0  # fits taken again without a slide (`_unslid`)
+
+    def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+        """`StreamMatcher.push`, a vehicle's fit checked for a slide sideways (`_unslid`)
+        before the scan is kept."""
+        if not self._started or not self.vehicle:
+            return super().push(ranges, odometry)
+        scan = self._scan(ranges)
+        odo = np.asarray(odometry, dtype=np.float64).reshape(3)
+        pose = self._match(scan, odo, self.pose, self.covariance, self.stats)
+        return self._take(scan, odo, self._unslid(scan, odo, pose))
+
+    def _unslid(self, scan: np.ndarray, odo: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """A vehicle does not move sideways, but a fit seeded without the turn a scan began
+        (the velocity's turn lags it) can: in a narrow view the walls ahead let a turn about a
+        point metres ahead stand for the turn on the spot (the simulated corridor at 100
+        degrees without odometry slid 1.1 m sideways through one corner). A fit that slid
+        more than `SLIDE_MOST` is fitted again from the prediction's forward motion, no slide
+        and the fitted turn, and that fit kept where it slides less than `SLIDE_KEEP` of it."""
+        moved = se2.between(self._last[None], pose[None])[0]
+        if abs(moved[1]) <= SLIDE_MOST:
+            return pose
+        forward = float(se2.between(self._last[None], odo[None])[0, 0])
+        seed = se2.compose(self._last[None], np.array([[forward, 0.0, moved[2]]]))[0]
+        out_pose, out_cov, out_stats = np.empty(3), np.empty((3, 3)), np.empty(4)
+        again = self._match(scan, seed, out_pose, out_cov, out_stats)
+        slide = float(se2.between(self._last[None], again[None])[0, 1])
+        if abs(slide) >= SLIDE_KEEP * abs(moved[1]):
+            return pose
+        self.pose[:], self.covariance[:], self.stats[:] = out_pose, out_cov, out_stats
+        self.unslid += 1
+        return again
 
     def set_velocity(self, step: np.ndarray, interval: float = 0.0) -> None:
         """Go on from the next scan with this motion per scan interval (robot frame), of

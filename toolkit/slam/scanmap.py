@@ -710,7 +710,8 @@ class MapMatcher:
         self._scale_searched = 0  # searches seen by the scale's learner
         self._anchor: tuple[np.ndarray, float] | None = None  # the first unverified scan's
         # pose and path: where a slip that its fit could not see happened
-        self._motion = MotionMatcher(laser, gain=1.0, probe=0.0, resume=False)  # as measured
+        # the motion as measured: no filter, no probe, none of a vehicle's checks
+        self._motion = MotionMatcher(laser, gain=1.0, probe=0.0, resume=False, unslide=False)
         self._mount = se2.mount_pose(laser)
         self._cos = np.cos(laser.angles + self._mount[2])  # the beams' directions, once
         self._sin = np.sin(laser.angles + self._mount[2])
