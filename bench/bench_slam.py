@@ -111,6 +111,18 @@ def map_metrics(ds: Dataset) -> dict[str, Any]:
         return map_run(ds, Path(tmp) / "run", outputs=("metrics.json",)).metrics
 
 
+def map_summary(table: pd.DataFrame, by: list[str], numbers: list[str]) -> pd.DataFrame:
+    """Per group of `by`: the medians of `numbers`, the worst `toolkit_map` ATE and how many
+    of the group's maps are within 0.5 m (issue #20's target for logs without odometry)."""
+    groups = table.groupby(by)
+    summary = groups[numbers].median().round(3)
+    summary["max"] = groups["toolkit_map"].max().round(3)
+    summary["within_0.5"] = groups["toolkit_map"].apply(
+        lambda ate: f"{int((ate <= 0.5).sum())}/{len(ate)}"
+    )
+    return summary
+
+
 def print_row(row: dict[str, Any]) -> None:
     """One result as `key=value` pairs on a line (floats to 3 decimals), as a bench goes."""
     text = (f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())

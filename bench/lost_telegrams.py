@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 import importers
-from bench.bench_slam import ate, kiss_best, map_metrics, print_row
+from bench.bench_slam import ate, kiss_best, map_metrics, map_summary, print_row
 from toolkit.app.simulation import write_simulation
 from toolkit.dataset import Dataset, load
 from toolkit.poses import truth_poses
@@ -141,11 +141,7 @@ def main() -> None:
     table.to_csv(args.out, index=False)
     numbers = [c for c in ("lost", "longest", "toolkit_map", "kiss") if c in table]
     by = ["world", "format", "scans", "bit_errors_per_million", "clock_jitter"]
-    summary = table.groupby(by)[numbers].median().round(3)
-    summary["within_0.5"] = table.groupby(by)["toolkit_map"].apply(
-        lambda ate: f"{int((ate <= 0.5).sum())}/{len(ate)}"
-    )
-    print(summary.to_string())
+    print(map_summary(table, by, numbers).to_string())
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ from typing import Any
 
 import pandas as pd
 
-from bench.bench_slam import ate, kiss_best, map_metrics, print_row
+from bench.bench_slam import ate, kiss_best, map_metrics, map_summary, print_row
 from bench.lost_telegrams import captured
 from toolkit.poses import truth_poses
 from toolkit.sim import simulate
@@ -89,12 +89,7 @@ def main() -> None:
     table.to_csv(args.out, index=False)
     numbers = [c for c in ("toolkit_map", "before_loops", "kiss") if c in table]
     by = ["world", "fov_deg", "beams"]
-    summary = table.groupby(by)[numbers].median().round(3)
-    summary["max"] = table.groupby(by)["toolkit_map"].max().round(3)
-    summary["within_0.5"] = table.groupby(by)["toolkit_map"].apply(
-        lambda ate: f"{int((ate <= 0.5).sum())}/{len(ate)}"
-    )
-    print(summary.to_string())
+    print(map_summary(table, by, numbers).to_string())
 
 
 if __name__ == "__main__":
