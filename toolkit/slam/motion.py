@@ -212,9 +212,10 @@ class MotionMatcher(sc.StreamMatcher):
     takes the motion. `resume`: once a turn ends, the forward part is at least the speed
     before it (`_resume`; a vehicle's, not a swaying hand-held scanner's). `unslide`: a fit
     that moved the robot sideways is fitted again without the slide (`_unslid`; a vehicle's
-    too). `interval`: the seconds `step` is per (0: the first scan interval's; `_per_interval`). The times given to
-    `push_predicted` are taken as they are; a log's are put on the scanner's slots first
-    (`on_slots`, as `toolkit.slam.localmap.sequential` does)."""
+    too). `interval`: the seconds `step` is per (0: the first scan interval's;
+    `_per_interval`). The times given to `push_predicted` are taken as they are; a log's are
+    put on the scanner's slots first (`on_slots`, as `toolkit.slam.localmap.sequential`
+    does)."""
 
     def __init__(
         self,
@@ -251,14 +252,14 @@ class MotionMatcher(sc.StreamMatcher):
         self.resume = resume and self.config.probe_axis == "heading"  # a vehicle's turns
         self._straight: deque[float] = deque(maxlen=RESUME_SCANS)  # forward parts before
         self._turning = False
-        self.vehicle = unslide and self.config.probe_axis == "heading"  # fits checked for
-        # a slide sideways (`_unslid`)
-        self.unslid = 0  # fits taken again without a slide (`_unslid`)
+        self.unslide = unslide and self.config.probe_axis == "heading"  # a vehicle's fits
+        # checked for a slide sideways (`_unslid`)
+        self.unslid = 0  # fits taken again without their slide
 
     def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
         """`StreamMatcher.push`, a vehicle's fit checked for a slide sideways (`_unslid`)
         before the scan is kept."""
-        if not self._started or not self.vehicle:
+        if not self._started or not self.unslide:
             return super().push(ranges, odometry)
         scan = self._scan(ranges)
         odo = np.asarray(odometry, dtype=np.float64).reshape(3)
