@@ -860,6 +860,11 @@ class StreamMatcher:
         odo = np.asarray(odometry, dtype=np.float64).reshape(3)
         return self._match(self._scan(ranges), odo, np.empty(3), np.empty((3, 3)), np.empty(4))
 
+    def _checked(self, scan: np.ndarray, odo: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """The robot pose `push` keeps for `scan`, fitted to `pose` from the odometry `odo`:
+        `pose` (a subclass may fit the scan again, `toolkit.slam.motion.MotionMatcher`)."""
+        return pose
+
     def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
         """Take the next scan and the odometry's robot pose at it; return the robot pose."""
         scan = self._scan(ranges)
@@ -872,11 +877,7 @@ class StreamMatcher:
             self.keyed = True
             return odo.copy()
         pose = self._match(scan, odo, self.pose, self.covariance, self.stats)
-        return self._take(scan, odo, pose)
-
-    def _take(self, scan: np.ndarray, odo: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        """The matched scan (its odometry `odo`, robot pose `pose`) kept as the keyframe when
-        the odometry has moved far enough from the last; returns `pose`."""
+        pose = self._checked(scan, odo, pose)
         cfg = self.config
         self.keyed = se2_jit.is_keyframe(
             odo, self._key_odometry, cfg.keyframe_distance, cfg.keyframe_angle

@@ -252,22 +252,15 @@ class MotionMatcher(sc.StreamMatcher):
         # s: the interval the velocity is per (0: the next scan's)
         self._unit = interval if step is not None else 0.0
         self._t: float | None = None
-        self.resume = resume and self.config.probe_axis == "heading"  # a vehicle's turns
+        vehicle = self.config.probe_axis == "heading"  # not a swaying hand-held scanner
+        self.resume = resume and vehicle  # a vehicle's turns
         self._straight: deque[float] = deque(maxlen=RESUME_SCANS)  # forward parts before
         self._turning = False
-        self.unslide = unslide and self.config.probe_axis == "heading"  # a vehicle's fits
-        # checked for a slide sideways (`_unslid`)
-        self.unslid = 0  # fits taken again without their slide
+        self.unslide = unslide and vehicle  # fits checked for a slide sideways (`_unslid`)
 
-    def push(self, ranges: np.ndarray, odometry: np.ndarray) -> np.ndarray:
-        """`StreamMatcher.push`, a vehicle's fit checked for a slide sideways (`_unslid`)
-        before the scan is kept."""
-        if not self._started or not self.unslide:
-            return super().push(ranges, odometry)
-        scan = self._scan(ranges)
-        odo = np.asarray(odometry, dtype=np.float64).reshape(3)
-        pose = self._match(scan, odo, self.pose, self.covariance, self.stats)
-        return self._take(scan, odo, self._unslid(scan, odo, pose))
+    def _checked(self, scan: np.ndarray, odo: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """A vehicle's fit checked for a slide sideways (`_unslid`) before the scan is kept."""
+        return self._unslid(scan, odo, pose) if self.unslide else pose
 
     def _unslid(self, scan: np.ndarray, odo: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """A vehicle does not move sideways, but a fit seeded without the turn a scan began
@@ -287,7 +280,6 @@ class MotionMatcher(sc.StreamMatcher):
         if abs(slide) >= SLIDE_KEEP * abs(moved[1]):
             return pose
         self.pose[:], self.covariance[:], self.stats[:] = out_pose, out_cov, out_stats
-        self.unslid += 1
         return again
 
     def set_velocity(self, step: np.ndarray, interval: float = 0.0) -> None:
